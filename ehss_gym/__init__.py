@@ -1,0 +1,33 @@
+"""ehss-gym: the EHSS servo loop of Mintsa et al. with Sontag/CLF controllers, as a fast,
+verified simulator and a Gymnasium environment.
+
+Quick start::
+
+    from ehss_gym import Scenario, simulate
+    traj = simulate(Scenario(task="velocity", n=2, fr=100.0, current_limit=10.0, t_end=20.0))
+    print(traj.metrics()["rmse"])
+"""
+
+from .params import PlantParams, make_plant_params
+from .signals import Reference, chirp, multisine, paper_reference, sine, step
+from .sim import PAPER_FRICTION, TASKS, Scenario, Trajectory, simulate, simulate_batch
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "PlantParams",
+    "make_plant_params",
+    "Reference",
+    "sine",
+    "step",
+    "chirp",
+    "multisine",
+    "paper_reference",
+    "Scenario",
+    "Trajectory",
+    "simulate",
+    "simulate_batch",
+    "PAPER_FRICTION",
+    "TASKS",
+    "__version__",
+]

@@ -1,0 +1,259 @@
+r"""Lyapunov redesign by Sontag's formula on V = (s/sigma)^n / n, and one control period.
+
+Derivation (NOTES items 9, 10, 14). With the combined error s and
+s' = psi + G u, the CLF V = (s/sigma)^n / n has V' = a + b u with::
+
+    a = (s/sigma)^(n-1) psi / sigma,    b = (s/sigma)^(n-1) G / sigma.
+
+Sontag's universal formula u = -(a + sqrt(a^2 + b^4)) / b (u = 0 if b = 0)
+gives V' = -sqrt(a^2 + b^4) < 0. Since a and b share (s/sigma)^(n-1)::
+
+    u = -psi/G - sign(s) sign(G) hypot(psi/G, |s/sigma|^(n-1) |G| / sigma)
+
+which never forms s^(4n-4); the power is taken in log space so nothing
+overflows for n = 6 unless |s/sigma| exceeds ~1e60. sigma = 1 is the paper's law.
+
+Smoothing (not in the paper; the paper's "future work" on chattering): sign(s)
+is replaced by s / sqrt(s^2 + w^2), the same shape as the paper's Eq. (2)
+sigmoid with delta = w^2. w = 0 is the plain law. The sign of V' is unchanged,
+so V still decreases wherever s != 0, only more gently inside |s| < w; at
+s = 0 the smoothed law is the equivalent control -psi/G.
+
+Combined error, relative degree m (3 velocity, 4 position)::
+
+    s = e^(m-1) + lambda_{m-2} e^(m-2) + ... + lambda_0 e
+    psi = F - y_d^(m) + lambda_{m-2} e^(m-1) + ... + lambda_0 e'
+
+with lambda the Butterworth coefficients of order m-1 at f_r (Table I).
+"""
+
+from __future__ import annotations
+
+import math
+
+from .layout import (
+    C_LAM0,
+    C_N,
+    C_NOISE_THETA,
+    C_OMEGA_MAX,
+    C_ORDER,
+    C_P_BOUND,
+    C_SEED,
+    C_SIGMA,
+    C_SMOOTH,
+    C_ULIM,
+    DIV_CURRENT,
+    DIV_NONE,
+    DIV_NONFINITE,
+    DIV_OMEGA,
+    DIV_PRESSURE,
+    I_E,
+    I_FRIC_ON,
+    I_G,
+    I_PSI,
+    I_R,
+    I_S,
+    I_SAT,
+    I_T,
+    I_TF,
+    I_UAPP,
+    I_UBASE,
+    I_UCMD,
+    I_URES,
+    I_V,
+    I_YD,
+    I_YE,
+    N_PLANT,
+    X_OMEGA,
+    X_PL,
+    X_THETA,
+    Z_EST,
+    Z_REF,
+)
+from .params import P_DF, P_PS
+from .physics import friction_torque, gaussian, integrate_plant, jit, lie_derivatives
+from .signals import reference_value
+
+
+@jit
+def sontag(psi, G, s, n, sigma, smoothing):
+    """Sontag current [mA] for s' = psi + G u and V = (s/sigma)^n / n.
+
+    Args:
+        psi: drift of s [unit of s / s].
+        G: input gain of s [unit of s / s per mA].
+        s: combined error.
+        n: even power factor >= 2.
+        sigma: CLF scale (> 0), in the unit of s.
+        smoothing: width w >= 0 of the smooth sign; 0 = plain sign(s).
+    """
+    if G == 0.0 or not math.isfinite(G):
+        return 0.0
+    if smoothing > 0.0:
+        sg = s / math.sqrt(s * s + smoothing * smoothing)
+    elif s > 0.0:
+        sg = 1.0
+    elif s < 0.0:
+        sg = -1.0
+    else:
+        return 0.0  # b = 0: Sontag's formula gives u = 0
+    ratio = psi / G
+    aG = abs(G)
+    if s == 0.0:
+        beta = 0.0
+    else:
+        beta = math.exp((n - 1.0) * math.log(abs(s) / sigma) + math.log(aG / sigma))
+    gsign = 1.0 if G > 0.0 else -1.0
+    return -ratio - sg * gsign * math.hypot(ratio, beta)
+
+
+@jit
+def clf_value(s, n, sigma):
+    """V = (s/sigma)^n / n."""
+    return (s / sigma) ** n / n
+
+
+@jit
+def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res, info, work):
+    """The controller's work at t_k = k h; returns the applied current [mA].
+
+    Measure (with noise), form the estimated output derivatives and the
+    reference-model derivatives, compute the Sontag current, add the residual,
+    apply the current limit, and advance the discrete filters (state z[4:]).
+    The plant part z[:4] is left for the caller to integrate.
+
+    Args:
+        z: loop state (N_LOOP,), filter part updated in place.
+        k: control step index.
+        h: control period [s].
+        plant_p: true plant parameters (PlantParams.as_array()).
+        model_p: the controller's model parameters (mismatch when != plant_p).
+        ctrl: controller row (layout C_*).
+        ref: reference spec row (layout R_*).
+        events: friction events (E, 3).
+        filt: (3, 4, 4) array: [0] ref-model Phi, [1] estimator Phi,
+            [2, 0] ref coefficients, [2, 1] estimator coefficients,
+            [2, 2] ref Gamma, [2, 3] estimator Gamma. Zero-padded.
+        u_res: residual current [mA] added to the Sontag current.
+        info: output (N_INFO,), what the law saw and did at t_k.
+        work: scratch (8, 4).
+    """
+    t = k * h
+    m = int(ctrl[C_ORDER])
+    n = ctrl[C_N]
+    sigma = ctrl[C_SIGMA]
+    seed = int(ctrl[C_SEED])
+    xm = work[5]
+    hd = work[6]
+    for i in range(N_PLANT):
+        sd = ctrl[C_NOISE_THETA + i]
+        xm[i] = z[i] + (sd * gaussian(seed, k, i) if sd > 0.0 else 0.0)
+    y_meas = xm[X_THETA] if m == 4 else xm[X_OMEGA]
+    r = reference_value(t, ref)
+
+    # Reference model: y_d^(0..m-1) from its state, y_d^(m) from its equation.
+    cr = filt[2, 0]
+    ydm = cr[0] * r
+    for i in range(m):
+        info[I_YD + i] = z[Z_REF + i]
+        ydm -= cr[i] * z[Z_REF + i]
+    info[I_YD + m] = ydm
+    # Estimator of order m-1: y_e^(1..m-2) from its state, y_e^(m-1) from its equation.
+    ce = filt[2, 1]
+    me = m - 1
+    yem = ce[0] * y_meas
+    for i in range(me):
+        yem -= ce[i] * z[Z_EST + i]
+    info[I_YE] = y_meas
+    for i in range(1, me):
+        info[I_YE + i] = z[Z_EST + i]
+    info[I_YE + me] = yem
+    # Errors and the combined error; e itself uses the measured output.
+    for i in range(m):
+        info[I_E + i] = info[I_YE + i] - info[I_YD + i]
+    s = info[I_E + m - 1]
+    psi_lin = 0.0
+    for i in range(m - 1):
+        lam = ctrl[C_LAM0 + i]
+        s += lam * info[I_E + i]
+        psi_lin += lam * info[I_E + i + 1]
+    F, G = lie_derivatives(xm, model_p, m, hd)
+    psi = F - ydm + psi_lin
+    u_base = sontag(psi, G, s, n, sigma, ctrl[C_SMOOTH])
+    u_cmd = u_base + u_res
+    ulim = ctrl[C_ULIM]
+    sat = 0.0
+    u_app = u_cmd
+    if u_cmd > ulim:
+        u_app = ulim
+        sat = 1.0
+    elif u_cmd < -ulim:
+        u_app = -ulim
+        sat = 1.0
+    tf = friction_torque(t, z[X_OMEGA], events, plant_p[P_DF])
+    info[I_T] = t
+    info[I_R] = r
+    info[I_S] = s
+    info[I_V] = clf_value(s, n, sigma)
+    info[I_PSI] = psi
+    info[I_G] = G
+    info[I_UBASE] = u_base
+    info[I_URES] = u_res
+    info[I_UCMD] = u_cmd
+    info[I_UAPP] = u_app
+    info[I_SAT] = sat
+    info[I_TF] = tf
+    on = 0.0
+    for i in range(events.shape[0]):
+        if events[i, 1] <= t < events[i, 2] and events[i, 0] != 0.0:
+            on = 1.0
+    info[I_FRIC_ON] = on
+
+    # Advance the discrete filters with the inputs held over the period.
+    pr = filt[0]
+    gr = filt[2, 2]
+    pe = filt[1]
+    ge = filt[2, 3]
+    for i in range(m):
+        acc = gr[i] * r
+        for j in range(m):
+            acc += pr[i, j] * z[Z_REF + j]
+        hd[i] = acc
+    for i in range(m):
+        z[Z_REF + i] = hd[i]
+    for i in range(me):
+        acc = ge[i] * y_meas
+        for j in range(me):
+            acc += pe[i, j] * z[Z_EST + j]
+        hd[i] = acc
+    for i in range(me):
+        z[Z_EST + i] = hd[i]
+    return u_app
+
+
+@jit
+def check_state(z, ctrl, plant_p):
+    """DIV_* code of a loop state: non-finite, or outside the velocity/pressure bounds."""
+    for i in range(z.shape[0]):
+        if not math.isfinite(z[i]):
+            return DIV_NONFINITE
+    if abs(z[X_OMEGA]) > ctrl[C_OMEGA_MAX]:
+        return DIV_OMEGA
+    if abs(z[X_PL]) > ctrl[C_P_BOUND] * plant_p[P_PS]:
+        return DIV_PRESSURE
+    return DIV_NONE
+
+
+@jit
+def control_step(z, k, h, substeps, plant_p, model_p, ctrl, ref, events, filt, u_res, info, work):
+    """One control period of the digital loop: controller, ZOH plant integration, checks.
+
+    Returns a DIV_* code (DIV_NONE while the run is healthy). ``substeps`` is
+    the number of RK4 plant steps per period; other arguments as in
+    :func:`controller_update`.
+    """
+    u_app = controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res, info, work)
+    if not math.isfinite(u_app) or not math.isfinite(info[I_V]) or not math.isfinite(info[I_S]):
+        return DIV_CURRENT if not math.isfinite(u_app) else DIV_NONFINITE
+    integrate_plant(z[:N_PLANT], u_app, k * h, h, substeps, plant_p, events, work)
+    return check_state(z, ctrl, plant_p)

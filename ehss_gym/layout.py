@@ -1,0 +1,120 @@
+"""Every index into a flat float64 array, named once and used everywhere.
+
+The compiled kernels work on flat arrays; these module-level integers are
+compile-time constants to numba, so naming them costs nothing at run time.
+"""
+
+# --- Loop state: plant, reference model, output-derivative estimator -------
+X_THETA = 0  # x1, angular position [rad]
+X_OMEGA = 1  # x2, angular velocity [rad/s]
+X_PL = 2  # x3, load pressure difference [Pa]
+X_AV = 3  # x4, servo-valve opening area [m^2]
+N_PLANT = 4
+Z_REF = 4  # reference-model state y_d, y_d', ... (up to 4 slots)
+Z_EST = 8  # estimator state y_e, y_e', ... (up to 3 slots)
+N_LOOP = 11
+MAX_ORDER = 4  # largest relative degree (position task)
+
+# --- Controller row (one per scenario) --------------------------------------
+C_ORDER = 0  # relative degree m: 3 velocity, 4 position
+C_N = 1  # CLF power factor n (even integer >= 2)
+C_SIGMA = 2  # CLF scale sigma [unit of s]
+C_SMOOTH = 3  # sign(s) smoothing width w [unit of s]; 0 = plain law
+C_LAM0 = 4  # combined-error coefficients lambda_0..lambda_2
+C_LAM1 = 5
+C_LAM2 = 6
+C_ULIM = 7  # current limit [mA]; inf = unlimited
+C_SEED = 8  # noise seed (integer stored as float)
+C_NOISE_THETA = 9  # measurement noise std per plant state, in its unit
+C_NOISE_OMEGA = 10
+C_NOISE_PL = 11
+C_NOISE_AV = 12
+C_OMEGA_MAX = 13  # divergence bound on |x2| [rad/s]
+C_P_BOUND = 14  # divergence bound on |x3| as a multiple of P_s
+N_CTRL = 15
+
+# --- Reference signal spec row ------------------------------------------------
+R_KIND = 0  # one of REF_* below
+R_OFFSET = 1  # constant offset [output unit]
+R_T0 = 2  # step time / chirp start [s]
+R_T1 = 3  # chirp end [s]
+R_A1 = 4  # first component: amplitude, angular frequency [rad/s], phase [rad]
+R_W1 = 5
+R_P1 = 6
+R_W_END = 7  # chirp end frequency [rad/s]
+R_MS0 = 8  # multi-sine components start here, (A, w, phi) each
+MAX_SINES = 4
+N_REF = R_MS0 + 3 * MAX_SINES
+REF_SINE = 0
+REF_STEP = 1
+REF_CHIRP = 2
+REF_MULTISINE = 3
+
+# --- Friction events: rows of (amplitude [N*m], start [s], end [s]) --------
+F_AMP = 0
+F_START = 1
+F_END = 2
+
+# --- Per-control-step info (what the law saw and did) -----------------------
+I_T = 0  # sample time [s]
+I_R = 1  # reference input r
+I_YD = 2  # y_d, y_d', ..., y_d^(m)  (5 slots)
+I_YE = 7  # y_meas, y_e', ..., y_e^(m-1) (4 slots)
+I_E = 11  # e, e', ..., e^(m-1) (4 slots)
+I_S = 15  # combined error s
+I_V = 16  # V = (s/sigma)^n / n
+I_PSI = 17  # psi, the drift of s
+I_G = 18  # input gain of s [unit of s per s per mA]
+I_UBASE = 19  # Sontag current [mA]
+I_URES = 20  # residual current [mA]
+I_UCMD = 21  # commanded current u_base + u_res [mA]
+I_UAPP = 22  # applied (limited) current [mA]
+I_SAT = 23  # 1 if the limit was active
+I_TF = 24  # friction torque at the sample [N*m]
+I_FRIC_ON = 25  # 1 if a friction event is active
+N_INFO = 26
+
+# --- Online metrics accumulator -------------------------------------------
+M_STEPS = 0  # control steps taken
+M_SUM_E2 = 1  # sum e^2
+M_SUM_ABS_E = 2  # sum |e| * h  (IAE)
+M_SUM_T_ABS_E = 3  # sum t*|e| * h  (ITAE)
+M_MAX_E = 4
+M_MAX_E_FRIC = 5  # max |e| while a friction event is active
+M_STEPS_FRIC = 6
+M_TV_U = 7  # sum |u_k - u_{k-1}| of the applied current [mA]
+M_PEAK_UCMD = 8
+M_PEAK_UAPP = 9
+M_SUM_U2 = 10
+M_N_SAT = 11
+M_N_VDEC = 12  # steps with V_k < V_{k-1}
+M_LAST_U = 13
+M_LAST_V = 14
+M_DIVERGED = 15  # 0, or a DIV_* code
+M_T_DIVERGED = 16  # time of divergence [s], nan-free: -1 if none
+M_SUM_E2_NOFRIC = 17
+M_STEPS_NOFRIC = 18
+N_METRICS = 19
+
+DIV_NONE = 0
+DIV_NONFINITE = 1
+DIV_OMEGA = 2
+DIV_PRESSURE = 3
+DIV_CURRENT = 4
+DIV_NAMES = ("none", "non-finite value", "velocity bound", "pressure bound", "non-finite current")
+
+# --- Trajectory log columns --------------------------------------------------
+L_T = 0
+L_X = 1  # 4 plant states
+L_R = 5
+L_YD = 6  # y_d..y_d^(m) (5 slots)
+L_YE = 11  # measured y and estimated derivatives (4 slots)
+L_E = 15  # e .. e^(m-1) (4 slots)
+L_S = 19
+L_V = 20
+L_UBASE = 21
+L_URES = 22
+L_UCMD = 23
+L_UAPP = 24
+L_TF = 25
+N_LOG = 26

@@ -1,0 +1,170 @@
+"""Reference signals r(t): the paper's sine, plus step, chirp and multi-sine.
+
+Each reference is a flat float64 spec row (layout ``R_*``) evaluated by one
+compiled function, so a batch of scenarios can mix families.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .layout import (
+    MAX_SINES,
+    N_REF,
+    R_A1,
+    R_KIND,
+    R_MS0,
+    R_OFFSET,
+    R_P1,
+    R_T0,
+    R_T1,
+    R_W1,
+    R_W_END,
+    REF_CHIRP,
+    REF_MULTISINE,
+    REF_SINE,
+    REF_STEP,
+)
+from .params import check_finite
+from .physics import jit
+
+FAMILIES = ("sine", "step", "chirp", "multisine")
+
+
+@jit
+def reference_value(t, spec):
+    """r(t) for a spec row [output unit: rad/s (velocity) or rad (position)]."""
+    kind = int(spec[R_KIND])
+    r = spec[R_OFFSET]
+    if kind == REF_SINE:
+        r += spec[R_A1] * math.sin(spec[R_W1] * t + spec[R_P1])
+    elif kind == REF_STEP:
+        if t >= spec[R_T0]:
+            r += spec[R_A1]
+    elif kind == REF_CHIRP:
+        # linear frequency sweep w1 -> w_end over [t0, t1], then constant w_end
+        t0 = spec[R_T0]
+        t1 = spec[R_T1]
+        w0 = spec[R_W1]
+        w1 = spec[R_W_END]
+        if t < t0:
+            ph = w0 * (t - t0)
+        elif t < t1:
+            tau = t - t0
+            ph = w0 * tau + 0.5 * (w1 - w0) / (t1 - t0) * tau * tau
+        else:
+            ph = 0.5 * (w0 + w1) * (t1 - t0) + w1 * (t - t1)
+        r += spec[R_A1] * math.sin(ph + spec[R_P1])
+    else:
+        for i in range(MAX_SINES):
+            j = R_MS0 + 3 * i
+            r += spec[j] * math.sin(spec[j + 1] * t + spec[j + 2])
+    return r
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A reference signal r(t). Build with :func:`sine`, :func:`step`, :func:`chirp`, :func:`multisine`.
+
+    Attributes:
+        family: "sine", "step", "chirp" or "multisine".
+        spec: the flat parameter row read by the compiled kernels.
+        description: human-readable parameters.
+    """
+
+    family: str
+    spec: np.ndarray = field(repr=False)
+    description: str = ""
+
+    def __call__(self, t):
+        """Evaluate r at time(s) t [s]."""
+        t = np.asarray(t, dtype=np.float64)
+        out = np.array([reference_value(float(ti), self.spec) for ti in t.ravel()])
+        return out.reshape(t.shape)
+
+    def to_dict(self) -> dict:
+        return {"family": self.family, "description": self.description, "spec": self.spec.tolist()}
+
+
+def _row(kind: int) -> np.ndarray:
+    row = np.zeros(N_REF)
+    row[R_KIND] = kind
+    return row
+
+
+def sine(amplitude: float = 1.0, omega: float = 2.0, phase: float = 0.0, offset: float = 0.0) -> Reference:
+    """r = offset + amplitude sin(omega t + phase). The paper: amplitude 1, omega 2 rad/s.
+
+    Args:
+        amplitude: output unit (rad/s velocity task, rad position task).
+        omega: angular frequency [rad/s], >= 0.
+        phase: [rad].
+        offset: output unit.
+    """
+    row = _row(REF_SINE)
+    row[R_A1] = check_finite("amplitude", amplitude)
+    row[R_W1] = check_finite("omega", omega, low=0.0)
+    row[R_P1] = check_finite("phase", phase)
+    row[R_OFFSET] = check_finite("offset", offset)
+    return Reference("sine", row, f"sine A={amplitude:g} w={omega:g} rad/s")
+
+
+def step(amplitude: float = 1.0, t_step: float = 0.1, offset: float = 0.0) -> Reference:
+    """r = offset + amplitude * [t >= t_step].
+
+    Args:
+        amplitude: output unit.
+        t_step: switching time [s], >= 0.
+        offset: output unit.
+    """
+    row = _row(REF_STEP)
+    row[R_A1] = check_finite("amplitude", amplitude)
+    row[R_T0] = check_finite("t_step", t_step, low=0.0)
+    row[R_OFFSET] = check_finite("offset", offset)
+    return Reference("step", row, f"step A={amplitude:g} at {t_step:g} s")
+
+
+def chirp(amplitude: float = 1.0, omega_start: float = 1.0, omega_end: float = 20.0, t_start: float = 0.0,
+          t_end: float = 20.0, phase: float = 0.0) -> Reference:
+    """Linear chirp from omega_start to omega_end [rad/s] over [t_start, t_end] [s].
+
+    Holds omega_end after t_end, omega_start before t_start.
+    """
+    row = _row(REF_CHIRP)
+    row[R_A1] = check_finite("amplitude", amplitude)
+    row[R_W1] = check_finite("omega_start", omega_start, low=0.0)
+    row[R_W_END] = check_finite("omega_end", omega_end, low=0.0)
+    row[R_T0] = check_finite("t_start", t_start, low=0.0)
+    row[R_T1] = check_finite("t_end", t_end, low=row[R_T0], low_open=True)
+    row[R_P1] = check_finite("phase", phase)
+    return Reference("chirp", row, f"chirp A={amplitude:g} {omega_start:g}->{omega_end:g} rad/s")
+
+
+def multisine(amplitudes, omegas, phases=None, offset: float = 0.0) -> Reference:
+    """Sum of up to 4 sines: sum_i A_i sin(w_i t + phi_i) + offset."""
+    amplitudes = list(amplitudes)
+    omegas = list(omegas)
+    phases = [0.0] * len(amplitudes) if phases is None else list(phases)
+    if not 1 <= len(amplitudes) <= MAX_SINES or len(omegas) != len(amplitudes) or len(phases) != len(amplitudes):
+        raise ValueError(f"multisine needs 1 to {MAX_SINES} components with equal-length amplitudes, omegas "
+                         f"and phases; got {len(amplitudes)}, {len(omegas)}, {len(phases)}")
+    row = _row(REF_MULTISINE)
+    row[R_OFFSET] = check_finite("offset", offset)
+    for i, (a, w, ph) in enumerate(zip(amplitudes, omegas, phases)):
+        j = R_MS0 + 3 * i
+        row[j] = check_finite(f"amplitudes[{i}]", a)
+        row[j + 1] = check_finite(f"omegas[{i}]", w, low=0.0)
+        row[j + 2] = check_finite(f"phases[{i}]", ph)
+    desc = " + ".join(f"{a:g}sin({w:g}t)" for a, w in zip(amplitudes, omegas))
+    return Reference("multisine", row, f"multisine {desc}")
+
+
+def paper_reference() -> Reference:
+    """The paper's input: amplitude 1, 2 rad/s sine (Section IV)."""
+    return sine(1.0, 2.0)
+
+
+__all__ = ["Reference", "sine", "step", "chirp", "multisine", "paper_reference", "reference_value", "FAMILIES"]
