@@ -58,30 +58,37 @@ def recovery_times(t: np.ndarray, e: np.ndarray, friction) -> tuple[float, float
 
 def summarize(traj) -> dict:
     """The metrics dict of a :class:`~ehss_gym.sim.Trajectory` (see module docstring)."""
-    a = traj.acc
-    sc = traj.scenario
+    return summarize_acc(traj.acc, traj.scenario, traj.t, traj.e)
+
+
+def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray | None = None) -> dict:
+    """Metrics from an accumulator row (layout M_*) of scenario ``sc``.
+
+    ``t`` and ``e`` (a sampled error history) are needed only for the recovery
+    times; without them those are NaN.
+    """
     steps = max(a[L.M_STEPS], 1.0)
     T = steps * sc.control_period
     out = {
         "diverged": bool(a[L.M_DIVERGED] != L.DIV_NONE),
         "divergence_reason": L.DIV_NAMES[int(a[L.M_DIVERGED])],
         "t_diverged": float(a[L.M_T_DIVERGED]) if a[L.M_DIVERGED] else None,
-        "rmse": math.sqrt(a[L.M_SUM_E2] / steps),
+        "rmse": float(math.sqrt(a[L.M_SUM_E2] / steps)),
         "rmse_nominal": math.sqrt(a[L.M_SUM_E2_NOFRIC] / max(a[L.M_STEPS_NOFRIC], 1.0)),
         "iae": float(a[L.M_SUM_ABS_E]),
         "itae": float(a[L.M_SUM_T_ABS_E]),
         "max_abs_e": float(a[L.M_MAX_E]),
         "max_abs_e_friction": float(a[L.M_MAX_E_FRIC]) if a[L.M_STEPS_FRIC] else math.nan,
         "tv_u": float(a[L.M_TV_U]),
-        "tv_u_rate": float(a[L.M_TV_U]) / T,
+        "tv_u_rate": float(a[L.M_TV_U] / T),
         "peak_u": float(a[L.M_PEAK_UCMD]),
         "peak_u_applied": float(a[L.M_PEAK_UAPP]),
         "rms_u": math.sqrt(a[L.M_SUM_U2] / steps),
-        "saturation": float(a[L.M_N_SAT]) / steps,
-        "v_decrease": float(a[L.M_N_VDEC]) / max(steps - 1.0, 1.0),
+        "saturation": float(a[L.M_N_SAT] / steps),
+        "v_decrease": float(a[L.M_N_VDEC] / max(steps - 1.0, 1.0)),
         "steps": int(steps),
     }
-    on, off = recovery_times(traj.t, traj.e, sc.friction)
+    on, off = (math.nan, math.nan) if t is None or e is None else recovery_times(t, e, sc.friction)
     out["recovery_on"] = on
     out["recovery_off"] = off
     return out
