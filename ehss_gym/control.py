@@ -36,6 +36,7 @@ from .layout import (
     C_N,
     C_NOISE_THETA,
     C_OMEGA_MAX,
+    C_BASE,
     C_ORDER,
     C_P_BOUND,
     C_SEED,
@@ -62,6 +63,7 @@ from .layout import (
     I_URES,
     I_V,
     I_YD,
+    I_XM,
     I_YE,
     N_PLANT,
     X_OMEGA,
@@ -134,7 +136,7 @@ def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res,
         filt: (3, 4, 4) array: [0] ref-model Phi, [1] estimator Phi,
             [2, 0] ref coefficients, [2, 1] estimator coefficients,
             [2, 2] ref Gamma, [2, 3] estimator Gamma. Zero-padded.
-        u_res: residual current [mA] added to the Sontag current.
+        u_res: residual current [mA] added to ctrl[C_BASE] times the Sontag current.
         info: output (N_INFO,), what the law saw and did at t_k.
         work: scratch (8, 4).
     """
@@ -180,7 +182,7 @@ def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res,
     F, G = lie_derivatives(xm, model_p, m, hd)
     psi = F - ydm + psi_lin
     u_base = sontag(psi, G, s, n, sigma, ctrl[C_SMOOTH])
-    u_cmd = u_base + u_res
+    u_cmd = ctrl[C_BASE] * u_base + u_res
     ulim = ctrl[C_ULIM]
     sat = 0.0
     u_app = u_cmd
@@ -192,6 +194,8 @@ def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res,
         sat = 1.0
     tf = friction_torque(t, z[X_OMEGA], events, plant_p[P_DF])
     info[I_T] = t
+    for i in range(N_PLANT):
+        info[I_XM + i] = xm[i]
     info[I_R] = r
     info[I_S] = s
     info[I_V] = clf_value(s, n, sigma)

@@ -31,7 +31,8 @@ C_NOISE_PL = 11
 C_NOISE_AV = 12
 C_OMEGA_MAX = 13  # divergence bound on |x2| [rad/s]
 C_P_BOUND = 14  # divergence bound on |x3| as a multiple of P_s
-N_CTRL = 15
+C_BASE = 15  # gain on the Sontag current: 1 = base law + residual, 0 = residual only (pure RL)
+N_CTRL = 16
 
 # --- Reference signal spec row ------------------------------------------------
 R_KIND = 0  # one of REF_* below
@@ -72,7 +73,8 @@ I_UAPP = 22  # applied (limited) current [mA]
 I_SAT = 23  # 1 if the limit was active
 I_TF = 24  # friction torque at the sample [N*m]
 I_FRIC_ON = 25  # 1 if a friction event is active
-N_INFO = 26
+I_XM = 26  # measured plant states x1..x4 (with noise), 4 slots
+N_INFO = 30
 
 # --- Online metrics accumulator -------------------------------------------
 M_STEPS = 0  # control steps taken

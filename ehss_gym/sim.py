@@ -175,6 +175,7 @@ def ctrl_row(sc: Scenario) -> np.ndarray:
     row[L.C_NOISE_THETA:L.C_NOISE_THETA + 4] = sc.noise_std
     row[L.C_OMEGA_MAX] = sc.omega_max
     row[L.C_P_BOUND] = sc.pressure_bound
+    row[L.C_BASE] = 1.0
     return row
 
 
