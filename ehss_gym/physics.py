@@ -73,16 +73,22 @@ def flow(x3, x4, p):
 
 
 @jit
+def active_amplitude(t, events):
+    """Sum of the amplitudes [N*m] of the friction events active at time t [s]."""
+    amp = 0.0
+    for i in range(events.shape[0]):
+        if events[i, F_START] <= t < events[i, F_END]:
+            amp += events[i, F_AMP]
+    return amp
+
+
+@jit
 def friction_torque(t, omega, events, delta_friction):
     """Coulomb friction torque [N*m] of all events active at time t.
 
     An event (A, t_start, t_end) is active for t_start <= t < t_end.
     """
-    amp = 0.0
-    for i in range(events.shape[0]):
-        if events[i, F_START] <= t < events[i, F_END]:
-            amp += events[i, F_AMP]
-    return amp * (omega / math.sqrt(omega * omega + delta_friction))
+    return active_amplitude(t, events) * (omega / math.sqrt(omega * omega + delta_friction))
 
 
 @jit
@@ -108,7 +114,12 @@ def plant_rhs(x, u, tf, p, dx):
 def integrate_plant(x, u, t0, h, substeps, p, events, work):
     """Advance the plant state ``x`` in place over [t0, t0+h] with u held (ZOH).
 
-    Classic RK4 with ``substeps`` equal steps. ``work`` is scratch of shape (5, 4).
+    Classic RK4 with ``substeps`` equal steps. The friction events are switched
+    on the substep grid: the amplitude is taken at each substep's midpoint and
+    held over it, so an edge on the grid is exact and one between grid points
+    is resolved to within a substep. (Evaluating it per RK4 stage would let
+    the step just before an edge see the new value at its end point.)
+    ``work`` is scratch of shape (5, 4).
     """
     dt = h / substeps
     k1 = work[0]
@@ -118,18 +129,17 @@ def integrate_plant(x, u, t0, h, substeps, p, events, work):
     xt = work[4]
     n = x.shape[0]
     for j in range(substeps):
-        t = t0 + j * dt
-        plant_rhs(x, u, friction_torque(t, x[X_OMEGA], events, p[P_DF]), p, k1)
+        amp = active_amplitude(t0 + (j + 0.5) * dt, events)
+        plant_rhs(x, u, amp * (x[X_OMEGA] / math.sqrt(x[X_OMEGA] * x[X_OMEGA] + p[P_DF])), p, k1)
         for i in range(n):
             xt[i] = x[i] + 0.5 * dt * k1[i]
-        th = t + 0.5 * dt
-        plant_rhs(xt, u, friction_torque(th, xt[X_OMEGA], events, p[P_DF]), p, k2)
+        plant_rhs(xt, u, amp * (xt[X_OMEGA] / math.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k2)
         for i in range(n):
             xt[i] = x[i] + 0.5 * dt * k2[i]
-        plant_rhs(xt, u, friction_torque(th, xt[X_OMEGA], events, p[P_DF]), p, k3)
+        plant_rhs(xt, u, amp * (xt[X_OMEGA] / math.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k3)
         for i in range(n):
             xt[i] = x[i] + dt * k3[i]
-        plant_rhs(xt, u, friction_torque(t + dt, xt[X_OMEGA], events, p[P_DF]), p, k4)
+        plant_rhs(xt, u, amp * (xt[X_OMEGA] / math.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k4)
         for i in range(n):
             x[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
 
@@ -159,15 +169,6 @@ def lane_constants(P, out):
         out[LC_DF, b] = p[P_DF]
         out[LC_CSM, b] = p[P_CSM]
         out[LC_DM, b] = p[P_DM]
-
-
-@jit
-def _active_amplitude(t, events):
-    amp = 0.0
-    for i in range(events.shape[0]):
-        if events[i, F_START] <= t < events[i, F_END]:
-            amp += events[i, F_AMP]
-    return amp
 
 
 @jit
@@ -207,28 +208,23 @@ def integrate_lanes(X, U, t0, h, substeps, c, events, work):
     k4 = work[3]
     xt = work[4]
     amp = work[5, 0]
-    amp_h = work[5, 1]
-    amp_e = work[5, 2]
     for j in range(substeps):
-        t = t0 + j * dt
-        th = t + 0.5 * dt
+        # friction switched on the substep grid, as in integrate_plant
         for b in range(B):
-            amp[b] = _active_amplitude(t, events[b])
-            amp_h[b] = _active_amplitude(th, events[b])
-            amp_e[b] = _active_amplitude(t + dt, events[b])
+            amp[b] = active_amplitude(t0 + (j + 0.5) * dt, events[b])
         _lane_rhs(X, amp, U, c, k1, B)
         for i in range(4):
             for b in range(B):
                 xt[i, b] = X[i, b] + 0.5 * dt * k1[i, b]
-        _lane_rhs(xt, amp_h, U, c, k2, B)
+        _lane_rhs(xt, amp, U, c, k2, B)
         for i in range(4):
             for b in range(B):
                 xt[i, b] = X[i, b] + 0.5 * dt * k2[i, b]
-        _lane_rhs(xt, amp_h, U, c, k3, B)
+        _lane_rhs(xt, amp, U, c, k3, B)
         for i in range(4):
             for b in range(B):
                 xt[i, b] = X[i, b] + dt * k3[i, b]
-        _lane_rhs(xt, amp_e, U, c, k4, B)
+        _lane_rhs(xt, amp, U, c, k4, B)
         for i in range(4):
             for b in range(B):
                 X[i, b] += dt / 6.0 * (k1[i, b] + 2.0 * k2[i, b] + 2.0 * k3[i, b] + k4[i, b])
