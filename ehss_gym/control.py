@@ -32,11 +32,11 @@ from __future__ import annotations
 import math
 
 from .layout import (
+    C_BASE,
     C_LAM0,
     C_N,
     C_NOISE_THETA,
     C_OMEGA_MAX,
-    C_BASE,
     C_ORDER,
     C_P_BOUND,
     C_SEED,
@@ -62,8 +62,8 @@ from .layout import (
     I_UCMD,
     I_URES,
     I_V,
-    I_YD,
     I_XM,
+    I_YD,
     I_YE,
     N_PLANT,
     X_OMEGA,

@@ -81,9 +81,10 @@ class PlantParams(NamedTuple):
         """The record as a flat float64 array, in field order (for the kernels)."""
         return np.array(self, dtype=np.float64)
 
-    def scaled(self, **factors: float) -> "PlantParams":
+    def scaled(self, **factors: float) -> PlantParams:
         """A copy with named fields multiplied by factors (model mismatch)."""
-        return make_plant_params(**{k: getattr(self, _known(k)) * check_positive(k, f) for k, f in factors.items()}, base=self)
+        scaled = {k: getattr(self, _known(k)) * check_positive(k, f) for k, f in factors.items()}
+        return make_plant_params(base=self, **scaled)
 
 
 def _known(name: str) -> str:

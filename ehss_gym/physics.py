@@ -11,6 +11,7 @@ Model (NOTES.md items 1-3; friction T_f from the event list, Eq. 25)::
     R(p) = p / sqrt(rho sqrt(p^2 + p_t^2))       ~ sign(p) sqrt(|p| / rho)
     sigm(x) = x / sqrt(x^2 + delta)              smooth sign, Eq. (2)
     T_f = sum_active(A_i) sigm(x2)               Coulomb friction events
+    |x3| <= P_s                                  ideal cross-port relief valves
 
 Lie derivatives. With the friction left out, f(x) is the drift and
 g = (0, 0, 0, K/tau) the input vector. For the velocity output y = x2::
@@ -70,6 +71,21 @@ def flow(x3, x4, p):
     """Valve flow Q into the motor [m^3/s]."""
     dp = p[P_PS] - sigm(x4, p[P_DV]) * x3
     return p[P_CD] * x4 * orifice_root(dp, p[P_RHO], p[P_DPT])
+
+
+@jit
+def relief(x3, ps):
+    """Ideal cross-port relief valves at +-P_s: project the load pressure back into [-P_s, P_s].
+
+    Not in the paper. Without it the motor, pumping against a nearly closed
+    valve while the load reverses, drives |x3| above P_s (seen: 1.28 P_s under
+    +-10 mA switching). A NaN passes through unchanged, to be caught as divergence.
+    """
+    if x3 > ps:
+        return ps
+    if x3 < -ps:
+        return -ps
+    return x3
 
 
 @jit
@@ -142,6 +158,7 @@ def integrate_plant(x, u, t0, h, substeps, p, events, work):
         plant_rhs(xt, u, amp * (xt[X_OMEGA] / math.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k4)
         for i in range(n):
             x[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        x[X_PL] = relief(x[X_PL], p[P_PS])
 
 
 # Lane constants: per-scenario coefficients laid out (N_LANE_CONST, lanes) so the
@@ -228,6 +245,8 @@ def integrate_lanes(X, U, t0, h, substeps, c, events, work):
         for i in range(4):
             for b in range(B):
                 X[i, b] += dt / 6.0 * (k1[i, b] + 2.0 * k2[i, b] + 2.0 * k3[i, b] + k4[i, b])
+        for b in range(B):
+            X[X_PL, b] = relief(X[X_PL, b], c[LC_PS, b])
 
 
 @jit

@@ -15,18 +15,18 @@ returned.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Sequence
 
 import numba as nb
 import numpy as np
 
 from . import layout as L
+from .control import check_state, controller_update
 from .filters import butterworth_coefficients, padded_filter
 from .params import PlantParams, check_finite, check_positive
 from .physics import N_LANE_CONST, integrate_lanes, jit, lane_constants
 from .signals import Reference, paper_reference
-from .control import check_state, controller_update
 
 TASKS = {"velocity": 3, "position": 4}
 PAPER_FRICTION = ((1.8, 8.0, 10.0),)
@@ -151,7 +151,7 @@ class Scenario:
     def grid(self) -> tuple:
         return (self.control_period, self.substeps, self.n_steps, self.log_every)
 
-    def replace(self, **changes) -> "Scenario":
+    def replace(self, **changes) -> Scenario:
         """A validated copy with fields changed."""
         return replace(self, **changes)
 
@@ -213,7 +213,7 @@ class LoopArrays:
     filt: np.ndarray
 
     @classmethod
-    def build(cls, scenarios: Sequence[Scenario]) -> "LoopArrays":
+    def build(cls, scenarios: Sequence[Scenario]) -> LoopArrays:
         h = scenarios[0].control_period
         n_ev = max(1, max(len(s.friction) for s in scenarios))
         events = np.zeros((len(scenarios), n_ev, 3))
