@@ -31,3 +31,4 @@ __all__ = [
     "TASKS",
     "__version__",
 ]
+from .env import EHSSTrackingEnv  # noqa: E402,F401  (registers EHSSTracking-v0 with Gymnasium)
