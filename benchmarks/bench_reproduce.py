@@ -1,0 +1,63 @@
+"""Wall time of the full default ``ehss reproduce`` run (target: <= 120 s on 2 cores).
+
+Runs the real command end to end in a fresh process (imports, numba cache loading,
+every simulation, figure and table) into a temporary folder that is deleted
+afterwards, so it writes nothing else. Prints the wall time, the CPU time the run
+used (user + system, all threads and plot workers) and the load average before
+and after: on a shared machine the wall time depends on what else runs, while the
+CPU time does not (much).
+
+Usage::
+
+    python benchmarks/bench_reproduce.py            # the full default run
+    python benchmarks/bench_reproduce.py --quick    # the CI smoke run
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+
+TARGET_S = 120.0
+
+
+def time_reproduce(quick: bool = False) -> dict:
+    """Run ``ehss reproduce`` once into a temporary folder; returns wall [s], cpu [s] and load averages."""
+    with tempfile.TemporaryDirectory(prefix="bench-reproduce-") as tmp:
+        cmd = [sys.executable, "-m", "ehss_gym.cli", "reproduce", "--out", os.path.join(tmp, "paper"),
+               "--no-progress"] + (["--quick"] if quick else [])
+        load0 = os.getloadavg()
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        load1 = os.getloadavg()
+        if proc.returncode != 0:
+            raise RuntimeError(f"ehss reproduce failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    return {"wall_s": wall, "cpu_s": cpu, "load_before": load0[0], "load_after": load1[0]}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="time the CI smoke run instead of the full study")
+    args = p.parse_args(argv)
+    res = time_reproduce(quick=args.quick)
+    what = "ehss reproduce --quick" if args.quick else "ehss reproduce (full default run)"
+    print(f"{what}: wall {res['wall_s']:.1f} s, CPU {res['cpu_s']:.1f} s on {os.cpu_count()} CPU(s); "
+          f"1-min load average {res['load_before']:.2f} before, {res['load_after']:.2f} after")
+    if not args.quick:
+        ok = res["wall_s"] <= TARGET_S
+        print(f"target <= {TARGET_S:.0f} s wall on 2 cores: {'met' if ok else 'MISSED'}"
+              + ("" if res["load_before"] < 0.5 else " (machine shared: other load was running)"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
