@@ -1,0 +1,82 @@
+"""Wall time of the full default ``ehss evaluate`` run (target: <= 180 s on 2 cores).
+
+Runs the real command end to end in a fresh process (imports, worker start-up, numba
+cache loading, every episode of every shipped policy on every suite, statistics, figures
+and report) into a temporary folder that is deleted afterwards, so it writes nothing
+else. Prints the wall time, the CPU time the run used (user + system of the command and
+its worker processes) and the load average before and after: on a shared machine the wall
+time depends on what else runs, while the CPU time does not (much); CPU / 2 is what the
+wall time would be on 2 otherwise idle cores with perfect parallelism.
+
+Usage::
+
+    python benchmarks/bench_evaluate.py            # the full default run
+    python benchmarks/bench_evaluate.py --quick    # the CI smoke run
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+
+TARGET_S = 180.0
+CORES = 2
+
+
+def time_evaluate(quick: bool = False, workers: int | None = None) -> dict:
+    """Run ``ehss evaluate`` once into a temporary folder.
+
+    Returns:
+        dict: wall_s and cpu_s [s], load_before / load_after (1-min load averages), episodes (count),
+        phases (the command's own per-phase wall times [s]) and the printed summary.
+    """
+    with tempfile.TemporaryDirectory(prefix="bench-evaluate-") as tmp:
+        cmd = [sys.executable, "-m", "ehss_gym.cli", "evaluate", "--out", os.path.join(tmp, "comparison"),
+               "--no-progress"] + (["--quick"] if quick else []) + ([f"--workers={workers}"] if workers else [])
+        load0 = os.getloadavg()
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        load1 = os.getloadavg()
+        if proc.returncode != 0:
+            raise RuntimeError(f"ehss evaluate failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    m = re.search(r"(\d+) episodes in [\d.]+ s \((\d+) workers; ([^)]*)\)", proc.stdout)
+    phases = {}
+    if m:
+        for part in m.group(3).split(","):
+            name, val, _ = part.split()
+            phases[name] = float(val)
+    return {"wall_s": wall, "cpu_s": cpu, "load_before": load0[0], "load_after": load1[0],
+            "episodes": int(m.group(1)) if m else -1, "workers": int(m.group(2)) if m else -1, "phases": phases,
+            "stdout": proc.stdout}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="time the CI smoke run instead of the full default run")
+    p.add_argument("--workers", type=int, default=None, help="pass --workers to the command (default: its own)")
+    args = p.parse_args(argv)
+    res = time_evaluate(quick=args.quick, workers=args.workers)
+    what = "ehss evaluate --quick" if args.quick else "ehss evaluate (full default run)"
+    phases = ", ".join(f"{k} {v:.1f} s" for k, v in res["phases"].items())
+    print(f"{what}: {res['episodes']} episodes, {res['workers']} workers; wall {res['wall_s']:.1f} s "
+          f"(phases: {phases}), CPU {res['cpu_s']:.1f} s (CPU/{CORES} = {res['cpu_s'] / CORES:.1f} s) on "
+          f"{os.cpu_count()} CPU(s); 1-min load average {res['load_before']:.2f} before, {res['load_after']:.2f} after")
+    if not args.quick:
+        ok = res["wall_s"] <= TARGET_S
+        print(f"target <= {TARGET_S:.0f} s wall on {CORES} cores: {'met' if ok else 'MISSED'}"
+              + ("" if res["load_before"] < 0.5 else " (machine shared: other load was running)"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
