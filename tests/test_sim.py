@@ -181,6 +181,15 @@ def test_butterworth_coefficients_match_table_one():
     np.testing.assert_allclose(butterworth_coefficients(2, 100.0), [wr**2, math.sqrt(2) * wr], rtol=1e-12)
 
 
+@pytest.mark.parametrize("order", [1, 2, 3, 4])
+@pytest.mark.parametrize("hz", [5.0, 20.0, 60.0, 100.0, 1000.0])
+def test_butterworth_coefficients_equal_scipy_butter(order, hz):
+    import scipy.signal
+
+    _, a = scipy.signal.butter(order, 2 * math.pi * hz, analog=True)
+    assert np.array_equal(butterworth_coefficients(order, hz), a[::-1][:order])
+
+
 @pytest.mark.parametrize("order,hz", [(2, 1000.0), (3, 1000.0), (3, 20.0), (4, 20.0)])
 def test_discrete_filters_have_unit_dc_gain_and_exact_zoh(order, hz):
     c = butterworth_coefficients(order, hz)
