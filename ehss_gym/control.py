@@ -214,25 +214,21 @@ def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res,
     info[I_FRIC_ON] = on
 
     # Advance the discrete filters with the inputs held over the period.
-    pr = filt[0]
-    gr = filt[2, 2]
-    pe = filt[1]
-    ge = filt[2, 3]
-    for i in range(m):
-        acc = gr[i] * r
-        for j in range(m):
-            acc += pr[i, j] * z[Z_REF + j]
-        hd[i] = acc
-    for i in range(m):
-        z[Z_REF + i] = hd[i]
-    for i in range(me):
-        acc = ge[i] * y_meas
-        for j in range(me):
-            acc += pe[i, j] * z[Z_EST + j]
-        hd[i] = acc
-    for i in range(me):
-        z[Z_EST + i] = hd[i]
+    advance_filter(z, Z_REF, m, filt[0], filt[2, 2], r, hd)
+    advance_filter(z, Z_EST, me, filt[1], filt[2, 3], y_meas, hd)
     return u_app
+
+
+@jit
+def advance_filter(z, off, order, phi, gam, v, tmp):
+    """z[off:off+order] <- Phi z + Gamma v: one exact ZOH step of a filter; ``tmp`` is scratch."""
+    for i in range(order):
+        acc = gam[i] * v
+        for j in range(order):
+            acc += phi[i, j] * z[off + j]
+        tmp[i] = acc
+    for i in range(order):
+        z[off + i] = tmp[i]
 
 
 @jit
