@@ -12,7 +12,7 @@ import math
 import sys
 
 # sub-command modules, each exposing register(subparsers)
-COMMANDS = ("ehss_gym.cli",)
+COMMANDS = ("ehss_gym.cli", "ehss_gym.bench", "ehss_gym.reproduce", "ehss_gym.trainer_cli", "ehss_gym.evaluate")
 EXTRA_COMMANDS: tuple[str, ...] = ()
 
 
@@ -60,7 +60,8 @@ def _finite(name, low=None, low_open=True):
     return conv
 
 
-def _int_at_least(name, low):
+def int_at_least(name, low):
+    """argparse type: an integer >= low, or an error naming the parameter."""
     def conv(text):
         try:
             v = int(text)
@@ -92,7 +93,7 @@ def add_loop_arguments(p: argparse.ArgumentParser, *, t_end: float = 20.0):
     p.add_argument("--smoothing", type=_finite("--smoothing", 0.0, low_open=False), default=0.0,
                    help="sign(s) smoothing width (0 = plain law)")
     p.add_argument("--control-period", type=_finite("--control-period", 0.0), default=1e-4, help="[s]")
-    p.add_argument("--substeps", type=_int_at_least("--substeps", 1), default=10, help="RK4 steps per period")
+    p.add_argument("--substeps", type=int_at_least("--substeps", 1), default=10, help="RK4 steps per period")
     p.add_argument("--current-limit", type=parse_limit, default=None, help="[mA] or 'none' (default none)")
     p.add_argument("--t-end", type=_finite("--t-end", 0.0), default=t_end, help="[s]")
     p.add_argument("--friction", type=parse_friction, nargs="*", default=None, metavar="AMP:START:END",

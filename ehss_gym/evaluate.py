@@ -46,6 +46,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from . import stats as st
+from .cli import int_at_least
 
 ENV_ID = "EHSSTracking-v0"
 TASKS = ("velocity", "position")
@@ -1511,17 +1512,7 @@ def report_text(res: Results, figs: dict) -> str:
 # CLI
 
 
-def _int_min(name: str, low: int):
-    def conv(text):
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer >= {low}, got {text!r}") from None
-        if v < low:
-            raise argparse.ArgumentTypeError(f"{name} must be an integer >= {low}, got {text!r}")
-        return v
-
-    return conv
+_int_min = int_at_least  # the CLI's shared argparse type
 
 
 def _tasks(text: str) -> tuple:
