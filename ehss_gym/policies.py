@@ -66,6 +66,17 @@ def _config_of(env) -> EnvConfig:
 class ScriptedPolicy:
     """Base class: SB3-style ``predict`` on top of :meth:`act` (batch of observations -> actions)."""
 
+    @staticmethod
+    def _fresh_state(obs, state, episode_start):
+        """One float of memory per env, zeroed where an episode starts."""
+        n = obs.shape[0]
+        if state is None or np.shape(state) != (n, 1):
+            state = np.zeros((n, 1))
+        else:
+            state = np.array(state, dtype=np.float64)
+        state[episode_start] = 0.0
+        return state
+
     def __init__(self, env):
         self.config = _config_of(env)
         self.layout = observation_layout(self.config)
@@ -132,12 +143,7 @@ class PIDPolicy(ScriptedPolicy):
         self.i_limit = (lim if lim is not None else self.config.residual_scale) / self.ki if self.ki > 0 else 0.0
 
     def act(self, obs, state, episode_start):
-        n = obs.shape[0]
-        if state is None or np.shape(state) != (n, 1):
-            state = np.zeros((n, 1))
-        else:
-            state = np.array(state, dtype=np.float64)
-        state[episode_start] = 0.0
+        state = self._fresh_state(obs, state, episode_start)
         e, de = self.value(obs, "e"), self.value(obs, "e_d1")
         integ = np.clip(state[:, 0] + e * self.config.agent_dt, -self.i_limit, self.i_limit)
         state[:, 0] = integ
@@ -170,11 +176,7 @@ class FrictionFeedforwardPolicy(ScriptedPolicy):
 
     def act(self, obs, state, episode_start):
         n = obs.shape[0]
-        if state is None or np.shape(state) != (n, 1):
-            state = np.zeros((n, 1))
-        else:
-            state = np.array(state, dtype=np.float64)
-        state[episode_start] = 0.0
+        state = self._fresh_state(obs, state, episode_start)
         cfg = self.config
         dt = cfg.agent_dt
         d = self.decode(obs)
