@@ -1,4 +1,5 @@
-"""Training cost: Stable-Baselines3 PPO on EHSSTracking-v0 against Pendulum-v1, same hyperparameters.
+"""Training cost: Stable-Baselines3 PPO on EHSSTracking-v0 against Pendulum-v1, same hyperparameters, and
+the wall time of one seed of the shipped residual-PPO recipe (issue 6: <= 30 min on 2 CPU cores).
 
 Both runs use the same PPO settings on the CPU with one torch thread (the two cores
 are shared, and one thread keeps the two sides comparable). The env is wrapped in a
@@ -9,12 +10,18 @@ policy forward passes and the gradient updates).
 
 from __future__ import annotations
 
+import json
+import os
+import tempfile
 import time
 
 import gymnasium as gym
 
 from . import bench_env
-from .common import Section, Table, interleave, log, median, spread
+from .common import Section, Table, Target, interleave, log, median, spread
+
+RECIPE_STEPS = 400_000  # agent steps of one shipped residual-PPO run (reports/training/TRAINING.md)
+TRAIN_TARGET_S = 30 * 60.0  # [s] issue 6: wall time per seed to the reported policy
 
 PPO_KW = dict(n_steps=256, batch_size=64, n_epochs=4, learning_rate=3e-4, gamma=0.99, seed=0, device="cpu",
               verbose=0)
@@ -90,4 +97,39 @@ def run(quick: bool) -> Section:
     ours = median([e / t for t, e in rec["EHSSTracking-v0 (ours)"]])
     sec.note(f"The env accounts for {ours:.0%} of PPO's wall time on EHSSTracking-v0 (env step/reset time measured "
              "by a wrapper around the env); the rest is SB3/torch (rollout buffer, policy forward passes, updates).")
+    recipe_cost(sec, quick, pend_rate)
     return sec
+
+
+def recipe_cost(sec: Section, quick: bool, pend_rate: float) -> None:
+    """One seed of the shipped residual-PPO recipe through ``ehss_gym.rl.train.train`` (progress bar off;
+    held-out evaluations, checkpoints and exports included), next to PPO on Pendulum-v1 for as many steps
+    with the throughput measured above. --quick trains 1/100 of the steps and extrapolates linearly."""
+    from ehss_gym.rl.train import Config, train
+
+    steps = RECIPE_STEPS // 100 if quick else RECIPE_STEPS
+    log(f"train: residual-ppo velocity n=2 seed 0, {steps} agent steps (the shipped recipe's settings)")
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = Config(agent="residual-ppo", task="velocity", n=2, seed=0, timesteps=steps,
+                     eval_freq=max(steps // 8, 1), eval_episodes=24, checkpoint_freq=max(steps // 8, 1),
+                     out=os.path.join(tmp, "run"), progress=False)
+        t0 = time.perf_counter()
+        train(cfg)
+        wall = time.perf_counter() - t0
+        summary = json.load(open(os.path.join(tmp, "run", "summary.json"), encoding="utf-8"))
+    per_seed = wall * RECIPE_STEPS / steps
+    pend_s = RECIPE_STEPS / pend_rate  # [s] PPO on Pendulum-v1 at the throughput measured above
+    tb = Table("training_cost", "Wall time of one seed of the shipped residual-PPO recipe",
+               ["run", "agent_steps", "wall_s", "per_seed_s (400k steps)", "best_step", "pendulum_ppo_s (400k steps)",
+                "vs_pendulum_ppo"])
+    tb.add("residual-ppo velocity n=2 seed 0", steps, wall, per_seed, summary.get("best_step"), pend_s,
+           per_seed / pend_s)
+    sec.tables.append(tb)
+    sec.targets.append(Target("wall time per seed of the residual-PPO recipe (400k steps)", per_seed / 60.0,
+                              TRAIN_TARGET_S / 60.0, unit="min", lower_is_better=True,
+                              note="extrapolated from 1/100 of the steps" if quick else ""))
+    sec.note(f"One seed of the recipe: {per_seed / 60:.1f} min for {RECIPE_STEPS} agent steps "
+             + ("(extrapolated from a 1/100 run) " if quick else "")
+             + "including 8 held-out evaluations of 24 episodes, checkpoints and the safe-weight exports; PPO on "
+             f"Pendulum-v1 with the throughput above would take {pend_s / 60:.1f} min for as many steps (without "
+             "evaluations). Several seeds run one process per core (`ehss train --seeds 0-4`).")

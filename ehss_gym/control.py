@@ -10,8 +10,10 @@ gives V' = -sqrt(a^2 + b^4) < 0. Since a and b share (s/sigma)^(n-1)::
 
     u = -psi/G - sign(s) sign(G) hypot(psi/G, |s/sigma|^(n-1) |G| / sigma)
 
-which never forms s^(4n-4); the power is taken in log space so nothing
-overflows for n = 6 unless |s/sigma| exceeds ~1e60. sigma = 1 is the paper's law.
+which never forms s^(4n-4). |s/sigma|^(n-1) is formed by repeated multiplication
+(cheap, and correctly scaled whenever it is a normal float), falling back to log
+space when it over- or underflows, so nothing overflows unless the current itself
+does. sigma = 1 is the paper's law.
 
 Smoothing (not in the paper; the paper's "future work" on chattering): sign(s)
 is replaced by s / sqrt(s^2 + w^2), the same shape as the paper's Eq. (2)
@@ -73,7 +75,7 @@ from .layout import (
     Z_REF,
 )
 from .params import P_DF, P_PS
-from .physics import friction_torque, gaussian, integrate_plant, jit, lie_derivatives
+from .physics import friction_torque, gaussian, integrate_plant, jit, jit_noalloc, lie_derivatives
 from .signals import reference_value
 
 
@@ -104,18 +106,47 @@ def sontag(psi, G, s, n, sigma, smoothing):
     if s == 0.0:
         beta = 0.0
     else:
-        beta = math.exp((n - 1.0) * math.log(abs(s) / sigma) + math.log(aG / sigma))
+        x = abs(s) / sigma
+        ni = int(n)
+        p = _int_power(x, ni - 1) if ni == n else 0.0  # n is an even integer (check_n); 0.0: log space
+        if 1e-290 < p < math.inf:
+            # p * (|G|/sigma) is correctly rounded and overflows only where the result itself does
+            beta = p * (aG / sigma)
+        else:  # |s/sigma|^(n-1) itself over- or underflows: log space keeps the product
+            beta = math.exp((n - 1.0) * math.log(x) + math.log(aG / sigma))
     gsign = 1.0 if G > 0.0 else -1.0
-    return -ratio - sg * gsign * math.hypot(ratio, beta)
+    a = abs(ratio)
+    big = a if a > beta else beta
+    if 1e-150 < big < 1e150:  # the squares neither over- nor underflow: sqrt is cheaper than libm's hypot
+        mag = math.sqrt(ratio * ratio + beta * beta)
+    else:
+        mag = math.hypot(ratio, beta)
+    return -ratio - sg * gsign * mag
+
+
+@jit
+def _int_power(x, k):
+    """x^k for an integer k >= 0 by repeated multiplication (k = n - 1 is small in practice).
+
+    Several times cheaper than exp/log or pow; the result is within k ulp of x^k, and inf/0 only
+    where x^k over-/underflows.
+    """
+    p = 1.0
+    for _ in range(k):
+        p *= x
+    return p
 
 
 @jit
 def clf_value(s, n, sigma):
     """V = (s/sigma)^n / n."""
+    ni = int(n)
+    if ni == n and 0 < ni <= 16:  # n is an even integer in practice: multiplication, not pow()
+        return _int_power(s / sigma, ni) / n
     return (s / sigma) ** n / n
 
 
-@jit
+@jit_noalloc
 def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res, info, work):
     """The controller's work at t_k = k h; returns the applied current [mA].
 
@@ -123,6 +154,10 @@ def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res,
     reference-model derivatives, compute the Sontag current, add the residual,
     apply the current limit, and advance the discrete filters (state z[4:]).
     The plant part z[:4] is left for the caller to integrate.
+
+    It is :func:`controller_sense`, :func:`controller_apply` and
+    :func:`advance_filters` in turn; only the middle one depends on ``u_res``,
+    so a caller that already sensed sample k (the env's look-ahead) reuses that.
 
     Args:
         z: loop state (N_LOOP,), filter part updated in place.
@@ -139,6 +174,19 @@ def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res,
         u_res: residual current [mA] added to ctrl[C_BASE] times the Sontag current.
         info: output (N_INFO,), what the law saw and did at t_k.
         work: scratch (8, 4).
+    """
+    u_base = controller_sense(z, k, h, plant_p, model_p, ctrl, ref, events, filt, info, work)
+    u_app = controller_apply(info, ctrl, u_base, u_res)
+    advance_filters(z, ctrl, filt, info, work)
+    return u_app
+
+
+@jit_noalloc
+def controller_sense(z, k, h, plant_p, model_p, ctrl, ref, events, filt, info, work):
+    """Everything the controller computes at t_k that does not depend on the residual; returns u_base [mA].
+
+    Fills ``info`` except I_URES, I_UCMD, I_UAPP, I_SAT (see :func:`controller_apply`); ``z`` is only
+    read. Arguments as in :func:`controller_update`.
     """
     t = k * h
     m = int(ctrl[C_ORDER])
@@ -182,16 +230,6 @@ def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res,
     F, G = lie_derivatives(xm, model_p, m, hd)
     psi = F - ydm + psi_lin
     u_base = sontag(psi, G, s, n, sigma, ctrl[C_SMOOTH])
-    u_cmd = ctrl[C_BASE] * u_base + u_res
-    ulim = ctrl[C_ULIM]
-    sat = 0.0
-    u_app = u_cmd
-    if u_cmd > ulim:
-        u_app = ulim
-        sat = 1.0
-    elif u_cmd < -ulim:
-        u_app = -ulim
-        sat = 1.0
     tf = friction_torque(t, z[X_OMEGA], events, plant_p[P_DF])
     info[I_T] = t
     for i in range(N_PLANT):
@@ -202,21 +240,48 @@ def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res,
     info[I_PSI] = psi
     info[I_G] = G
     info[I_UBASE] = u_base
-    info[I_URES] = u_res
-    info[I_UCMD] = u_cmd
-    info[I_UAPP] = u_app
-    info[I_SAT] = sat
     info[I_TF] = tf
     on = 0.0
     for i in range(events.shape[0]):
         if events[i, 1] <= t < events[i, 2] and events[i, 0] != 0.0:
             on = 1.0
     info[I_FRIC_ON] = on
+    return u_base
 
-    # Advance the discrete filters with the inputs held over the period.
-    advance_filter(z, Z_REF, m, filt[0], filt[2, 2], r, hd)
-    advance_filter(z, Z_EST, me, filt[1], filt[2, 3], y_meas, hd)
+
+@jit_noalloc
+def controller_apply(info, ctrl, u_base, u_res):
+    """Add the residual u_res [mA] to ctrl[C_BASE] * u_base [mA], apply the current limit; returns u_app [mA].
+
+    Writes I_URES, I_UCMD, I_UAPP and I_SAT of ``info``.
+    """
+    u_cmd = ctrl[C_BASE] * u_base + u_res
+    ulim = ctrl[C_ULIM]
+    sat = 0.0
+    u_app = u_cmd
+    if u_cmd > ulim:
+        u_app = ulim
+        sat = 1.0
+    elif u_cmd < -ulim:
+        u_app = -ulim
+        sat = 1.0
+    info[I_URES] = u_res
+    info[I_UCMD] = u_cmd
+    info[I_UAPP] = u_app
+    info[I_SAT] = sat
     return u_app
+
+
+@jit_noalloc
+def advance_filters(z, ctrl, filt, info, work):
+    """Advance the reference model and the estimator (z[4:]) over the period, inputs r and y held.
+
+    The inputs are the ones :func:`controller_sense` recorded in ``info`` (I_R, I_YE).
+    """
+    m = int(ctrl[C_ORDER])
+    hd = work[6]
+    advance_filter(z, Z_REF, m, filt[0], filt[2, 2], info[I_R], hd)
+    advance_filter(z, Z_EST, m - 1, filt[1], filt[2, 3], info[I_YE], hd)
 
 
 @jit
@@ -244,7 +309,7 @@ def check_state(z, ctrl, plant_p):
     return DIV_NONE
 
 
-@jit
+@jit_noalloc
 def control_step(z, k, h, substeps, plant_p, model_p, ctrl, ref, events, filt, u_res, info, work):
     """One control period of the digital loop: controller, ZOH plant integration, checks.
 

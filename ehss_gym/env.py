@@ -23,7 +23,7 @@ from . import layout as L
 from .control import controller_update
 from .metrics import summarize_acc
 from .params import PlantParams, check_finite
-from .physics import N_LANE_CONST, jit, lane_constants
+from .physics import N_LANE_CONST, jit, jit_noalloc, lane_constants
 from .scenarios import (
     DEFAULT_DISTRIBUTION,
     PHYSICAL_FIELDS,
@@ -37,7 +37,8 @@ from .signals import reference_value
 from .sim import TASKS, Scenario, check_n, ctrl_row, filter_block, lanes_period
 
 # ---------------------------------------------------------------------------------------------------
-# Defaults (provisional; to be revisited with the reproduction study). Evidence: docs/ENV.md.
+# Defaults: the reproduction study's recommendation (reports/paper/recommended_defaults.json) where it
+# has one; evidence for every value in docs/ENV.md.
 
 
 @dataclass(frozen=True)
@@ -79,14 +80,14 @@ class EnvDefaults:
     n: int = 2
     mode: str = "residual"
     current_limit: float = 10.0
-    control_period: float = 5e-5
+    control_period: float = 3e-5
     substeps: int = 1
     agent_period: int = 5
     residual_scale: float = 10.0
     scenario: str = "random"
-    reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("divergence", 10.0))
+    reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("divergence", 10.0))
     velocity: TaskDefaults = field(default_factory=lambda: TaskDefaults(
-        fr=100.0, sigma=1e5, smoothing=0.0, estimator_hz=1000.0, error_scale=1e-2))
+        fr=100.0, sigma=1e5, smoothing=100.0, estimator_hz=1000.0, error_scale=1e-2))
     position: TaskDefaults = field(default_factory=lambda: TaskDefaults(
         fr=20.0, sigma=1e5, smoothing=0.0, estimator_hz=100.0, error_scale=1e-2))
 
@@ -94,7 +95,7 @@ class EnvDefaults:
 DEFAULTS = EnvDefaults()
 MODES = ("residual", "direct")
 SCENARIOS = ("random", "paper")
-REWARD_KEYS = ("track", "effort", "rate", "divergence")
+REWARD_KEYS = ("track", "effort", "rate", "tv", "divergence")
 MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
 
 # Observation normalisation (see the class docstring).
@@ -106,8 +107,8 @@ W_Y = 10.0  # [rad/s], time scale of the reference derivatives
 # Per-agent-step statistics and reward-weight slots of the kernel.
 S_SUM_E2, S_N, S_SAT = 0, 1, 2
 N_STATS = 3
-W_TRACK, W_EFFORT, W_RATE, W_DIV, W_INV_E2, W_INV_SCALE = range(6)
-N_WEIGHTS = 6
+W_TRACK, W_EFFORT, W_RATE, W_TV, W_DIV, W_INV_E2, W_INV_SCALE = range(7)
+N_WEIGHTS = 7
 
 # Per-lane float64 buffer F (B, N_F): column blocks, so one kernel argument carries them all (numba's
 # dispatch costs ~0.1 us per array argument, a large share of a 15 us step).
@@ -117,10 +118,11 @@ F_PLANT = F_Z + L.N_LOOP  # true plant parameters
 F_MODEL = F_PLANT + N_PARAM  # controller's model parameters
 F_CTRL = F_MODEL + N_PARAM  # controller row (N_CTRL)
 F_REF = F_CTRL + L.N_CTRL  # reference spec (N_REF)
-F_INFO = F_REF + L.N_REF  # last control-step info (N_INFO)
+F_INFO = F_REF + L.N_REF  # control-step info (N_INFO), scratch alternating with F_INFO_OK
 F_INFO_OK = F_INFO + L.N_INFO  # last finite control-step info
 F_PEEK = F_INFO_OK + L.N_INFO  # the controller's view at the next sample
-F_ACC = F_PEEK + L.N_INFO  # metrics accumulator (N_METRICS)
+F_PEEKZ = F_PEEK + L.N_INFO  # loop state after that sample's filter advance (N_LOOP; must follow F_PEEK)
+F_ACC = F_PEEKZ + L.N_LOOP  # metrics accumulator (N_METRICS)
 F_ZPREV = F_ACC + L.N_METRICS  # loop state at the last sample (scratch of lanes_period)
 F_STATS = F_ZPREV + L.N_LOOP  # per-agent-step statistics (N_STATS)
 F_URES = F_STATS + N_STATS  # residual current [mA]
@@ -130,9 +132,10 @@ N_F = F_APREV + 1
 # Per-lane int64 buffer: step index k, agent steps taken, group id (scratch).
 IB_K, IB_NSTEP, IB_GID = 0, 1, 2
 N_IB = 3
-# Per-lane bool buffer: running (not diverged, not held), group member (scratch).
-BB_RUN, BB_ACT = 0, 1
-N_BB = 2
+# Per-lane bool buffer: running (not diverged, not held), group member (scratch), F_PEEK/F_PEEKZ hold
+# the controller's view at the lane's next period (set by the look-ahead, cleared when used or reloaded).
+BB_RUN, BB_ACT, BB_PRE = 0, 1, 2
+N_BB = 3
 # Observation layout rows (3, D): info index, scale, flags (1 = symlog squash, 2 = from the last period).
 LAY_SRC, LAY_SCALE, LAY_FLAGS = 0, 1, 2
 FLAG_SQUASH, FLAG_LAST = 1, 2
@@ -164,14 +167,21 @@ def _write_obs(obs_row, peek_row, last_row, lay):
         obs_row[i] = v
 
 
-@jit
-def _peek(F, b, k, h, events, filt, zt, work):
-    """Fill lane b's F_PEEK block with what its controller sees at sample k, without advancing it."""
+@jit_noalloc
+def _peek(F, BB, b, k, h, events, filt, work):
+    """Fill lane b's F_PEEK block with what its controller sees at sample k, without advancing it.
+
+    The filters are advanced on a copy of the loop state, kept in F_PEEKZ, and BB_PRE is set: the lane's
+    next control period (at this k, from this state) reuses all of it and only applies its residual
+    (see :func:`ehss_gym.sim.lanes_period`), so look-ahead and step share one controller evaluation.
+    """
+    zt = F[b, F_PEEKZ:F_PEEKZ + L.N_LOOP]
     for i in range(L.N_LOOP):
         zt[i] = F[b, F_Z + i]
     controller_update(zt, k, h, F[b, F_PLANT:F_PLANT + N_PARAM], F[b, F_MODEL:F_MODEL + N_PARAM],
                       F[b, F_CTRL:F_CTRL + L.N_CTRL], F[b, F_REF:F_REF + L.N_REF], events[b], filt[b], F[b, F_URES],
                       F[b, F_PEEK:F_PEEK + L.N_INFO], work)
+    BB[b, BB_PRE] = True
 
 
 @jit
@@ -180,16 +190,15 @@ def observe(h, F, IB, BB, events, filt, work, obs, lay):
 
     Used at reset: the last-period block (applied current, residual) is zeroed, nothing was applied yet.
     """
-    zt = np.empty(L.N_LOOP)
     for b in range(F.shape[0]):
         if not BB[b, BB_ACT]:
             continue
         F[b, F_INFO_OK:F_INFO_OK + L.N_INFO] = 0.0
-        _peek(F, b, IB[b, IB_K], h, events, filt, zt, work)
+        _peek(F, BB, b, IB[b, IB_K], h, events, filt, work)
         _write_obs(obs[b], F[b, F_PEEK:F_PEEK + L.N_INFO], F[b, F_INFO_OK:F_INFO_OK + L.N_INFO], lay)
 
 
-@jit
+@jit_noalloc
 def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
     """Advance ``n_per`` control periods for every running lane; the env's one compiled step.
 
@@ -224,7 +233,8 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
     u_res = F[:, F_URES]
     run = BB[:, BB_RUN]
     act = BB[:, BB_ACT]
-    zt = np.empty(L.N_LOOP)
+    pre = BB[:, BB_PRE]
+    peek = F[:, F_PEEK:F_PEEK + L.N_INFO + L.N_LOOP]
     for b in range(B):
         IB[b, IB_GID] = -1
         for j in range(N_STATS):
@@ -240,27 +250,33 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             if member:
                 IB[b, IB_GID] = g
         for j in range(n_per):
-            n_act = lanes_period(z, kk + j, h, substeps, plant, model, ctrl, ref, events, filt, u_res, act, info, acc,
-                                 c, X, U, zprev, work, lwork)
+            # Periods alternate between the F_INFO and F_INFO_OK blocks, so the last finite period's info
+            # survives a divergence in the next one without a per-period copy (lanes only ever stop).
+            inf = info if j % 2 == 0 else info_ok
+            n_act = lanes_period(z, kk + j, h, substeps, plant, model, ctrl, ref, events, filt, u_res, act, inf, acc,
+                                 c, X, U, zprev, work, lwork, pre, peek)
             for b in range(B):
                 if act[b]:
-                    e = info[b, L.I_E]
+                    e = inf[b, L.I_E]
                     F[b, F_STATS + S_SUM_E2] += e * e
                     F[b, F_STATS + S_N] += 1.0
-                    F[b, F_STATS + S_SAT] += info[b, L.I_SAT]
-                    for i in range(L.N_INFO):
-                        info_ok[b, i] = info[b, i]
+                    F[b, F_STATS + S_SAT] += inf[b, L.I_SAT]
             if n_act == 0:
                 break
         for b in range(B):
             if IB[b, IB_GID] != g:
                 continue
+            # S_N finite periods ran: the last one (index S_N - 1) wrote F_INFO if its index is even
+            n_ok = int(F[b, F_STATS + S_N])
+            if n_ok > 0 and (n_ok - 1) % 2 == 0:
+                for i in range(L.N_INFO):
+                    info_ok[b, i] = info[b, i]
             diverged = not act[b]
             run[b] = act[b]
             IB[b, IB_K] = kk + n_per
             a = u_res[b] * wts[W_INV_SCALE]
             da = 0.5 * (a - F[b, F_APREV])
-            r = -wts[W_EFFORT] * a * a - wts[W_RATE] * da * da
+            r = -wts[W_EFFORT] * a * a - wts[W_RATE] * da * da - wts[W_TV] * abs(da)
             n = F[b, F_STATS + S_N]
             if diverged:
                 r -= wts[W_DIV]
@@ -272,7 +288,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             if j < elog.shape[1]:
                 elog[b, j] = info_ok[b, L.I_E]
             IB[b, IB_NSTEP] = j + 1
-            _peek(F, b, kk + n_per, h, events, filt, zt, work)
+            _peek(F, BB, b, kk + n_per, h, events, filt, work)
             _write_obs(obs[b], F[b, F_PEEK:F_PEEK + L.N_INFO], info_ok[b], lay)
         g += 1
 
@@ -487,6 +503,9 @@ class Lanes:
         self.stats = self.F[:, F_STATS:F_STATS + N_STATS]
         self.u_res = self.F[:, F_URES]
         self.rew = self.F[:, F_REW]
+        # lane 0's rows, pre-made for the single env's step: stats (N_STATS), residual and reward in one view
+        self.info_ok0 = self.info_ok[0]
+        self.tail0 = self.F[0, F_STATS:F_REW + 1]
         self.k = self.IB[:, IB_K]
         self.nstep = self.IB[:, IB_NSTEP]
         self.run = self.BB[:, BB_RUN]
@@ -510,11 +529,13 @@ class Lanes:
             self.lay[LAY_SCALE, i] = scale
             self.lay[LAY_FLAGS, i] = (FLAG_SQUASH if squash else 0) + (FLAG_LAST if src in (L.I_UAPP, L.I_URES) else 0)
         self.obs = np.zeros((B, len(self.layout)), dtype=np.float32)
+        self.obs0 = self.obs[0]
         rw = cfg.reward_weights
         self.wts = np.zeros(N_WEIGHTS)
         self.wts[W_TRACK] = rw["track"]
         self.wts[W_EFFORT] = rw["effort"]
         self.wts[W_RATE] = rw["rate"]
+        self.wts[W_TV] = rw["tv"]
         self.wts[W_DIV] = rw["divergence"]
         self.wts[W_INV_E2] = 1.0 / cfg.error_scale**2
         self.wts[W_INV_SCALE] = 1.0 / cfg.residual_scale
@@ -557,6 +578,7 @@ class Lanes:
         self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
         self.acc[b, L.M_T_DIVERGED] = -1.0
         self.IB[b] = 0
+        self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
         self.run[b] = True
         T = sc.n_steps // cfg.agent_period
         self.T[b] = T
@@ -720,10 +742,12 @@ class EHSSTrackingEnv(gym.Env):
     **Reward**, per agent step over its control periods k (e_k the sampled error)::
 
         r = w_track / (1 + mean_k(e_k^2) / error_scale^2) - w_effort a^2 - w_rate ((a - a_prev)/2)^2
+            - w_tv |a - a_prev|/2
             - w_divergence [diverged this step]   (the tracking term is dropped on divergence)
 
-    with a the clipped action. Range: [-(w_effort + w_rate + w_divergence), w_track]; with the
-    default weights (1, 0.05, 0.05, 10): [-10.1, 1].
+    with a the clipped action (w_tv: an L1 rate penalty, the residual's own share of the control total
+    variation; the quadratic rate term hardly sees small jitter). Range: [-(w_effort + w_rate + w_tv +
+    w_divergence), w_track]; with the default weights (1, 0.05, 0.05, 0, 10): [-10.1, 1].
 
     **Termination and truncation.** Divergence (non-finite value, |x2| > omega_max, |x3| > 1.5 P_s;
     see :mod:`ehss_gym.sim`) ends the episode with ``terminated=True``, ``info["diverged"]=True`` and
@@ -740,15 +764,16 @@ class EHSSTrackingEnv(gym.Env):
 
     Args (keyword only; unknown names or bad values raise ValueError listing what is valid; defaults
     in :data:`DEFAULTS`):
-        task: "velocity" (default) or "position".
+        task: "velocity" (default) or "position" (its base law is at the current limit on ~85 % of the
+            control steps at every setting tried: a relay; see docs/ENV.md).
         n: CLF power factor, even >= 2 (default 2).
         fr: combined-error cutoff f_r [Hz] (default 100 velocity, 20 position).
         sigma: CLF scale [unit of s] (default 1e5; 1 = the paper's law).
-        smoothing: sign(s) smoothing width [unit of s], >= 0 (default 0).
+        smoothing: sign(s) smoothing width [unit of s], >= 0 (default 100 velocity, 0 position).
         mode: "residual" (default) or "direct" (pure RL: no base current applied).
         residual_scale: current of a unit action [mA] (default: current_limit, or 10 if unlimited).
-        agent_period: control periods per agent step, >= 1 (default 5: the agent acts at 4 kHz).
-        control_period: h [s], in [1e-7, 1e-2] (default 5e-5).
+        agent_period: control periods per agent step, >= 1 (default 5: the agent acts at 6.7 kHz).
+        control_period: h [s], in [1e-7, 1e-2] (default 3e-5).
         substeps: RK4 plant steps per control period, >= 1 (default 1).
         current_limit: |u| limit [mA] or None = unlimited (default 10).
         estimator_hz: output-derivative estimator cutoff [Hz] (default 1000 velocity, 100 position).
@@ -756,14 +781,17 @@ class EHSSTrackingEnv(gym.Env):
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
             overrides it for one episode (also accepting a dict of physical fields).
-        reward_weights: dict overriding any of track (1), effort (0.05), rate (0.05), divergence (10).
+        reward_weights: dict overriding any of track (1), effort (0.05), rate (0.05), tv (0),
+            divergence (10).
         error_scale: error scale of reward and observation [output unit] (default 0.01).
         episode_seconds: episode duration [s] for "random" and "paper" (default None: 2 s random,
             20 s paper; a pinned Scenario keeps its t_end).
         render_mode: None or "rgb_array" (a dashboard: reference vs output, error, currents, friction).
 
     Version history:
-        v0 (ehss-gym 0.1): first release.
+        v0 (ehss-gym 0.1): first release. Before release the defaults moved to the reproduction
+        study's recommendation (``ehss reproduce``: h = 30 us, smoothing 100 for velocity; they were
+        50 us and 0); policies record every setting they were trained with, so this changes none.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -827,11 +855,13 @@ class EHSSTrackingEnv(gym.Env):
         self._steps += 1
         terminated = not lanes.run[0]
         truncated = not terminated and self._steps >= self._T
-        i = lanes.info_ok[0].tolist()
-        st = lanes.stats[0]
+        # Python floats in two list conversions of pre-made row views (numpy scalar reads cost ~0.1 us each)
+        i = lanes.info_ok0.tolist()
+        st = lanes.tail0.tolist()
+        n = st[S_N]
         info = {"t": i[L.I_T], "e": i[L.I_E], "s": i[L.I_S], "V": i[L.I_V], "u_base": i[L.I_UBASE],
                 "u_residual": i[L.I_URES], "u_applied": i[L.I_UAPP], "saturated": i[L.I_SAT] > 0.0,
-                "sat_fraction": float(st[S_SAT] / st[S_N]) if st[S_N] > 0 else 0.0, "friction_torque": i[L.I_TF],
+                "sat_fraction": st[S_SAT] / n if n > 0 else 0.0, "friction_torque": i[L.I_TF],
                 "clipped": clipped, "n_clipped": self._n_clipped, "diverged": terminated}
         if terminated or truncated:
             self._ready = False
@@ -842,7 +872,7 @@ class EHSSTrackingEnv(gym.Env):
                 info["t_diverged"] = m["t_diverged"]
         if self._hist is not None:
             self._record()
-        return lanes.obs[0].copy(), float(lanes.rew[0]), terminated, truncated, info
+        return lanes.obs0.copy(), st[F_REW - F_STATS], terminated, truncated, info
 
     # --- rendering ---------------------------------------------------------------------------------
 

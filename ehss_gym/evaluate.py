@@ -891,6 +891,23 @@ def _matrix(rows: list, policy: str, suite: str, task: str, key: str = "score", 
     return m, eps
 
 
+def _scores_against(rows: list, policy: str, suite: str, task: str, episodes: list, ref: str) -> np.ndarray:
+    """(runs, episodes) primary scores of ``policy`` normalised by the law ``ref`` on the same episodes (the
+    suite median of ``ref`` where ``ref`` diverged), instead of by :data:`REFERENCE_POLICY`."""
+    ref_rm = _matrix(rows, ref, suite, task, "rmse", episodes)[0][0]
+    ref_tv = _matrix(rows, ref, suite, task, "tv_u_rate", episodes)[0][0]
+    ref_div = _matrix(rows, ref, suite, task, "diverged", episodes)[0][0].astype(bool)
+    if ref_div.any():
+        ok = ~ref_div
+        ref_rm = np.where(ref_div, np.median(ref_rm[ok]) if ok.any() else 1.0, ref_rm)
+        ref_tv = np.where(ref_div, np.median(ref_tv[ok]) if ok.any() else 1.0, ref_tv)
+    rm = _matrix(rows, policy, suite, task, "rmse", episodes)[0]
+    tv = _matrix(rows, policy, suite, task, "tv_u_rate", episodes)[0]
+    div = _matrix(rows, policy, suite, task, "diverged", episodes)[0].astype(bool)
+    return np.array([[primary_score(rm[i, j], tv[i, j], ref_rm[j], ref_tv[j], div[i, j]) for j in range(rm.shape[1])]
+                     for i in range(rm.shape[0])])
+
+
 def _finite_mean(v) -> float:
     v = np.asarray(v, dtype=np.float64)
     v = v[np.isfinite(v)]
@@ -957,12 +974,20 @@ def summarize(rows: list, specs: Sequence[PolicySpec], cfg: EvalConfig) -> tuple
                         and controller_settings(s.env_kwargs, task) == mine]
                 if not same:
                     continue
-                best_same = min(same, key=lambda s: (mats[s.name].mean(), s.name))
-                m = mats[n]
-                imp, lo, hi = st.relative_improvement_ci(m, mats[best_same.name], n_boot=cfg.n_boot, seed=cfg.seed + 3)
-                p, plo, phi = st.probability_of_improvement_ci(m, mats[best_same.name], n_boot=cfg.n_boot,
+                # Scores against the n = 2 law *at these settings* (the reference law itself when the settings
+                # are the defaults): a same-settings comparison must not be weighted by a loop the policy does
+                # not act in (a smoothed law's tiny TV on noise-free episodes, say).
+                ref_same = next((s.name for s in same if int(s.env_kwargs["n"]) == 2), REFERENCE_POLICY)
+                sm = {x: (mats[x] if ref_same == REFERENCE_POLICY else
+                          _scores_against(rows, x, suite, task, eps, ref_same)) for x in [n] + [s.name for s in same]}
+                best_same = min(same, key=lambda s: (sm[s.name].mean(), s.name))
+                m = sm[n]
+                imp, lo, hi = st.relative_improvement_ci(m, sm[best_same.name], n_boot=cfg.n_boot, seed=cfg.seed + 3)
+                p, plo, phi = st.probability_of_improvement_ci(m, sm[best_same.name], n_boot=cfg.n_boot,
                                                                seed=cfg.seed + 5)
                 c = {"suite": suite, "task": task, "policy": n, "n_runs": m.shape[0], "best_clf": best_same.name,
+                     "score_reference": ref_same, "score_mean": float(m.mean()),
+                     "best_clf_score_mean": float(sm[best_same.name].mean()),
                      "improvement": imp, "improvement_lo": lo, "improvement_hi": hi, "poi": p, "poi_lo": plo,
                      "poi_hi": phi}
                 base = best_same.name
@@ -1486,15 +1511,18 @@ def report_text(res: Results, figs: dict) -> str:
         L_ += ["No learned policy was evaluated, so there is no verdict on residual PPO yet.", ""]
     else:
         L_ += ["Improvement = 1 - mean score / mean score of the best CLF n = 2/4/6 at the policy's controller "
-               "settings (> 0: better), with a 95 % paired bootstrap CI over episodes and training seeds; PoI = "
+               "settings (> 0: better), with both scores normalised by the CLF n = 2 *at those settings* (the "
+               "score reference column; the ranking tables above use the reference law at the env's defaults for "
+               "everyone), with a 95 % paired bootstrap CI over episodes and training seeds; PoI = "
                "probability of improvement over that law. Ratios are means over episodes against the policy's base "
                "law (the CLF with the same n and settings; for ppo-direct the best CLF): RMSE, control TV (issue 6: "
                "must not exceed 1) and peak |e| in friction windows (issue 6 target: <= 0.5).", "",
-               "| suite | task | policy | seeds | best CLF (same settings) | improvement [95 % CI] | PoI [95 % CI] | "
-               "base law | RMSE ratio | TV ratio | friction peak ratio |",
-               "|---|---|---|---|---|---|---|---|---|---|---|"]
+               "| suite | task | policy | seeds | score reference | best CLF (same settings) | improvement [95 % CI] | "
+               "PoI [95 % CI] | base law | RMSE ratio | TV ratio | friction peak ratio |",
+               "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for c in res.comparisons:
-            L_.append(f"| {c['suite']} | {c['task']} | {c['policy']} | {c['n_runs']} | {c['best_clf']} | "
+            L_.append(f"| {c['suite']} | {c['task']} | {c['policy']} | {c['n_runs']} | {c['score_reference']} | "
+                      f"{c['best_clf']} | "
                       f"{c['improvement']:+.1%} [{c['improvement_lo']:+.1%}, {c['improvement_hi']:+.1%}] | "
                       f"{c['poi']:.2f} [{c['poi_lo']:.2f}, {c['poi_hi']:.2f}] | "
                       f"{c['base_law']} | {_fmt(c.get('rmse_ratio'))} | {_fmt(c.get('tv_ratio'))} | "

@@ -38,6 +38,12 @@ from .layout import F_AMP, F_END, F_START, X_AV, X_OMEGA, X_PL, X_THETA
 from .params import P_B, P_BETA, P_CD, P_CSM, P_DF, P_DM, P_DPT, P_DV, P_J, P_K, P_PS, P_RHO, P_TAU, P_VM
 
 jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
+# The hot per-period kernels (lanes, controller, env step) are compiled without numba's reference-counting
+# runtime (NRT): they never allocate, and with NRT every array view they take (z[b], work[0], events[b], ...)
+# costs an atomic incref/decref pair, measured at ~40 % of an env step. Without NRT such a view is a plain
+# struct; a kernel that tries to allocate fails to compile ("NRT required but not enabled") rather than
+# misbehaving. ``_nrt`` is numba's (underscore) flag for this; 0.68 honours it.
+jit_noalloc = nb.njit(cache=True, fastmath=False, error_model="numpy", _nrt=False)
 
 
 @jit
@@ -126,7 +132,7 @@ def plant_rhs(x, u, tf, p, dx):
     dx[X_AV] = p[P_K] / p[P_TAU] * u - 1.0 / p[P_TAU] * x4
 
 
-@jit
+@jit_noalloc
 def integrate_plant(x, u, t0, h, substeps, p, events, work):
     """Advance the plant state ``x`` in place over [t0, t0+h] with u held (ZOH).
 
@@ -205,7 +211,7 @@ def _lane_rhs(X, A, U, c, D, B):
         D[3, b] = c[LC_KT, b] * U[b] - c[LC_IT, b] * x4
 
 
-@jit
+@jit_noalloc
 def integrate_lanes(X, U, t0, h, substeps, c, events, work):
     """RK4 for B scenarios in lock-step; same arithmetic as :func:`integrate_plant`.
 

@@ -37,6 +37,7 @@ import numpy as np
 from . import layout as L
 from .params import PlantParams
 from .physics import lie_derivatives
+from .scenarios import DEFAULT_DISTRIBUTION, paper_scenario, sample_scenario
 from .sim import PAPER_FRICTION, Scenario, lambdas, simulate_batch
 from .util import atomic_write, atomic_write_text
 
@@ -99,6 +100,13 @@ class StudyConfig:
         probe_t_end: probe duration [s] (frequency measured over the second half).
         pos_probe_periods: control periods [s] of the position-task probes (limit 10 mA and none).
         pos_probe_t_end: their duration [s] (no friction).
+        dist_periods: control periods [s] of the training-distribution check (the env's randomised
+            scenarios, n = 2 at the chosen sigma, 10 mA): the paper-scenario sweep alone cannot see a
+            limit cycle that only some references excite.
+        dist_episodes: randomised scenarios per period (the env's training seeds 0, 1, ...).
+        lost_rms: an episode has *lost track* if the RMS error over some 0.1 s window after the first
+            0.2 s exceeds this [rad/s] (~ the reference amplitudes: the output no longer follows).
+        max_lost: largest share of lost episodes a recommended period may have.
         limit: current limit [mA] of the sigma x period sweep and the paper runs P1, P2.
         base_period: control period [s] of P0, P1 (the core's default).
         fine_period: control period [s] of P2.
@@ -129,6 +137,10 @@ class StudyConfig:
     probe_t_end: float = 0.3
     pos_probe_periods: tuple = (2e-6, 1e-5, 2e-5)
     pos_probe_t_end: float = 1.0
+    dist_periods: tuple = (2e-5, 3e-5, 4e-5, 5e-5)
+    dist_episodes: int = 100
+    lost_rms: float = 0.3
+    max_lost: float = 0.01
     limit: float = 10.0
     base_period: float = 1e-4
     fine_period: float = 1e-5
@@ -145,7 +157,8 @@ class StudyConfig:
                    tiny_sigmas=(), tiny_t_end=0.3, tiny_friction=((1.8, 0.2, 0.25),), limits=(None, 10.0),
                    limit_sigmas=(1.0,), frs=(60.0, 100.0), fr_sigmas=(1.0,),
                    widths=(0.0, 100.0), substeps_list=(1, 2), div_periods=(1e-4,), div_t_end=(0.05,),
-                   probe_periods=(1e-4,), probe_t_end=0.05, pos_probe_periods=(2e-5,), pos_probe_t_end=0.1)
+                   probe_periods=(1e-4,), probe_t_end=0.05, pos_probe_periods=(2e-5,), pos_probe_t_end=0.1,
+                   dist_periods=(2e-5, 1e-4), dist_episodes=4)
 
     def substeps_for(self, h: float) -> int:
         """RK4 substeps that keep the integration step near ``dt_int``."""
@@ -230,6 +243,8 @@ def features_of(traj) -> dict:
       chatter_ratio = control TV rate / tv_smooth_rate.
     - relay_log_ratio: median log10(beta / |psi/G|); beta_log_limit: median log10(beta / limit);
       psi_over_G: median |psi/G| [mA] (the equivalent control); G_med: median |G|.
+    - window_rms_max: largest RMS error over consecutive 0.1 s windows after the first 0.2 s (the
+      start-up transient) [output unit]; large when the loop has lost track.
     """
     sc = traj.scenario
     t, e = traj.t, traj.e
@@ -254,6 +269,10 @@ def features_of(traj) -> dict:
             f[k] = math.nan
     ua = traj.u_applied
     dt_log = float(t[1] - t[0]) if len(t) > 1 else sc.control_period
+    nw = max(1, int(round(0.1 / dt_log)))
+    tail = e[t >= 0.2]
+    k = len(tail) // nw
+    f["window_rms_max"] = float(np.sqrt(np.mean(tail[:k * nw].reshape(k, nw) ** 2, axis=1)).max()) if k else math.nan
     w = max(1, int(round(0.05 / dt_log)))
     if len(ua) > 2 * w:
         sm = np.convolve(ua, np.ones(w) / w, mode="valid")
@@ -645,6 +664,31 @@ def choose_period_sigma(records: Sequence[Record], n: int = 2, max_sat: float = 
     return h, best[h].params["sigma"], table
 
 
+def choose_robust(records: Sequence[Record], key: str, start: float, lost_rms: float, max_lost: float):
+    """The smallest value >= ``start`` of setting ``key`` ("h" or "limit") at which the law loses track on at
+    most ``max_lost`` of the randomised episodes (an episode is lost when its ``window_rms_max`` exceeds
+    ``lost_rms``, or it diverged). Both a longer control period and a larger current limit cost something
+    (a slower loop, a bigger valve), so the smallest passing value is taken.
+
+    Returns:
+        (value, rule_met, table) with table: value -> (lost share, mean RMSE, median RMSE, mean saturation,
+        episodes); if no value >= start qualifies, value = start and rule_met = False.
+    """
+    by_h: dict[float, list[Record]] = {}
+    for r in records:
+        by_h.setdefault(r.params[key], []).append(r)
+    table = {}
+    for h, rs in sorted(by_h.items()):
+        lost = [r.get("diverged", False) or not r.get("window_rms_max") <= lost_rms for r in rs]
+        rmse = [r.get("rmse") for r in rs]
+        table[h] = (float(np.mean(lost)), float(np.mean(rmse)), float(np.median(rmse)),
+                    float(np.mean([r.get("saturation") for r in rs])), len(rs))
+    ok = [h for h, row in table.items() if h >= start and row[0] <= max_lost]
+    if not ok:
+        return start, False, table
+    return min(ok), True, table
+
+
 def choose_sigma(records: Sequence[Record], n: int, max_sat: float = 0.01):
     """The sigma with the lowest nominal RMSE among non-diverged runs of power factor n with saturation <= max_sat."""
     ok = [r for r in records if r.params["n"] == n and not r.get("diverged", False) and r.get("saturation") <= max_sat]
@@ -796,12 +840,28 @@ def run_study(cfg: StudyConfig, progress: bool = True) -> Study:
         st.records["probe"] = [_probe_summary(r) for r in res_probe]
 
         # Choose the period and sigma for n = 2 (velocity) from the sweep.
-        h_rec, sg_rec, table = choose_period_sigma(st.records["sigma_period"], n=2)
+        h_paper, sg_rec, table = choose_period_sigma(st.records["sigma_period"], n=2)
         st.rec["period_table"] = table
-        st.rec["h"] = h_rec
+        st.rec["h_paper"] = h_paper
         st.rec["sigma_velocity"] = sg_rec
-        at_h = [r for r in st.records["sigma_period"] if r.params["h"] == h_rec]
+        at_h = [r for r in st.records["sigma_period"] if r.params["h"] == h_paper]
         st.rec["sigma_by_n_velocity"] = {n: choose_sigma(at_h, n) for n in NS}
+
+        # Stage 1b: that law on the env's randomised training scenarios at h_paper and longer periods.
+        items = []
+        for h in sorted(set(cfg.dist_periods) | {h_paper}):
+            if h < h_paper:
+                continue
+            tmpl = paper_scenario(Scenario(n=2, sigma=sg_rec, current_limit=cfg.limit, control_period=h,
+                                           substeps=cfg.substeps_for(h)))
+            for seed in range(cfg.dist_episodes):
+                items.append(("distribution", sample_scenario(seed, tmpl, None, DEFAULT_DISTRIBUTION)))
+        for r in runner.run(items):
+            st.records.setdefault(r.group, []).append(r)
+        h_rec, met, dtab = choose_robust(st.records["distribution"], "h", h_paper, cfg.lost_rms, cfg.max_lost)
+        st.rec["h"] = h_rec
+        st.rec["dist_rule_met"] = met
+        st.rec["dist_table"] = dtab
 
         # Stage 2a: substeps at the chosen period; sigma sweep for the position task.
         items = []
@@ -850,8 +910,22 @@ def run_study(cfg: StudyConfig, progress: bool = True) -> Study:
             st.records.setdefault(r.group, []).append(r)
         lim_runs = [r for r in st.records["sigma_limit"] if r.params["sigma"] == sg_rec and r.params["n"] == 2]
         lim = choose_limit(lim_runs)
-        st.rec["limit"] = lim if lim is not None else cfg.limit
+        st.rec["limit_paper"] = lim_paper = lim if lim is not None else cfg.limit
         st.rec["limit_rule_met"] = lim is not None
+        # the same training-distribution check for every finite limit from the paper rule's up to the study's
+        items = []
+        for lim in sorted(k for k in cfg.limits if k is not None and lim_paper <= k <= cfg.limit):
+            tmpl = paper_scenario(Scenario(n=2, sigma=sg_rec, current_limit=lim, control_period=h_rec,
+                                           substeps=ss_rec))
+            for seed in range(cfg.dist_episodes):
+                items.append(("distribution_limit", sample_scenario(seed, tmpl, None, DEFAULT_DISTRIBUTION)))
+        for r in runner.run(items):
+            st.records.setdefault(r.group, []).append(r)
+        lim, met, ltab = choose_robust(st.records.get("distribution_limit", []), "limit", lim_paper, cfg.lost_rms,
+                                       cfg.max_lost)
+        st.rec["limit"] = lim
+        st.rec["dist_limit_rule_met"] = met
+        st.rec["dist_limit_table"] = ltab
         w_runs = [r for r in st.records["smoothing"] if r.params["n"] == 2]
         st.rec["smoothing"] = choose_smoothing(w_runs)
         items = []
@@ -1512,19 +1586,27 @@ def recommendation_json(st: Study) -> dict:
         "sigma_by_n": {"velocity": {str(k): v for k, v in rec["sigma_by_n_velocity"].items()},
                        "position": {str(k): v for k, v in rec["sigma_by_n_position"].items()}},
         "control_period_s": rec["h"],
+        "control_period_paper_s": rec["h_paper"],
+        "lost_share_by_period": {f"{h:g}": row[0] for h, row in rec.get("dist_table", {}).items()},
         "substeps": rec["substeps"],
         "current_limit_mA": rec["limit"],
+        "current_limit_paper_mA": rec["limit_paper"],
+        "lost_share_by_limit": {f"{k:g}": row[0] for k, row in rec.get("dist_limit_table", {}).items()},
         "smoothing": rec["smoothing"],
         "fr_hz": {"velocity": 100.0, "position": 60.0},
         "position_base_law_saturates": bool(rec.get("position_saturating")),
         "base_law_saturation_fraction": sat,
         "rules": {
             "control_period_sigma": "largest h whose best non-saturating (<= 1 %) sigma gives nominal RMSE within 2x "
-                                    "the best over all h (n = 2, velocity, 10 mA, plain law)",
+                                    "the best over all h (n = 2, velocity, 10 mA, plain law): control_period_paper_s",
+            "control_period": "the shortest h >= control_period_paper_s at which that law loses track (a 0.1 s window "
+                              f"RMS error above {st.cfg.lost_rms:g} rad/s) on <= {st.cfg.max_lost:.0%} of "
+                              f"{st.cfg.dist_episodes} randomised training scenarios",
             "substeps": "smallest substeps whose nominal RMSE and friction peak are within 2 % of 8 substeps' "
                         "for n = 2, 4, 6",
             "current_limit": "smallest limit with saturation <= 1 %, recovery after both friction edges and "
-                             "nominal RMSE within 25 % of the unlimited law's (n = 2)",
+                             "nominal RMSE within 25 % of the unlimited law's (n = 2): current_limit_paper_mA; then "
+                             "the smallest limit >= it that passes the control_period rule's lost-track check",
             "sigma_position": "as sigma (velocity) on the position sweep; if no sigma keeps saturation <= 1 %, the "
                               "least-saturating sigma and position_base_law_saturates = true",
             "smoothing": "width with the lowest control TV among those keeping nominal RMSE and friction peak "
@@ -1935,41 +2017,67 @@ def _conclusion(st: Study, rec_json: dict) -> list[str]:
     sp = {(r.params["sigma"], r.params["h"], r.params["n"]): r for r in st.records.get("sigma_period", [])}
     best_n = {}
     for n in NS:
-        ok = [r for (sg, h, nn), r in sp.items() if nn == n and h == rec["h"] and not r.get("diverged", False)
+        ok = [r for (sg, h, nn), r in sp.items() if nn == n and h == rec["h_paper"] and not r.get("diverged", False)
               and r.get("saturation") <= 0.01]
         if ok:
             b = min(ok, key=lambda r: r.get("rmse_nominal"))
             best_n[n] = (b.params["sigma"], b.get("rmse_nominal"))
-    r1 = sp.get((1.0, rec["h"], 2))
+    r1 = sp.get((1.0, rec["h_paper"], 2))
     out += ["Recommended (machine-readable: `recommended_defaults.json`):", "",
             _md_table(["setting", "value", "evidence"], [
-                ["power factor n", "2", "the paper's choice; at the chosen period the best non-saturating sigma per "
-                 "n gives nominal RMSE " + ", ".join(
+                ["power factor n", "2",
+                 f"the paper's choice; at h = {rec['h_paper']:g} s the best non-saturating sigma per n gives "
+                 "nominal RMSE " + ", ".join(
                      f"{best_n[n][1]:.3g} (n = {n}, sigma = {best_n[n][0]:g})" for n in NS if n in best_n)
                  + "; at a common sigma n = 2 has the largest corrective gain beta for |s| < sigma"],
                 ["sigma (velocity)", f"{rec['sigma_velocity']:g}",
-                 f"lowest nominal RMSE among non-saturating (<= 1 %) sigmas at h = {rec['h']:g} s; sigma = 1 is a "
-                 "relay "
+                 f"lowest nominal RMSE among non-saturating (<= 1 %) sigmas at h = {rec['h_paper']:g} s; "
+                 "sigma = 1 is a relay "
                  + (f"(saturation {r1.get('saturation'):.1%})" if r1 else "")],
                 ["sigma (position)", f"{rec['sigma_position']:g}",
                  "same rule on the position sigma sweep" if not rec.get("position_saturating") else
                  "**no sigma met the rule**: the position law saturates at every sigma of the sweep (see below); "
                  "this is the least-saturating sigma, not a setting that makes the position task sound"],
                 ["control period", f"{rec['h']:g} s",
-                 "largest period whose best non-saturating RMSE is within 2x the best of all periods (table below)"],
+                 f"largest period whose best non-saturating RMSE is within 2x the best of all periods "
+                 f"({rec['h_paper']:g} s, first table below), moved to the shortest period >= it at which the law "
+                 f"loses track on <= {cfg.max_lost:.0%} of {cfg.dist_episodes} randomised env scenarios (second table)"
+                 + ("" if rec.get("dist_rule_met") else "; **no period met that rule**, the first is kept")],
                 ["substeps", f"{rec['substeps']}",
                  "smallest count whose RMSE and friction peak are within 2 % of 8 substeps' (table below)"],
                 ["current limit", f"{rec['limit']:g} mA" + ("" if rec.get("limit_rule_met") else " (fallback)"),
-                 "smallest limit (the valve's rated current: smaller is a smaller valve) with saturation <= 1 %, "
-                 "recovery after both friction edges and nominal RMSE within 25 % of the unlimited law's; it raises "
-                 "the friction peak, see the limit table"
-                 if rec.get("limit_rule_met") else "no finite limit met the rule; the study's 10 mA is kept"],
+                 ("smallest limit (the valve's rated current: smaller is a smaller valve) with saturation <= 1 %, "
+                  "recovery after both friction edges and nominal RMSE within 25 % of the unlimited law's "
+                  f"({rec['limit_paper']:g} mA); it raises the friction peak, see the limit table"
+                  if rec.get("limit_rule_met") else "no finite limit met the rule; the study's 10 mA is kept")
+                 + f"; then the smallest limit >= it that loses track on <= {cfg.max_lost:.0%} of the randomised "
+                 "env scenarios (third table)"
+                 + ("" if rec.get("dist_limit_rule_met") else "; **no limit met that rule**")],
                 ["smoothing w", f"{rec['smoothing']:g}",
                  "lowest chattering among widths that keep RMSE and friction peak within 10 % of the plain law"],
                 ["f_r", "100 Hz (velocity), 60 Hz (position)", "the paper's (Table I); see sweep_sigma_fr"],
             ]), ""]
     out += ["Best non-saturating cell per control period (n = 2, velocity, 10 mA, plain law):", "",
             _md_table(["h [s]", "best sigma", "RMSE nominal", "saturation"], rows), ""]
+    dt = rec.get("dist_table", {})
+    if dt:
+        out += [f"The same law (sigma = {rec['sigma_velocity']:g}, 10 mA, plain) on {cfg.dist_episodes} randomised "
+                "scenarios of the env's training distribution (`ehss_gym.scenarios.sample_scenario`, seeds 0, 1, ...; "
+                "references, friction events, model mismatch and sensor noise as in training). *Lost* = the RMS "
+                f"error of some 0.1 s window after the first 0.2 s exceeds {cfg.lost_rms:g} rad/s (or divergence): "
+                "the loop is stuck in a large saturated oscillation. The paper scenario alone does not show it, "
+                "which is why this check can move the period:", "",
+                _md_table(["h [s]", "lost", "mean RMSE", "median RMSE", "mean saturation"],
+                          [[f"{h:g}", f"{lost:.1%}", f"{mr:.3g}", f"{md:.3g}", f"{sat:.2%}"]
+                           for h, (lost, mr, md, sat, _) in dt.items()]), ""]
+    lt = rec.get("dist_limit_table", {})
+    if lt:
+        out += [f"The same check for the current limit, at h = {rec['h']:g} s (a small valve that is enough for the "
+                "paper's gentle sine is not enough for the training distribution's faster references and up to "
+                "twice the paper's friction):", "",
+                _md_table(["limit [mA]", "lost", "mean RMSE", "median RMSE", "mean saturation"],
+                          [[f"{k:g}", f"{lost:.1%}", f"{mr:.3g}", f"{md:.3g}", f"{sat:.2%}"]
+                           for k, (lost, mr, md, sat, _) in lt.items()]), ""]
     ssr = sorted(st.records.get("substeps", []), key=lambda r: (r.params["n"], r.params["substeps"]))
     if ssr:
         out += ["Substeps check at the chosen period:", "",

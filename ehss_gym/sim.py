@@ -22,10 +22,10 @@ import numba as nb
 import numpy as np
 
 from . import layout as L
-from .control import check_state, controller_update
+from .control import check_state, controller_apply, controller_update
 from .filters import butterworth_coefficients, padded_filter
 from .params import PlantParams, check_finite, check_positive
-from .physics import N_LANE_CONST, integrate_lanes, jit, lane_constants
+from .physics import N_LANE_CONST, integrate_lanes, jit, jit_noalloc, lane_constants
 from .signals import Reference, paper_reference
 
 TASKS = {"velocity": 3, "position": 4}
@@ -314,9 +314,9 @@ class LaneScratch:
         self.lwork = np.zeros((6, 4, B))
 
 
-@jit
+@jit_noalloc
 def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
-                 zprev, work, lwork):
+                 zprev, work, lwork, pre, peek):
     """Advance every active lane by one control period; returns the number still active.
 
     For each lane: the controller (with residual ``u_res[b]`` [mA]), then the
@@ -324,6 +324,13 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
     metrics. A lane that diverges is marked inactive, keeps its last finite
     state, and gets its DIV_* code and time in ``acc``. ``zprev`` receives the
     state at t_k (what the logged sample shows).
+
+    A lane with ``pre[b]`` set has already been sensed at this k from this state
+    (:func:`ehss_gym.control.controller_sense` and the filter advance, as the
+    env's look-ahead does): ``peek[b, :N_INFO]`` holds that info and
+    ``peek[b, N_INFO:]`` the loop state after the filter advance. The controller
+    then only applies the residual (same arithmetic, bit for bit), and
+    ``pre[b]`` is cleared. The simulator passes no such lanes.
     """
     B = z.shape[0]
     n_active = 0
@@ -331,13 +338,23 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
         if not active[b]:
             U[b] = 0.0
             continue
-        zprev[b] = z[b]
-        u = controller_update(z[b], k, h, plant[b], model[b], ctrl[b], ref[b], events[b], filt[b], u_res[b],
-                              info[b], work)
+        for i in range(z.shape[1]):  # element loops: an array assignment may allocate (no NRT here)
+            zprev[b, i] = z[b, i]
+        if pre[b]:
+            pre[b] = False
+            for i in range(L.N_INFO):
+                info[b, i] = peek[b, i]
+            u = controller_apply(info[b], ctrl[b], peek[b, L.I_UBASE], u_res[b])
+            for i in range(L.N_PLANT, z.shape[1]):
+                z[b, i] = peek[b, L.N_INFO + i]
+        else:
+            u = controller_update(z[b], k, h, plant[b], model[b], ctrl[b], ref[b], events[b], filt[b], u_res[b],
+                                  info[b], work)
         if not (math.isfinite(u) and math.isfinite(info[b, L.I_V]) and math.isfinite(info[b, L.I_S])):
             _diverge(acc[b], L.DIV_CURRENT if not math.isfinite(u) else L.DIV_NONFINITE, k, h)
             active[b] = False
-            z[b] = zprev[b]
+            for i in range(z.shape[1]):
+                z[b, i] = zprev[b, i]
             U[b] = 0.0
             continue
         U[b] = u
@@ -356,7 +373,8 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
         if code != L.DIV_NONE:
             _diverge(acc[b], code, k, h)
             active[b] = False
-            z[b] = zprev[b]
+            for i in range(z.shape[1]):
+                z[b, i] = zprev[b, i]
             for i in range(4):
                 X[i, b] = z[b, i]
             n_active -= 1
@@ -379,12 +397,14 @@ def run_lanes(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, event
     work = np.zeros((8, 4))
     lwork = np.zeros((6, 4, B))
     zprev = np.zeros_like(z)
+    pre = np.zeros(B, dtype=np.bool_)  # no lane is pre-sensed in a plain simulation
+    peek = np.zeros((B, L.N_INFO + L.N_LOOP))
     for b in range(B):
         acc[b, L.M_T_DIVERGED] = -1.0
         n_log[b] = 0
     for k in range(n_steps):
         if lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
-                        zprev, work, lwork) == 0:
+                        zprev, work, lwork, pre, peek) == 0:
             break
         if k % log_every == 0:
             for b in range(B):

@@ -31,7 +31,7 @@ def test_quick_run_writes_report(tmp_path):
     assert "FAILED" not in perf
     named = set(re.findall(r"`(\w+)\.csv`", perf))
     assert {"sim_vs_solve_ivp", "substeps_per_second", "batch_scaling", "sim_profile", "memory",
-            "compile_time"} <= named
+            "compile_time", "ppo_training", "training_cost"} <= named
     for name in named | {"targets"}:
         with open(out / f"{name}.csv") as f:
             lines = f.read().splitlines()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import warnings
 
 import gymnasium as gym
@@ -27,9 +28,10 @@ from ehss_gym.scenarios import (
 from ehss_gym.sim import LoopArrays
 from ehss_gym.vector_env import EHSSTrackingVectorEnv
 
-SHORT = 0.05  # [s] = 200 agent steps at the default 5 x 50 us
+DT = DEFAULTS.agent_period * DEFAULTS.control_period  # [s], one agent step at the defaults
+SHORT = 200 * DT  # [s]
 W = dict(DEFAULTS.reward_weights)
-R_MIN = -(W["effort"] + W["rate"] + W["divergence"])
+R_MIN = -(W["effort"] + W["rate"] + W["tv"] + W["divergence"])
 R_MAX = W["track"]
 
 
@@ -86,7 +88,7 @@ BAD_KWARGS = [
     ({"reward_weights": {"track": -1.0}}, r"reward_weights\['track'\] must be in \[0, inf\)"),
     ({"reward_weights": [1.0]}, r"reward_weights must be a dict with keys from \['track'"),
     ({"error_scale": 0.0}, r"error_scale must be in \(0, inf\)"),
-    ({"episode_seconds": 1e-6}, r"episode_seconds must be in \[0.00025, inf\)"),
+    ({"episode_seconds": 1e-6}, re.escape(f"episode_seconds must be in [{DT:g}, inf)")),
     ({"render_mode": "human"}, r"render_mode must be None or one of \['rgb_array'\]"),
 ]
 
@@ -115,7 +117,7 @@ def test_bad_reset_options_raise():
     with pytest.raises(ValueError, match=r"differs from the env's controller settings"):
         env.reset(options={"scenario": _mismatched_scenario()})
     with pytest.raises(ValueError, match="shorter than one agent step"):
-        env.reset(options={"scenario": {"t_end": 1e-4}})
+        env.reset(options={"scenario": {"t_end": 0.5 * DT}})
 
 
 def test_action_nan_raises_bad_shape_raises_out_of_range_is_clipped_and_counted():
@@ -152,20 +154,21 @@ def _episode(env, seed, actions):
 
 
 def test_seeding_is_deterministic_over_a_full_episode():
-    actions = np.random.default_rng(5).uniform(-1, 1, (500, 1)).astype(np.float32)
-    a = _episode(EHSSTrackingEnv(episode_seconds=0.1), 123, actions)
-    b = _episode(EHSSTrackingEnv(episode_seconds=0.1), 123, actions)
-    assert a[2][-1] == (False, True) and len(a[1]) == 400  # full episode: truncated at 0.1 s / 0.25 ms
+    steps = 400
+    actions = np.random.default_rng(5).uniform(-1, 1, (steps + 100, 1)).astype(np.float32)
+    a = _episode(EHSSTrackingEnv(episode_seconds=steps * DT), 123, actions)
+    b = _episode(EHSSTrackingEnv(episode_seconds=steps * DT), 123, actions)
+    assert a[2][-1] == (False, True) and len(a[1]) == steps  # a full episode, ended by truncation
     for x, y in zip(a[:4], b[:4]):
         assert np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y
     assert str(a[4]["metrics"]) == str(b[4]["metrics"])  # str: NaN recovery times compare equal
-    c = _episode(EHSSTrackingEnv(episode_seconds=0.1), 124, actions)
+    c = _episode(EHSSTrackingEnv(episode_seconds=steps * DT), 124, actions)
     assert not np.array_equal(a[0], c[0])
 
 
 @pytest.mark.parametrize("mode", ["residual", "direct"])
 def test_ten_thousand_random_steps_over_random_scenarios_are_finite(mode):
-    env = EHSSTrackingEnv(mode=mode, episode_seconds=0.25)
+    env = EHSSTrackingEnv(mode=mode, episode_seconds=1000 * DT)
     rng = np.random.default_rng(0)
     obs, _ = env.reset(seed=1)
     episodes, diverged = 1, 0
@@ -179,6 +182,18 @@ def test_ten_thousand_random_steps_over_random_scenarios_are_finite(mode):
             obs, _ = env.reset()
             episodes += 1
     assert episodes >= 10
+
+
+def test_tv_reward_weight_is_an_l1_penalty_on_the_action_change():
+    actions = np.array([[0.0], [0.6], [0.6], [-1.5], [0.2]], dtype=np.float32)  # -1.5 is clipped to -1
+    runs = []
+    for tv in (0.0, 0.8):
+        env = EHSSTrackingEnv(episode_seconds=SHORT, reward_weights={"tv": tv})
+        runs.append(_episode(env, 4, actions)[1])
+    a = np.clip(actions[:, 0].astype(np.float64), -1.0, 1.0)
+    da = np.abs(np.diff(np.concatenate([[0.0], a])))
+    assert np.allclose(runs[0] - runs[1], 0.8 * da / 2, rtol=0, atol=1e-12)
+    assert np.count_nonzero(runs[0] - runs[1]) == 3  # holding an action (0 at the start, the repeated 0.6) is free
 
 
 def test_truncation_and_metrics_at_episode_end():
@@ -199,9 +214,12 @@ def test_truncation_and_metrics_at_episode_end():
 
 
 def test_divergence_terminates_with_finite_observation_and_penalty():
-    env = EHSSTrackingEnv(mode="direct", current_limit=None, residual_scale=1e4, episode_seconds=1.0)
+    # With the relief valves the plant cannot run away; what diverges here is one RK4 step of 50 us at a
+    # 10 A valve opening (numerically unstable), which the env must catch and report.
+    env = EHSSTrackingEnv(mode="direct", current_limit=None, residual_scale=1e4, episode_seconds=1.0,
+                          control_period=5e-5)
     env.reset(seed=0, options={"scenario": "paper"})
-    for _ in range(4000):
+    for _ in range(round(1.0 / (5e-5 * DEFAULTS.agent_period))):
         obs, r, term, trunc, info = env.step(np.ones(1, dtype=np.float32))
         if term or trunc:
             break
@@ -214,7 +232,7 @@ def test_divergence_terminates_with_finite_observation_and_penalty():
 
 def test_zero_residual_episode_matches_the_core_simulator():
     env = EHSSTrackingEnv(episode_seconds=SHORT)
-    phys = {"reference": sine(1.0, 2.0), "friction": ((1.8, 0.2, 0.3),), "t_end": 0.5}
+    phys = {"reference": sine(1.0, 2.0), "friction": ((1.8, 0.2, 0.3),), "t_end": 3000 * DT}  # whole agent steps
     env.reset(options={"scenario": phys})
     while True:
         _, _, term, trunc, info = env.step(np.zeros(1, dtype=np.float32))
@@ -280,14 +298,16 @@ def _run_vector_against_singles(kwargs, n_envs, n_steps, low, high, seed, thread
 
 @pytest.mark.parametrize("threads", [1, 2])
 def test_vector_env_equals_single_envs_with_autoreset(threads):
-    ends, _, _ = _run_vector_against_singles({"episode_seconds": 0.01}, 3, 100, -1.2, 1.2, 10, threads)
+    ends, _, _ = _run_vector_against_singles({"episode_seconds": 40 * DT}, 3, 100, -1.2, 1.2, 10, threads)
     assert ends >= 3 * 2
 
 
 @pytest.mark.parametrize("threads", [1, 2])
 def test_vector_env_equals_single_envs_when_lanes_fall_out_of_phase(threads):
     # Huge direct currents diverge at action-dependent times, so lanes restart out of phase.
-    kw = {"mode": "direct", "current_limit": None, "residual_scale": 1e5, "episode_seconds": 0.05}
+    # (50 us: an RK4 step that is unstable at these currents, see the divergence test above)
+    kw = {"mode": "direct", "current_limit": None, "residual_scale": 1e5, "episode_seconds": 0.05,
+          "control_period": 5e-5}
     ends, diverged, phases = _run_vector_against_singles(kw, 4, 150, 0.0, 1.0, 20, threads)
     assert diverged >= 2
     assert any(len(set(p)) > 1 for p in phases)  # some steps advanced lanes at different step indices

@@ -186,6 +186,10 @@ def test_learned_policy_is_compared_with_clf_at_its_settings():
     rows = {(r["policy"], r["episode"]): r for r in res.rows}
     for i in range(TINY.heldout_episodes):
         assert rows[("zero-residual", f"heldout-{i}")]["score"] == rows[("clf-n2@sigma=10000", f"heldout-{i}")]["score"]
+    # the comparison's scores are normalised by the n = 2 law at the policy's settings, so the zero residual
+    # (that very law) scores exactly 1 there, whatever the default reference law does on those episodes
+    assert c["score_reference"] == "clf-n2@sigma=10000" and c["score_mean"] == pytest.approx(1.0, abs=1e-12)
+    assert rows[("zero-residual", "heldout-0")]["score"] != pytest.approx(1.0)  # against clf-n2 at the defaults
 
 
 # ---------------------------------------------------------------------------------------------------

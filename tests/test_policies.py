@@ -43,13 +43,14 @@ def _run(env, policy, physical):
 @pytest.mark.parametrize("mode", ["residual", "direct"])
 def test_evaluate_policy_accepts_every_scripted_policy(mode):
     env = Monitor(gym.make("EHSSTracking-v0", mode=mode, episode_seconds=SHORT))
+    env.reset(seed=3)  # evaluate_policy's resets continue this generator: the same scenarios on every run
     policies = [CLFPolicy(env), PIDPolicy(env)]
     if mode == "residual":
         policies.append(FrictionFeedforwardPolicy(env, ((1.0, 0.01, 0.03),)))
     for policy in policies:
         mean, std = evaluate_policy(policy, env, n_eval_episodes=2, deterministic=True, warn=False)
         assert math.isfinite(mean) and math.isfinite(std) and mean > 0.0
-    venv = make_vec_env("EHSSTracking-v0", n_envs=2, env_kwargs={"mode": mode, "episode_seconds": SHORT})
+    venv = make_vec_env("EHSSTracking-v0", n_envs=2, seed=4, env_kwargs={"mode": mode, "episode_seconds": SHORT})
     for policy in policies:
         mean, _ = evaluate_policy(policy, venv, n_eval_episodes=2, deterministic=True, warn=False)
         assert math.isfinite(mean)
@@ -112,12 +113,16 @@ def test_clf_policy_runs_for_every_n(n, mode):
 def test_residual_channel_has_authority_under_the_defaults():
     """A friction feed-forward that knows the event lowers max |e| in the friction window.
 
-    Measured (velocity task, defaults): zero residual 0.0361 rad/s, feed-forward 0.0152 rad/s.
+    Measured (velocity task, defaults): zero residual 0.0376 rad/s, feed-forward 0.0160 rad/s.
     """
     env = EHSSTrackingEnv()
     base = _run(env, CLFPolicy(env), PAPER_LIKE)
     ff = _run(env, FrictionFeedforwardPolicy(env, FRICTION), PAPER_LIKE)
     assert ff["max_abs_e_friction"] < 0.8 * base["max_abs_e_friction"]
+    # The authority comes from acting before the edge: the same doublet started at the edge barely helps
+    # (the base law is already at the current limit right after the switch-on).
+    late = _run(env, FrictionFeedforwardPolicy(env, FRICTION, start_at_edge=True), PAPER_LIKE)
+    assert late["max_abs_e_friction"] > 0.9 * base["max_abs_e_friction"]
     assert ff["rmse"] <= base["rmse"]
     assert base["saturation"] < 0.01  # the base law is not a relay under the defaults
 

@@ -184,6 +184,24 @@ def test_choose_period_sigma():
         R.choose_period_sigma([rec(saturation=0.5)], n=2)
 
 
+def test_choose_robust():
+    def eps(h, lost, n=100):  # n episodes at period h, ``lost`` of them stuck in a large oscillation
+        return [rec(h=h, window_rms_max=0.9 if i < lost else 0.02) for i in range(n)]
+
+    recs = eps(2e-5, 5) + eps(3e-5, 1) + eps(4e-5, 0) + eps(1e-5, 0)
+    h, met, table = R.choose_robust(recs, "h", 2e-5, lost_rms=0.3, max_lost=0.01)
+    assert (h, met) == (3e-5, True)  # 2e-5 loses 5 %; 1e-5 is below the paper rule's period
+    assert table[2e-5][0] == 0.05 and table[3e-5][0] == 0.01
+    assert R.choose_robust(recs, "h", 2e-5, 0.3, 0.0)[:2] == (4e-5, True)
+    assert R.choose_robust(recs, "h", 2e-5, 0.3, 0.05)[:2] == (2e-5, True)
+    # a diverged episode counts as lost; if no period qualifies, the paper rule's period is kept and flagged
+    bad = [rec(h=2e-5, diverged=True, window_rms_max=0.0)] + eps(2e-5, 0, 9)
+    lim = [r for k in (3.0, 10.0) for r in [rec(limit=k, window_rms_max=0.9 if k == 3.0 else 0.02)] * 10]
+    assert R.choose_robust(lim, "limit", 1.0, 0.3, 0.01)[:2] == (10.0, True)  # 3 mA loses every episode
+    h, met, table = R.choose_robust(bad, "h", 2e-5, 0.3, 0.05)
+    assert (h, met, table[2e-5][0], table[2e-5][4]) == (2e-5, False, 0.1, 10)
+
+
 def test_choose_sigma_and_substeps():
     recs = [rec(sigma=1.0, saturation=1.0, rmse_nominal=1e-4), rec(sigma=1e5, rmse_nominal=2e-3),
             rec(sigma=1e6, rmse_nominal=3e-2)]

@@ -48,7 +48,7 @@ class Config:
     n: int = 2
     """power factor of the base CLF law (even >= 2)"""
     timesteps: int = 300_000
-    """total agent steps to train for (an agent step is agent_period control periods, 0.5 ms by default)"""
+    """total agent steps to train for (an agent step is agent_period control periods: 1 ms for both agents)"""
     seed: int = 0
     """training seed: torch, NumPy, SB3 and the env scenario draws (sub-env i is seeded seed + i)"""
     eval_freq: int = 50_000
