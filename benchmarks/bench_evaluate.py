@@ -19,11 +19,10 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import resource
-import subprocess
 import sys
-import tempfile
-import time
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # run as a script
+from benchmarks.common import time_command  # noqa: E402
 
 TARGET_S = 180.0
 CORES = 2
@@ -36,28 +35,16 @@ def time_evaluate(quick: bool = False, workers: int | None = None) -> dict:
         dict: wall_s and cpu_s [s], load_before / load_after (1-min load averages), episodes (count),
         phases (the command's own per-phase wall times [s]) and the printed summary.
     """
-    with tempfile.TemporaryDirectory(prefix="bench-evaluate-") as tmp:
-        cmd = [sys.executable, "-m", "ehss_gym.cli", "evaluate", "--out", os.path.join(tmp, "comparison"),
-               "--no-progress"] + (["--quick"] if quick else []) + ([f"--workers={workers}"] if workers else [])
-        load0 = os.getloadavg()
-        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-        t0 = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-        load1 = os.getloadavg()
-        if proc.returncode != 0:
-            raise RuntimeError(f"ehss evaluate failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
-    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-    m = re.search(r"(\d+) episodes in [\d.]+ s \((\d+) workers; ([^)]*)\)", proc.stdout)
+    res = time_command("evaluate", "comparison",
+                       (["--quick"] if quick else []) + ([f"--workers={workers}"] if workers else []))
+    m = re.search(r"(\d+) episodes in [\d.]+ s \((\d+) workers; ([^)]*)\)", res["stdout"])
     phases = {}
     if m:
         for part in m.group(3).split(","):
             name, val, _ = part.split()
             phases[name] = float(val)
-    return {"wall_s": wall, "cpu_s": cpu, "load_before": load0[0], "load_after": load1[0],
-            "episodes": int(m.group(1)) if m else -1, "workers": int(m.group(2)) if m else -1, "phases": phases,
-            "stdout": proc.stdout}
+    return {**res, "episodes": int(m.group(1)) if m else -1, "workers": int(m.group(2)) if m else -1,
+            "phases": phases}
 
 
 def main(argv=None) -> int:

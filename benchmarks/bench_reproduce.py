@@ -17,31 +17,17 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
-import subprocess
 import sys
-import tempfile
-import time
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # run as a script
+from benchmarks.common import time_command  # noqa: E402
 
 TARGET_S = 120.0
 
 
 def time_reproduce(quick: bool = False) -> dict:
     """Run ``ehss reproduce`` once into a temporary folder; returns wall [s], cpu [s] and load averages."""
-    with tempfile.TemporaryDirectory(prefix="bench-reproduce-") as tmp:
-        cmd = [sys.executable, "-m", "ehss_gym.cli", "reproduce", "--out", os.path.join(tmp, "paper"),
-               "--no-progress"] + (["--quick"] if quick else [])
-        load0 = os.getloadavg()
-        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-        t0 = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        wall = time.perf_counter() - t0
-        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-        load1 = os.getloadavg()
-        if proc.returncode != 0:
-            raise RuntimeError(f"ehss reproduce failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
-    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-    return {"wall_s": wall, "cpu_s": cpu, "load_before": load0[0], "load_after": load1[0]}
+    return time_command("reproduce", "paper", ["--quick"] if quick else [])
 
 
 def main(argv=None) -> int:

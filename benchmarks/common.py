@@ -7,8 +7,11 @@ import io
 import math
 import os
 import platform
+import resource
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -40,6 +43,30 @@ def interleave(cases: dict[str, Callable[[], float | None]], repeats: int) -> di
             dt = time.perf_counter() - t0
             times[name].append(out if isinstance(out, float) else dt)
     return times
+
+
+def time_command(subcommand: str, out_name: str, args: list) -> dict:
+    """Run ``ehss <subcommand> --out <tmp>/<out_name> --no-progress <args>`` once in a fresh process, into a
+    temporary folder deleted afterwards.
+
+    Returns:
+        dict: wall_s and cpu_s [s] (user + system of the child and its workers), load_before / load_after
+        (1-min load averages) and stdout. Raises RuntimeError if the command fails.
+    """
+    with tempfile.TemporaryDirectory(prefix=f"bench-{subcommand}-") as tmp:
+        cmd = [sys.executable, "-m", "ehss_gym.cli", subcommand, "--out", os.path.join(tmp, out_name),
+               "--no-progress", *args]
+        load0 = os.getloadavg()
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        load1 = os.getloadavg()
+        if proc.returncode != 0:
+            raise RuntimeError(f"ehss {subcommand} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    return {"wall_s": wall, "cpu_s": cpu, "load_before": load0[0], "load_after": load1[0], "stdout": proc.stdout}
 
 
 def median(xs) -> float:

@@ -1191,6 +1191,19 @@ def _footer(fig, res: Results) -> None:
     fig.text(0.01, 0.005, f"made by: {res.command}  (ehss-gym {_version()})", fontsize=7, color="gray")
 
 
+def _finish(fig, res: Results, folder: str, name: str, bottom: float) -> str:
+    """Footer, layout (``bottom`` left for the footer), atomic PNG write and close; returns the path relative
+    to the report."""
+    import matplotlib.pyplot as plt
+
+    _footer(fig, res)
+    fig.tight_layout(rect=(0, bottom, 1, 1))
+    p = os.path.join(folder, name)
+    _save(fig, p)
+    plt.close(fig)
+    return os.path.join("figures", name)
+
+
 def _version() -> str:
     from . import __version__
 
@@ -1235,12 +1248,7 @@ def make_figures(res: Results, folder: str) -> dict:
             n_ep = block[0]["n_episodes"]
             ax.set_title(f"{suite} suite, {task} ({n_ep} episode{'s' if n_ep > 1 else ''})", fontsize=9)
             ax.legend(fontsize=7, loc="lower right")
-        _footer(fig, res)
-        fig.tight_layout(rect=(0, 0.03, 1, 1))
-        p = os.path.join(folder, f"scores_{suite}.png")
-        _save(fig, p)
-        plt.close(fig)
-        figs["bars"].append((os.path.join("figures", os.path.basename(p)),
+        figs["bars"].append((_finish(fig, res, folder, f"scores_{suite}.png", 0.03),
                              f"Primary score per policy on the {suite} suite: bars = mean with 95 % bootstrap CI, "
                              "diamonds = IQM."))
     # heldout metric bars
@@ -1275,12 +1283,7 @@ def make_figures(res: Results, folder: str) -> dict:
             else:
                 ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))
         fig.suptitle(f"Held-out suite, {task}: mean over episodes (non-diverged) with 95 % bootstrap CI", fontsize=9)
-        _footer(fig, res)
-        fig.tight_layout(rect=(0, 0.03, 1, 1))
-        p = os.path.join(folder, f"metrics_heldout_{task}.png")
-        _save(fig, p)
-        plt.close(fig)
-        figs["metrics"].append((os.path.join("figures", os.path.basename(p)),
+        figs["metrics"].append((_finish(fig, res, folder, f"metrics_heldout_{task}.png", 0.03),
                                 f"Held-out suite, {task}: RMSE, peak error in friction windows and control TV."))
     # paper traces
     for task in TASKS:
@@ -1313,12 +1316,7 @@ def make_figures(res: Results, folder: str) -> dict:
         ax[0].legend(fontsize=7, ncol=3, loc="upper right")
         fig.suptitle(f"Paper scenario, {task} task: every policy overlaid (first training seed); friction "
                      f"shaded", fontsize=9)
-        _footer(fig, res)
-        fig.tight_layout(rect=(0, 0.02, 1, 1))
-        p = os.path.join(folder, f"paper_traces_{task}.png")
-        _save(fig, p)
-        plt.close(fig)
-        figs["traces"].append((os.path.join("figures", os.path.basename(p)),
+        figs["traces"].append((_finish(fig, res, folder, f"paper_traces_{task}.png", 0.02),
                                f"Paper scenario, {task}: output, error (full and zoomed on the friction event) "
                                "and applied current of every policy (sampled once per agent step)."))
     # robustness curves
@@ -1362,12 +1360,7 @@ def make_figures(res: Results, folder: str) -> dict:
         n_ep = res.cfg.sweep_episodes
         fig.suptitle(f"Robustness, {task}: mean over {n_ep} episodes per level (band: 95 % bootstrap CI; "
                      f"diverged episodes left out)", fontsize=9)
-        _footer(fig, res)
-        fig.tight_layout(rect=(0, 0.02, 1, 1))
-        p = os.path.join(folder, f"robustness_{task}.png")
-        _save(fig, p)
-        plt.close(fig)
-        figs["robustness"].append((os.path.join("figures", os.path.basename(p)),
+        figs["robustness"].append((_finish(fig, res, folder, f"robustness_{task}.png", 0.02),
                                    f"Robustness, {task}: error against friction amplitude and against model "
                                    "mismatch, per policy."))
     return figs

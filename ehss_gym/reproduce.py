@@ -796,6 +796,13 @@ def _paper_set(cfg: StudyConfig, name: str, sigma: dict, h: float, ss: int, limi
     return items
 
 
+def _distribution_items(group: str, cfg: StudyConfig, sigma: float, limit, h: float, ss: int) -> list:
+    """(group, Scenario) pairs: the env's randomised training scenarios (seeds 0 .. dist_episodes - 1) for the
+    n = 2 law with these settings (plain law, velocity)."""
+    tmpl = paper_scenario(Scenario(n=2, sigma=sigma, current_limit=limit, control_period=h, substeps=ss))
+    return [(group, sample_scenario(seed, tmpl, None, DEFAULT_DISTRIBUTION)) for seed in range(cfg.dist_episodes)]
+
+
 def run_study(cfg: StudyConfig, progress: bool = True) -> Study:
     """Run every stage; later stages use the settings chosen from earlier ones."""
     st = Study(cfg)
@@ -850,12 +857,8 @@ def run_study(cfg: StudyConfig, progress: bool = True) -> Study:
         # Stage 1b: that law on the env's randomised training scenarios at h_paper and longer periods.
         items = []
         for h in sorted(set(cfg.dist_periods) | {h_paper}):
-            if h < h_paper:
-                continue
-            tmpl = paper_scenario(Scenario(n=2, sigma=sg_rec, current_limit=cfg.limit, control_period=h,
-                                           substeps=cfg.substeps_for(h)))
-            for seed in range(cfg.dist_episodes):
-                items.append(("distribution", sample_scenario(seed, tmpl, None, DEFAULT_DISTRIBUTION)))
+            if h >= h_paper:
+                items += _distribution_items("distribution", cfg, sg_rec, cfg.limit, h, cfg.substeps_for(h))
         for r in runner.run(items):
             st.records.setdefault(r.group, []).append(r)
         h_rec, met, dtab = choose_robust(st.records["distribution"], "h", h_paper, cfg.lost_rms, cfg.max_lost)
@@ -915,10 +918,7 @@ def run_study(cfg: StudyConfig, progress: bool = True) -> Study:
         # the same training-distribution check for every finite limit from the paper rule's up to the study's
         items = []
         for lim in sorted(k for k in cfg.limits if k is not None and lim_paper <= k <= cfg.limit):
-            tmpl = paper_scenario(Scenario(n=2, sigma=sg_rec, current_limit=lim, control_period=h_rec,
-                                           substeps=ss_rec))
-            for seed in range(cfg.dist_episodes):
-                items.append(("distribution_limit", sample_scenario(seed, tmpl, None, DEFAULT_DISTRIBUTION)))
+            items += _distribution_items("distribution_limit", cfg, sg_rec, lim, h_rec, ss_rec)
         for r in runner.run(items):
             st.records.setdefault(r.group, []).append(r)
         lim, met, ltab = choose_robust(st.records.get("distribution_limit", []), "limit", lim_paper, cfg.lost_rms,
