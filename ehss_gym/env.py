@@ -73,7 +73,7 @@ class EnvDefaults:
         agent_period: control periods per agent step.
         residual_scale: current of a unit action [mA] when current_limit is None (else the current limit).
         scenario: "random" or "paper".
-        reward_weights: track, effort, rate, divergence weights.
+        reward_weights: track, effort, rate, tv, tv_u, divergence weights.
         velocity, position: per-task defaults.
     """
 
@@ -85,7 +85,8 @@ class EnvDefaults:
     agent_period: int = 5
     residual_scale: float = 10.0
     scenario: str = "random"
-    reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("divergence", 10.0))
+    reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("tv_u", 0.0),
+                             ("divergence", 10.0))
     velocity: TaskDefaults = field(default_factory=lambda: TaskDefaults(
         fr=100.0, sigma=1e5, smoothing=100.0, estimator_hz=1000.0, error_scale=1e-2))
     position: TaskDefaults = field(default_factory=lambda: TaskDefaults(
@@ -95,7 +96,7 @@ class EnvDefaults:
 DEFAULTS = EnvDefaults()
 MODES = ("residual", "direct")
 SCENARIOS = ("random", "paper")
-REWARD_KEYS = ("track", "effort", "rate", "tv", "divergence")
+REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence")
 MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
 
 # Observation normalisation (see the class docstring).
@@ -105,10 +106,10 @@ Y_SCALE = 1.0  # [output unit]
 W_Y = 10.0  # [rad/s], time scale of the reference derivatives
 
 # Per-agent-step statistics and reward-weight slots of the kernel.
-S_SUM_E2, S_N, S_SAT = 0, 1, 2
-N_STATS = 3
-W_TRACK, W_EFFORT, W_RATE, W_TV, W_DIV, W_INV_E2, W_INV_SCALE = range(7)
-N_WEIGHTS = 7
+S_SUM_E2, S_N, S_SAT, S_TV0 = 0, 1, 2, 3  # S_TV0: the lane's accumulated control TV when the step began
+N_STATS = 4
+W_TRACK, W_EFFORT, W_RATE, W_TV, W_TVU, W_DIV, W_INV_E2, W_INV_SCALE = range(8)
+N_WEIGHTS = 8
 
 # Per-lane float64 buffer F (B, N_F): column blocks, so one kernel argument carries them all (numba's
 # dispatch costs ~0.1 us per array argument, a large share of a 15 us step).
@@ -249,6 +250,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             act[b] = member
             if member:
                 IB[b, IB_GID] = g
+                F[b, F_STATS + S_TV0] = acc[b, L.M_TV_U]
         for j in range(n_per):
             # Periods alternate between the F_INFO and F_INFO_OK blocks, so the last finite period's info
             # survives a divergence in the next one without a per-period copy (lanes only ever stop).
@@ -278,6 +280,8 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             da = 0.5 * (a - F[b, F_APREV])
             r = -wts[W_EFFORT] * a * a - wts[W_RATE] * da * da - wts[W_TV] * abs(da)
             n = F[b, F_STATS + S_N]
+            if n > 0.0:
+                r -= wts[W_TVU] * (acc[b, L.M_TV_U] - F[b, F_STATS + S_TV0]) / n * wts[W_INV_SCALE]
             if diverged:
                 r -= wts[W_DIV]
             elif n > 0.0:
@@ -536,6 +540,7 @@ class Lanes:
         self.wts[W_EFFORT] = rw["effort"]
         self.wts[W_RATE] = rw["rate"]
         self.wts[W_TV] = rw["tv"]
+        self.wts[W_TVU] = rw["tv_u"]
         self.wts[W_DIV] = rw["divergence"]
         self.wts[W_INV_E2] = 1.0 / cfg.error_scale**2
         self.wts[W_INV_SCALE] = 1.0 / cfg.residual_scale
@@ -742,12 +747,15 @@ class EHSSTrackingEnv(gym.Env):
     **Reward**, per agent step over its control periods k (e_k the sampled error)::
 
         r = w_track / (1 + mean_k(e_k^2) / error_scale^2) - w_effort a^2 - w_rate ((a - a_prev)/2)^2
-            - w_tv |a - a_prev|/2
+            - w_tv |a - a_prev|/2 - w_tv_u mean_k(|u_k - u_(k-1)|) / residual_scale
             - w_divergence [diverged this step]   (the tracking term is dropped on divergence)
 
-    with a the clipped action (w_tv: an L1 rate penalty, the residual's own share of the control total
-    variation; the quadratic rate term hardly sees small jitter). Range: [-(w_effort + w_rate + w_tv +
-    w_divergence), w_track]; with the default weights (1, 0.05, 0.05, 0, 10): [-10.1, 1].
+    with a the clipped action and u_k the applied current [mA]. w_tv is an L1 rate penalty on the
+    residual's own steps (the quadratic rate term hardly sees small jitter); w_tv_u charges the whole
+    control total variation (the evaluation's TV, base-law switching included: a residual that tracks
+    more tightly can make the base law switch more often without any step of its own). Range:
+    [-(w_effort + w_rate + w_tv + 2 w_tv_u current_limit/residual_scale + w_divergence), w_track]; with
+    the default weights (1, 0.05, 0.05, 0, 0, 10): [-10.1, 1].
 
     **Termination and truncation.** Divergence (non-finite value, |x2| > omega_max, |x3| > 1.5 P_s;
     see :mod:`ehss_gym.sim`) ends the episode with ``terminated=True``, ``info["diverged"]=True`` and
@@ -781,7 +789,7 @@ class EHSSTrackingEnv(gym.Env):
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
             overrides it for one episode (also accepting a dict of physical fields).
-        reward_weights: dict overriding any of track (1), effort (0.05), rate (0.05), tv (0),
+        reward_weights: dict overriding any of track (1), effort (0.05), rate (0.05), tv (0), tv_u (0),
             divergence (10).
         error_scale: error scale of reward and observation [output unit] (default 0.01).
         episode_seconds: episode duration [s] for "random" and "paper" (default None: 2 s random,

@@ -31,7 +31,7 @@ from ehss_gym.vector_env import EHSSTrackingVectorEnv
 DT = DEFAULTS.agent_period * DEFAULTS.control_period  # [s], one agent step at the defaults
 SHORT = 200 * DT  # [s]
 W = dict(DEFAULTS.reward_weights)
-R_MIN = -(W["effort"] + W["rate"] + W["tv"] + W["divergence"])
+R_MIN = -(W["effort"] + W["rate"] + W["tv"] + W["divergence"])  # W["tv_u"] is 0 at the defaults
 R_MAX = W["track"]
 
 
@@ -194,6 +194,22 @@ def test_tv_reward_weight_is_an_l1_penalty_on_the_action_change():
     da = np.abs(np.diff(np.concatenate([[0.0], a])))
     assert np.allclose(runs[0] - runs[1], 0.8 * da / 2, rtol=0, atol=1e-12)
     assert np.count_nonzero(runs[0] - runs[1]) == 3  # holding an action (0 at the start, the repeated 0.6) is free
+
+
+def test_tv_u_reward_weight_charges_the_applied_current_total_variation():
+    # Over a whole episode the tv_u term adds up to w * TV(u) / (agent_period * residual_scale), with TV(u) the
+    # metric the evaluation scores (base-law switching included, not only the action's own changes).
+    steps = round(SHORT / DT)
+    actions = np.random.default_rng(2).uniform(-0.3, 0.3, (steps, 1)).astype(np.float32)
+    w, scale = 0.7, 4.0
+    runs = [_episode(EHSSTrackingEnv(episode_seconds=SHORT, residual_scale=scale, reward_weights={"tv_u": tv}), 6,
+                     actions) for tv in (0.0, w)]
+    assert runs[0][2][-1] == (False, True) and np.array_equal(runs[0][0], runs[1][0])  # same trajectory
+    tv = runs[0][4]["metrics"]["tv_u"]
+    assert tv > 0.0
+    per_step = (runs[0][1] - runs[1][1]) * DEFAULTS.agent_period * scale / w  # each step's |du| sum [mA]
+    assert np.all(per_step >= -1e-12)
+    assert math.isclose(per_step.sum(), tv, rel_tol=1e-9)
 
 
 def test_truncation_and_metrics_at_episode_end():

@@ -253,3 +253,27 @@ def test_multi_seed_real(tmp_path):
     assert rc == 0
     sums = [json.loads(open(os.path.join(tmp_path, d, "summary.json")).read()) for d in sorted(os.listdir(tmp_path))]
     assert sorted(s["seed"] for s in sums) == [0, 1]
+
+
+def test_period_log_replays_the_agents_loop_at_the_control_rate():
+    """The report's TV decomposition logs every control period by re-running a policy at agent_period 1; that
+    loop must be the one the policy acts in (same metrics as at its own agent period), and its TV count
+    complete (equal to the metrics' TV)."""
+    from ehss_gym.rl.report import period_log
+    from ehss_gym.safeweights import load_policy, shipped_models
+    from ehss_gym.scenarios import heldout_scenarios
+
+    pol = load_policy(shipped_models()["residual-ppo-velocity-n4-seed0"])
+    tmpl = pol.make_env().unwrapped.scenario_template
+    sc = next(s for s in heldout_scenarios(48, tmpl) if any(v > 0 for v in s.noise_std)).replace(t_end=0.2)
+    env = pol.make_env()
+    obs, _ = env.reset(options={"scenario": sc})
+    while True:
+        obs, _, term, trunc, info = env.step(pol.predict(obs)[0])
+        if term or trunc:
+            break
+    log = period_log(pol, sc)
+    assert log["rmse"] == info["metrics"]["rmse"] and log["metrics_tv"] == info["metrics"]["tv_u"]
+    assert log["tv"] == pytest.approx(log["metrics_tv"], rel=1e-9) and log["tv_own"] > 0 and log["crossings"] > 0
+    base = period_log(pol, sc, base_only=True)
+    assert base["tv_own"] == 0.0 and base["rmse"] != log["rmse"]

@@ -252,6 +252,64 @@ def error_budget(task: str, episodes: int) -> dict:
             "peak_delay_median": float(np.median(delays)) if delays else math.nan, "events": len(delays)}
 
 
+def period_log(policy, scenario, base_only: bool = False) -> dict:
+    """One episode of ``policy`` (a :class:`~ehss_gym.safeweights.SafePolicy`) in its own loop, logged at
+    every control period: the env is rebuilt with ``agent_period=1`` and the policy acts on every
+    ``agent_period``-th period (the loop is the same: the observation and the held action do not depend on
+    the agent period). ``base_only`` holds the action at 0: the base law alone.
+
+    Returns the control TV sum |u_k - u_(k-1)| of the applied current [mA] (as the metrics count it), the
+    residual's own share sum |r_k - r_(k-1)| [mA], the number of sign changes of the combined error s, and
+    the RMSE [output unit].
+    """
+    period = int(policy.env_kwargs["agent_period"])
+    env = policy.make_env(agent_period=1)
+    obs, _ = env.reset(options={"scenario": scenario})
+    a = np.zeros(policy.action_space.shape, dtype=np.float32)
+    s, u, r = [], [], []
+    k = 0
+    while True:
+        if k % period == 0 and not base_only:
+            a, _ = policy.predict(obs)
+        obs, _, term, trunc, info = env.step(a)
+        s.append(info["s"])
+        u.append(info["u_applied"])
+        r.append(info["u_residual"])
+        k += 1
+        if term or trunc:
+            break
+    s, u, r = np.array(s), np.array(u), np.array(r)
+    return {"tv": float(np.abs(np.diff(u)).sum()), "tv_own": float(np.abs(np.diff(r)).sum()),
+            "crossings": int(np.count_nonzero(np.signbit(s[1:]) != np.signbit(s[:-1]))),
+            "rmse": info["metrics"]["rmse"], "metrics_tv": info["metrics"]["tv_u"]}
+
+
+def tv_sources(policy_paths: list[str], episodes: int) -> dict:
+    """Where a residual's added control TV comes from, on the held-out episodes with sensor noise (where the
+    TV is; the suite's TV ratio is a ratio of means): the policies' total TV against their base law's on the
+    same episodes, the residual's own steps as a share of the added TV, and the ratio of sign changes of the
+    combined error s (the base law's sign(s) term switches there). Ratios of sums over seeds and episodes."""
+    from ..safeweights import load_policy
+    from ..scenarios import heldout_scenarios
+
+    pols = [load_policy(p) for p in policy_paths]
+    tmpl = pols[0].make_env().unwrapped.scenario_template
+    scs = [sc for sc in heldout_scenarios(episodes, tmpl) if any(v > 0 for v in sc.noise_std)]
+    base = [period_log(pols[0], sc, base_only=True) for sc in scs]
+    runs = [period_log(p, sc) for p in pols for sc in scs]
+
+    def total(logs, key):
+        return float(sum(d[key] for d in logs))
+
+    added = total(runs, "tv") - len(pols) * total(base, "tv")
+    return {"episodes": len(scs), "policies": len(pols),
+            "tv_ratio": total(runs, "tv") / (len(pols) * total(base, "tv")),
+            "own_share_of_added": total(runs, "tv_own") / added if added > 0 else math.nan,
+            "own_share_of_total": total(runs, "tv_own") / total(runs, "tv"),
+            "crossings_ratio": total(runs, "crossings") / (len(pols) * total(base, "crossings")),
+            "rmse_ratio": total(runs, "rmse") / (len(pols) * total(base, "rmse"))}
+
+
 # ---------------------------------------------------------------------------------------------------
 # Shipping
 
@@ -462,6 +520,23 @@ def markdown(groups, results, noise, args, shipped, figure, wall_eval) -> str:
                   "residual cannot add current; only acting *before* the switch-on could (the env's oracle "
                   "feed-forward, which knows the event in advance, halves the peak; the same doublet started at "
                   "the switch-on does not, see docs/ENV.md).", ""]
+        rows = []
+        for k, rs in groups.items():
+            if k[1] == task and rs[0]["config"]["env_kwargs"]["mode"] == "residual":
+                ts = tv_sources([os.path.join(r["dir"], "best", "policy") for r in rs], args.episodes)
+                rows.append([label(k), ts["policies"], ts["episodes"], ts["tv_ratio"], ts["own_share_of_added"],
+                             ts["own_share_of_total"], ts["crossings_ratio"], ts["rmse_ratio"]])
+        if rows:
+            lines += ["Where the residuals' added control TV comes from: each seed's kept policy and its base law "
+                      "on the held-out episodes with sensor noise (where the suite's TV is), logged at every "
+                      "control period (`period_log`); sums over seeds and episodes. *Own steps*: sum |r_k - r_(k-1)| "
+                      "of the residual current. A share of the added TV well below 1 means the added TV is the base "
+                      "law's own switching in the state the residual drives the loop into, which no penalty on the "
+                      "action's changes reaches (docs/ENV.md, \"Residual PPO settings\"); sign changes of s are "
+                      "where the law's sign(s) term switches.", ""]
+            lines.append(_table(["policy", "seeds", "episodes", "TV ratio", "own steps / added TV",
+                                 "own steps / total TV", "sign changes of s ratio", "RMSE ratio"], rows))
+            lines.append("")
         lines += [f"Evaluation wall time: {wall_eval[task]:.0f} s.", ""]
     if shipped:
         total = sum(os.path.getsize(p + ext) for p in shipped for ext in (".safetensors", ".json"))
