@@ -474,17 +474,21 @@ def markdown(groups, results, noise, args, shipped, figure, wall_eval) -> str:
                              "improvement", "95 % CI", "base law", "RMSE ratio", "TV ratio", "friction peak ratio"],
                             rows))
         lines += ["", "Targets of the residual policies on the held-out suite (from the table above):", ""]
+        means = {(d["suite"], d["policy"]): d for d in res.summary}
         for c in res.comparisons:
             if c["suite"] != "heldout" or not c["policy"].startswith("residual-ppo"):
                 continue
             imp_ok = c["improvement"] >= 0.2 and c["improvement_lo"] > 0 and c["n_runs"] >= 5
             tv = c.get("tv_ratio", math.nan)
             fr = c.get("friction_peak_ratio", math.nan)
+            pol, best = means[("heldout", c["policy"])], means[("heldout", c["best_clf"])]
             lines.append(f"- `{c['policy']}` ({c['n_runs']} seeds): improvement over {c['best_clf']} "
                          f"{c['improvement']:+.1%} (95 % CI [{c['improvement_lo']:+.1%}, {c['improvement_hi']:+.1%}]) "
                          f"-> target (>= 20 %, CI excluding 0, >= 5 seeds) {'met' if imp_ok else 'NOT met'}; "
                          f"control TV {tv:.3f} x its base law -> {'met' if tv <= 1 else 'NOT met'}; friction-window "
-                         f"peak {fr:.3f} x its base law -> halving {'met' if fr <= 0.5 else 'NOT met'}.")
+                         f"peak {fr:.3f} x its base law -> halving {'met' if fr <= 0.5 else 'NOT met'}. Against the "
+                         f"best CLF itself (means over the episodes): RMSE {pol['rmse'] / best['rmse']:.3f} x, control "
+                         f"TV {pol['tv_u_rate'] / best['tv_u_rate']:.3f} x.")
         per_seed = []
         for d in res.specs:
             if not d.learned:
