@@ -22,7 +22,7 @@ import re
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # run as a script
-from benchmarks.common import time_command  # noqa: E402
+from benchmarks.common import time_command, wall_target_line  # noqa: E402
 
 TARGET_S = 180.0
 CORES = 2
@@ -59,9 +59,7 @@ def main(argv=None) -> int:
           f"(phases: {phases}), CPU {res['cpu_s']:.1f} s (CPU/{CORES} = {res['cpu_s'] / CORES:.1f} s) on "
           f"{os.cpu_count()} CPU(s); 1-min load average {res['load_before']:.2f} before, {res['load_after']:.2f} after")
     if not args.quick:
-        ok = res["wall_s"] <= TARGET_S
-        print(f"target <= {TARGET_S:.0f} s wall on {CORES} cores: {'met' if ok else 'MISSED'}"
-              + ("" if res["load_before"] < 0.5 else " (machine shared: other load was running)"))
+        print(wall_target_line(res, TARGET_S, CORES))
     return 0
 
 

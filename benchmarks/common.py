@@ -69,6 +69,13 @@ def time_command(subcommand: str, out_name: str, args: list) -> dict:
     return {"wall_s": wall, "cpu_s": cpu, "load_before": load0[0], "load_after": load1[0], "stdout": proc.stdout}
 
 
+def wall_target_line(res: dict, target_s: float, cores: int) -> str:
+    """'target <= T s wall on N cores: met/MISSED' for a :func:`time_command` result, flagging a shared machine."""
+    ok = res["wall_s"] <= target_s
+    return (f"target <= {target_s:.0f} s wall on {cores} cores: {'met' if ok else 'MISSED'}"
+            + ("" if res["load_before"] < 0.5 else " (machine shared: other load was running)"))
+
+
 def median(xs) -> float:
     return float(statistics.median(xs))
 

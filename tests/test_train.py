@@ -259,13 +259,13 @@ def test_period_log_replays_the_agents_loop_at_the_control_rate():
     """The report's TV decomposition logs every control period by re-running a policy at agent_period 1; that
     loop must be the one the policy acts in (same metrics as at its own agent period), and its TV count
     complete (equal to the metrics' TV)."""
-    from ehss_gym.rl.report import period_log
+    from ehss_gym.rl.report import has_noise, period_log
     from ehss_gym.safeweights import load_policy, shipped_models
     from ehss_gym.scenarios import heldout_scenarios
 
     pol = load_policy(shipped_models()["residual-ppo-velocity-n4-seed0"])
     tmpl = pol.make_env().unwrapped.scenario_template
-    sc = next(s for s in heldout_scenarios(48, tmpl) if any(v > 0 for v in s.noise_std)).replace(t_end=0.2)
+    sc = next(s for s in heldout_scenarios(48, tmpl) if has_noise(s.noise_std)).replace(t_end=0.2)
     env = pol.make_env()
     obs, _ = env.reset(options={"scenario": sc})
     while True:

@@ -148,13 +148,18 @@ def evaluate_groups(groups: dict, episodes: int, workers: int, progress: bool):
     return out
 
 
+def has_noise(noise_std) -> bool:
+    """True if any of the four measurement channels has sensor noise."""
+    return any(v > 0 for v in noise_std)
+
+
 def base_law_diagnostics(results) -> dict:
     """What the reference law's error is made of on the held-out suite (where a residual could gain)."""
     from .. import evaluate as ev
 
     rows = [r for r in results.rows if r["suite"] == "heldout" and r["policy"] == ev.REFERENCE_POLICY]
     noisy = {ep.episode_id for ep in results.episodes
-             if ep.suite == "heldout" and any(v > 0 for v in ep.physical["noise_std"])}
+             if ep.suite == "heldout" and has_noise(ep.physical["noise_std"])}
     tv_noisy = [r["tv_u_rate"] for r in rows if r["episode"] in noisy]
     tv_clean = [r["tv_u_rate"] for r in rows if r["episode"] not in noisy]
     return {"episodes": len(rows), "noisy_episodes": len(tv_noisy),
@@ -294,7 +299,7 @@ def tv_sources(policy_paths: list[str], episodes: int) -> dict:
 
     pols = [load_policy(p) for p in policy_paths]
     tmpl = pols[0].make_env().unwrapped.scenario_template
-    scs = [sc for sc in heldout_scenarios(episodes, tmpl) if any(v > 0 for v in sc.noise_std)]
+    scs = [sc for sc in heldout_scenarios(episodes, tmpl) if has_noise(sc.noise_std)]
     base = [period_log(pols[0], sc, base_only=True) for sc in scs]
     runs = [period_log(p, sc) for p in pols for sc in scs]
 
