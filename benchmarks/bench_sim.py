@@ -373,7 +373,7 @@ def run(quick: bool) -> Section:
     sec.tables.append(prof)
     sec.note("Peer profile (cProfile, top functions by own time over "
              f"{pp['periods']} periods): " + "; ".join(f"{name} {t / pp['total_s']:.0%}" for t, name in pp["top"]))
-    sec.note(f"Instruction mix of the plant right-hand side (_lane_rhs, machine code numba generated here): "
+    sec.note(f"Instruction mix of the plant right-hand side (lane_rhs, machine code numba generated here): "
              f"{mix['vsqrtpd']} packed sqrt + {mix['vdivpd']} packed div in the vector loop "
              f"({mix['vector_width']} doubles wide: {mix['packed_on_zmm']} packed ops on zmm), "
              f"{mix['vsqrtsd']} scalar sqrt + {mix['vdivsd']} scalar div in the remainder loop; "

@@ -25,7 +25,7 @@ import numpy as np
 
 from ehss_gym import layout as L
 from ehss_gym.control import controller_update
-from ehss_gym.physics import N_LANE_CONST, _lane_rhs, integrate_lanes, integrate_plant, lane_constants
+from ehss_gym.physics import N_LANE_CONST, lane_rhs, integrate_lanes, integrate_plant, lane_constants
 from ehss_gym.sim import MAX_LANES, LoopArrays, run_lanes
 
 
@@ -162,14 +162,14 @@ def breakdown(sc, lanes: int = MAX_LANES, repeats: int = 3) -> dict:
 
 
 def rhs_instruction_mix(lanes: int = MAX_LANES) -> dict:
-    """Static instruction counts in the machine code of the lane right-hand side ``_lane_rhs``.
+    """Static instruction counts in the machine code of the lane right-hand side ``lane_rhs``.
 
     Compiled afresh (no cache) for the (4, lanes) layout the batch kernel uses; the
     vectorised loop body shows up as packed (``...pd``) instructions on zmm
     (512-bit, 8 doubles) or ymm (256-bit, 4 doubles) registers, and its scalar
     remainder loop as ``...sd``.
     """
-    f = nb.njit(error_model="numpy")(_lane_rhs.py_func)
+    f = nb.njit(error_model="numpy")(lane_rhs.py_func)
     X = np.zeros((4, lanes))
     D = np.zeros((4, lanes))
     c = np.ones((N_LANE_CONST, lanes))

@@ -11,6 +11,8 @@ import importlib
 import math
 import sys
 
+from .layout import ESTIMATORS
+
 # sub-command modules, each exposing register(subparsers)
 COMMANDS = ("ehss_gym.cli", "ehss_gym.bench", "ehss_gym.reproduce", "ehss_gym.trainer_cli", "ehss_gym.evaluate")
 EXTRA_COMMANDS: tuple[str, ...] = ()
@@ -98,6 +100,9 @@ def add_loop_arguments(p: argparse.ArgumentParser, *, t_end: float = 20.0):
     p.add_argument("--t-end", type=_finite("--t-end", 0.0), default=t_end, help="[s]")
     p.add_argument("--friction", type=parse_friction, nargs="*", default=None, metavar="AMP:START:END",
                    help="friction events [N*m:s:s]; default the paper's 1.8:8:10; give none to disable")
+    p.add_argument("--estimator", choices=ESTIMATORS, default="foh",
+                   help="how the reference model and derivative estimator run: foh (default; first-order-hold "
+                        "digital filters), zoh (wave 1's biased scheme) or analog (continuous filters)")
 
 
 def scenario_from_args(args):
@@ -106,7 +111,7 @@ def scenario_from_args(args):
     friction = PAPER_FRICTION if args.friction is None else tuple(args.friction)
     return Scenario(task=args.task, n=args.n, fr=args.fr, sigma=args.sigma, smoothing=args.smoothing,
                     control_period=args.control_period, substeps=args.substeps, current_limit=args.current_limit,
-                    t_end=args.t_end, friction=friction)
+                    t_end=args.t_end, friction=friction, estimator=args.estimator)
 
 
 def cmd_simulate(args) -> int:
@@ -132,7 +137,8 @@ def cmd_simulate(args) -> int:
     cmdline = "ehss " + " ".join(sys.argv[1:]) if sys.argv and sys.argv[0].endswith("ehss") else "ehss simulate"
     plot_trajectory(traj, base + ".png", made_by=cmdline)
     print(f"{sc.task} task, n={sc.n}, f_r={sc.fr:g} Hz, sigma={sc.sigma:g}, h={sc.control_period:g} s, "
-          f"substeps={sc.substeps}, limit={sc.current_limit or 'none'} mA, t_end={sc.t_end:g} s")
+          f"substeps={sc.substeps}, limit={sc.current_limit or 'none'} mA, estimator={sc.estimator}, "
+          f"t_end={sc.t_end:g} s")
     print(format_summary(traj.metrics(), UNITS[sc.task]))
     print(f"wrote {base}.png, {base}.npz, {base}.csv")
     return 0

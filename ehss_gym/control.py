@@ -35,6 +35,7 @@ import math
 
 from .layout import (
     C_BASE,
+    C_EST,
     C_LAM0,
     C_N,
     C_NOISE_THETA,
@@ -45,11 +46,21 @@ from .layout import (
     C_SIGMA,
     C_SMOOTH,
     C_ULIM,
-    DIV_CURRENT,
     DIV_NONE,
     DIV_NONFINITE,
     DIV_OMEGA,
     DIV_PRESSURE,
+    EST_ANALOG,
+    FB_PHI_EST,
+    FB_PHI_REF,
+    FB_VEC,
+    FB_VEC2,
+    FBV_C_EST,
+    FBV_C_REF,
+    FBV_D_EST,
+    FBV_D_REF,
+    FBV_E_EST,
+    FBV_E_REF,
     I_E,
     I_FRIC_ON,
     I_G,
@@ -75,7 +86,17 @@ from .layout import (
     Z_REF,
 )
 from .params import P_DF, P_PS
-from .physics import friction_torque, gaussian, integrate_plant, jit, jit_noalloc, lie_derivatives
+from .physics import (
+    LC_PS,
+    active_amplitude,
+    friction_torque,
+    gaussian,
+    jit,
+    jit_noalloc,
+    lane_rhs,
+    lie_derivatives,
+    relief,
+)
 from .signals import reference_value
 
 
@@ -168,9 +189,8 @@ def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res,
         ctrl: controller row (layout C_*).
         ref: reference spec row (layout R_*).
         events: friction events (E, 3).
-        filt: (3, 4, 4) array: [0] ref-model Phi, [1] estimator Phi,
-            [2, 0] ref coefficients, [2, 1] estimator coefficients,
-            [2, 2] ref Gamma, [2, 3] estimator Gamma. Zero-padded.
+        filt: (N_FB, 4, 4) filter block (layout FB_*): Phi, c, E and D of the reference model
+            and the estimator, zero-padded (:func:`ehss_gym.sim.filter_block`).
         u_res: residual current [mA] added to ctrl[C_BASE] times the Sontag current.
         info: output (N_INFO,), what the law saw and did at t_k.
         work: scratch (8, 4).
@@ -201,23 +221,13 @@ def controller_sense(z, k, h, plant_p, model_p, ctrl, ref, events, filt, info, w
     y_meas = xm[X_THETA] if m == 4 else xm[X_OMEGA]
     r = reference_value(t, ref)
 
-    # Reference model: y_d^(0..m-1) from its state, y_d^(m) from its equation.
-    cr = filt[2, 0]
-    ydm = cr[0] * r
-    for i in range(m):
-        info[I_YD + i] = z[Z_REF + i]
-        ydm -= cr[i] * z[Z_REF + i]
+    # Reference model: y_d^(0..m-1) at the sample and y_d^(m) from its equation with the same r;
+    # estimator of order m-1 likewise with the measured y (its y_e^(0) is replaced by y itself).
+    ydm = filter_outputs(z, Z_REF, m, filt[FB_VEC, FBV_C_REF], filt[FB_VEC2, FBV_D_REF], r, info, I_YD)
     info[I_YD + m] = ydm
-    # Estimator of order m-1: y_e^(1..m-2) from its state, y_e^(m-1) from its equation.
-    ce = filt[2, 1]
-    me = m - 1
-    yem = ce[0] * y_meas
-    for i in range(me):
-        yem -= ce[i] * z[Z_EST + i]
+    yem = filter_outputs(z, Z_EST, m - 1, filt[FB_VEC, FBV_C_EST], filt[FB_VEC2, FBV_D_EST], y_meas, info, I_YE)
     info[I_YE] = y_meas
-    for i in range(1, me):
-        info[I_YE + i] = z[Z_EST + i]
-    info[I_YE + me] = yem
+    info[I_YE + m - 1] = yem
     # Errors and the combined error; e itself uses the measured output.
     for i in range(m):
         info[I_E + i] = info[I_YE + i] - info[I_YD + i]
@@ -249,6 +259,22 @@ def controller_sense(z, k, h, plant_p, model_p, ctrl, ref, events, filt, info, w
     return u_base
 
 
+@jit
+def filter_outputs(z, off, order, c, d, v, out, o):
+    """A digital filter's outputs at the sample: out[o + i] = z_i = w_i + d_i v (i < order); returns z^(order).
+
+    ``z[off:off+order]`` is the filter state w (layout FB_*: D = 0 for "zoh" and "analog", where w is the
+    state itself), v the input at the sample; the top derivative comes from the filter's own equation,
+    z^(order) = c_0 v - sum_i c_i z_i, with the same v (NOTES item 12).
+    """
+    top = c[0] * v
+    for i in range(order):
+        zi = z[off + i] + d[i] * v
+        out[o + i] = zi
+        top -= c[i] * zi
+    return top
+
+
 @jit_noalloc
 def controller_apply(info, ctrl, u_base, u_res):
     """Add the residual u_res [mA] to ctrl[C_BASE] * u_base [mA], apply the current limit; returns u_app [mA].
@@ -274,19 +300,22 @@ def controller_apply(info, ctrl, u_base, u_res):
 
 @jit_noalloc
 def advance_filters(z, ctrl, filt, info, work):
-    """Advance the reference model and the estimator (z[4:]) over the period, inputs r and y held.
+    """Advance the reference model and the estimator (z[4:]) over the period: w <- Phi w + E v.
 
-    The inputs are the ones :func:`controller_sense` recorded in ``info`` (I_R, I_YE).
+    The inputs v are the ones :func:`controller_sense` recorded in ``info`` (I_R, I_YE). With the
+    "analog" scheme nothing happens here: the plant's integrator advances the continuous filters.
     """
+    if ctrl[C_EST] == EST_ANALOG:
+        return
     m = int(ctrl[C_ORDER])
     hd = work[6]
-    advance_filter(z, Z_REF, m, filt[0], filt[2, 2], info[I_R], hd)
-    advance_filter(z, Z_EST, m - 1, filt[1], filt[2, 3], info[I_YE], hd)
+    advance_filter(z, Z_REF, m, filt[FB_PHI_REF], filt[FB_VEC, FBV_E_REF], info[I_R], hd)
+    advance_filter(z, Z_EST, m - 1, filt[FB_PHI_EST], filt[FB_VEC, FBV_E_EST], info[I_YE], hd)
 
 
 @jit
 def advance_filter(z, off, order, phi, gam, v, tmp):
-    """z[off:off+order] <- Phi z + Gamma v: one exact ZOH step of a filter; ``tmp`` is scratch."""
+    """z[off:off+order] <- Phi z + E v: one step of a digital filter; ``tmp`` is scratch."""
     for i in range(order):
         acc = gam[i] * v
         for j in range(order):
@@ -309,16 +338,87 @@ def check_state(z, ctrl, plant_p):
     return DIV_NONE
 
 
-@jit_noalloc
-def control_step(z, k, h, substeps, plant_p, model_p, ctrl, ref, events, filt, u_res, info, work):
-    """One control period of the digital loop: controller, ZOH plant integration, checks.
+@jit
+def _lane_filter_rhs(X, ts, ctrl, ref, filt, ynoise, D, B):
+    """D[4:, b] = the continuous reference model's and estimator's derivatives for the "analog" lanes.
 
-    Returns a DIV_* code (DIV_NONE while the run is healthy). ``substeps`` is
-    the number of RK4 plant steps per period; other arguments as in
-    :func:`controller_update`.
+    The reference model is driven by r(ts), the estimator by the plant output in X plus the sensor noise
+    of the last sample (held: a sampled sensor). Other lanes get zeros (their filters are digital).
     """
-    u_app = controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res, info, work)
-    if not math.isfinite(u_app) or not math.isfinite(info[I_V]) or not math.isfinite(info[I_S]):
-        return DIV_CURRENT if not math.isfinite(u_app) else DIV_NONFINITE
-    integrate_plant(z[:N_PLANT], u_app, k * h, h, substeps, plant_p, events, work)
-    return check_state(z, ctrl, plant_p)
+    for b in range(B):
+        for i in range(N_PLANT, D.shape[0]):
+            D[i, b] = 0.0
+        if ctrl[b, C_EST] != EST_ANALOG:
+            continue
+        m = int(ctrl[b, C_ORDER])
+        cr = filt[b, FB_VEC, FBV_C_REF]
+        acc = cr[0] * reference_value(ts, ref[b])
+        for i in range(m):
+            acc -= cr[i] * X[Z_REF + i, b]
+        for i in range(m - 1):
+            D[Z_REF + i, b] = X[Z_REF + i + 1, b]
+        D[Z_REF + m - 1, b] = acc
+        ce = filt[b, FB_VEC, FBV_C_EST]
+        me = m - 1
+        y = (X[X_THETA, b] if m == 4 else X[X_OMEGA, b]) + ynoise[b]
+        acc = ce[0] * y
+        for i in range(me):
+            acc -= ce[i] * X[Z_EST + i, b]
+        for i in range(me - 1):
+            D[Z_EST + i, b] = X[Z_EST + i + 1, b]
+        D[Z_EST + me - 1, b] = acc
+
+
+@jit_noalloc
+def integrate_lanes_analog(X, U, t0, h, substeps, c, events, work, ctrl, ref, filt, ynoise):
+    """RK4 for B loops whose filters (for lanes with the "analog" scheme) are continuous: plant and filters together.
+
+    The plant part is the arithmetic of :func:`ehss_gym.physics.integrate_lanes`, bit for bit; the
+    reference model (input r(t)) and the estimator (input y(t) + the held noise) are integrated in the
+    same RK4 stages, so they see the plant's intra-period motion as an analog filter would.
+
+    Args:
+        X: loop states (N_LOOP, B) (rows as the loop state z), updated in place.
+        U: held currents (B,) [mA].
+        t0, h, substeps: as in integrate_lanes.
+        c: lane constants (N_LANE_CONST, B).
+        events: friction events (B, E, 3).
+        work: scratch (6, N_LOOP, B).
+        ctrl, ref, filt: controller rows, reference specs and filter blocks (B, ...).
+        ynoise: the sensor noise on the output at the last sample (B,) [output unit].
+    """
+    B = X.shape[1]
+    n = X.shape[0]
+    dt = h / substeps
+    k1 = work[0]
+    k2 = work[1]
+    k3 = work[2]
+    k4 = work[3]
+    xt = work[4]
+    amp = work[5, 0]
+    for j in range(substeps):
+        ts = t0 + j * dt
+        for b in range(B):
+            amp[b] = active_amplitude(t0 + (j + 0.5) * dt, events[b])
+        lane_rhs(X, amp, U, c, k1, B)
+        _lane_filter_rhs(X, ts, ctrl, ref, filt, ynoise, k1, B)
+        for i in range(n):
+            for b in range(B):
+                xt[i, b] = X[i, b] + 0.5 * dt * k1[i, b]
+        lane_rhs(xt, amp, U, c, k2, B)
+        _lane_filter_rhs(xt, ts + 0.5 * dt, ctrl, ref, filt, ynoise, k2, B)
+        for i in range(n):
+            for b in range(B):
+                xt[i, b] = X[i, b] + 0.5 * dt * k2[i, b]
+        lane_rhs(xt, amp, U, c, k3, B)
+        _lane_filter_rhs(xt, ts + 0.5 * dt, ctrl, ref, filt, ynoise, k3, B)
+        for i in range(n):
+            for b in range(B):
+                xt[i, b] = X[i, b] + dt * k3[i, b]
+        lane_rhs(xt, amp, U, c, k4, B)
+        _lane_filter_rhs(xt, ts + dt, ctrl, ref, filt, ynoise, k4, B)
+        for i in range(n):
+            for b in range(B):
+                X[i, b] += dt / 6.0 * (k1[i, b] + 2.0 * k2[i, b] + 2.0 * k3[i, b] + k4[i, b])
+        for b in range(B):
+            X[X_PL, b] = relief(X[X_PL, b], c[LC_PS, b])

@@ -34,7 +34,7 @@ from .scenarios import (
     sample_scenario,
 )
 from .signals import reference_value
-from .sim import TASKS, Scenario, check_n, ctrl_row, filter_block, lanes_period
+from .sim import TASKS, Scenario, check_n, ctrl_row, filter_block, init_filters, lanes_period
 
 # ---------------------------------------------------------------------------------------------------
 # Defaults: the reproduction study's recommendation (reports/paper/recommended_defaults.json) where it
@@ -72,6 +72,7 @@ class EnvDefaults:
         substeps: RK4 plant steps per control period.
         agent_period: control periods per agent step.
         residual_scale: current of a unit action [mA] when current_limit is None (else the current limit).
+        estimator: filter scheme of the reference model and the derivative estimator ("foh", "zoh", "analog").
         scenario: "random" or "paper".
         reward_weights: track, effort, rate, tv, tv_u, divergence weights.
         velocity, position: per-task defaults.
@@ -84,6 +85,7 @@ class EnvDefaults:
     substeps: int = 1
     agent_period: int = 5
     residual_scale: float = 10.0
+    estimator: str = "foh"
     scenario: str = "random"
     reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("tv_u", 0.0),
                              ("divergence", 10.0))
@@ -345,13 +347,14 @@ class EnvConfig:
     substeps: int
     current_limit: float | None
     estimator_hz: float
+    estimator: str
     scenario: object
     reward_weights: dict
     error_scale: float
     episode_seconds: float | None
 
     KEYS = ("task", "n", "fr", "sigma", "smoothing", "mode", "residual_scale", "agent_period", "control_period",
-            "substeps", "current_limit", "estimator_hz", "scenario", "reward_weights", "error_scale",
+            "substeps", "current_limit", "estimator_hz", "estimator", "scenario", "reward_weights", "error_scale",
             "episode_seconds")
 
     @classmethod
@@ -380,6 +383,7 @@ class EnvConfig:
         h = check_finite("control_period", kwargs.get("control_period", d.control_period), low=1e-7, high=1e-2)
         substeps = _int_at_least("substeps", kwargs.get("substeps", d.substeps), 1)
         est = _positive("estimator_hz", kwargs.get("estimator_hz", td.estimator_hz))
+        scheme = _choice("estimator", kwargs.get("estimator", d.estimator), L.ESTIMATORS)
         scenario = kwargs.get("scenario", d.scenario)
         if not (isinstance(scenario, Scenario) or scenario in SCENARIOS):
             raise ValueError(f"scenario must be one of {list(SCENARIOS)} or an ehss_gym.Scenario, got {scenario!r}")
@@ -398,7 +402,8 @@ class EnvConfig:
             eps = check_finite("episode_seconds", eps, low=h * agent_period)
         cfg = cls(task=task, n=int(n), fr=fr, sigma=sigma, smoothing=smoothing, mode=mode, residual_scale=scale,
                   agent_period=agent_period, control_period=h, substeps=substeps, current_limit=limit,
-                  estimator_hz=est, scenario=scenario, reward_weights=rw, error_scale=err, episode_seconds=eps)
+                  estimator_hz=est, estimator=scheme, scenario=scenario, reward_weights=rw, error_scale=err,
+                  episode_seconds=eps)
         if isinstance(scenario, Scenario):
             cfg.check_pinned(scenario)
         return cfg
@@ -417,7 +422,7 @@ class EnvConfig:
         return paper_scenario(Scenario(task=self.task, n=self.n, fr=self.fr, sigma=self.sigma,
                                        smoothing=self.smoothing, current_limit=self.current_limit,
                                        control_period=self.control_period, substeps=self.substeps,
-                                       estimator_hz=self.estimator_hz))
+                                       estimator_hz=self.estimator_hz, estimator=self.estimator))
 
     def check_pinned(self, sc: Scenario) -> None:
         """A pinned Scenario must carry exactly these controller settings."""
@@ -517,15 +522,15 @@ class Lanes:
         self.model[:] = nominal
         self.ctrl[:] = base
         self.events = self._empty_events(B, MAX_EVENTS)
-        self.filt = np.tile(filter_block(cfg.order, tmpl.ref_model_hz, cfg.estimator_hz, cfg.control_period),
-                            (B, 1, 1, 1))
+        self.filt = np.tile(filter_block(cfg.order, tmpl.ref_model_hz, cfg.estimator_hz, cfg.control_period,
+                                         cfg.estimator), (B, 1, 1, 1))
         self.c = np.zeros((self.n_chunks, N_LANE_CONST, self.chunk))
         for i in range(self.n_chunks):
             lane_constants(np.ascontiguousarray(self.plant[i * self.chunk:(i + 1) * self.chunk]), self.c[i])
-        self.X = np.zeros((self.n_chunks, 4, self.chunk))
+        self.X = np.zeros((self.n_chunks, L.N_LOOP, self.chunk))
         self.U = np.zeros((self.n_chunks, self.chunk))
         self.work = np.zeros((self.n_chunks, 8, 4))
-        self.lwork = np.zeros((self.n_chunks, 6, 4, self.chunk))
+        self.lwork = np.zeros((self.n_chunks, 6, L.N_LOOP, self.chunk))
         self.layout = observation_layout(cfg)
         self.lay = np.zeros((3, len(self.layout)))
         for i, (_, src, scale, squash, _) in enumerate(self.layout):
@@ -578,7 +583,7 @@ class Lanes:
         self.events[b, :, L.F_START] = self.events[b, :, L.F_END] = math.inf
         if sc.friction:
             self.events[b, :len(sc.friction)] = sc.friction
-        self.z[b, L.Z_REF] = reference_value(0.0, self.ref[b])
+        init_filters(self.z[b], self.filt[b], reference_value(0.0, self.ref[b]))
         lane_constants(self.plant[b:b + 1].copy(), self.tmp_c)
         self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
         self.acc[b, L.M_T_DIVERGED] = -1.0
@@ -785,6 +790,10 @@ class EHSSTrackingEnv(gym.Env):
         substeps: RK4 plant steps per control period, >= 1 (default 1).
         current_limit: |u| limit [mA] or None = unlimited (default 10).
         estimator_hz: output-derivative estimator cutoff [Hz] (default 1000 velocity, 100 position).
+        estimator: how the reference model and the estimator run: "foh" (default; first-order-hold
+            discretisation, O(h^2) to the paper's continuous filters), "zoh" (wave 1's zero-order hold,
+            biased by O(h); kept to show the effect) or "analog" (continuous filters integrated with the
+            plant). See docs/MODEL.md, "Digital filters".
         scenario: "random" (default; the training distribution of :mod:`ehss_gym.scenarios`), "paper",
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``

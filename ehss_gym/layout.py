@@ -32,7 +32,27 @@ C_NOISE_AV = 12
 C_OMEGA_MAX = 13  # divergence bound on |x2| [rad/s]
 C_P_BOUND = 14  # divergence bound on |x3| as a multiple of P_s
 C_BASE = 15  # gain on the Sontag current: 1 = base law + residual, 0 = residual only (pure RL)
-N_CTRL = 16
+C_EST = 16  # filter scheme of the reference model and the estimator: one of EST_* below
+N_CTRL = 17
+
+# --- Filter schemes (Scenario.estimator; derivation in docs/MODEL.md, "Digital filters") ----------
+EST_FOH = 0  # "foh": first-order hold with a direct feed-through term, O(h^2) to the analog filter (default)
+EST_ZOH = 1  # "zoh": zero-order hold, top derivative from the current sample (wave 1's scheme; biased by O(h))
+EST_ANALOG = 2  # "analog": the continuous filters integrated with the plant by its RK4 (the reference)
+ESTIMATORS = ("foh", "zoh", "analog")  # name -> code is the index
+
+# --- Filter block (one per scenario, shape (N_FB, MAX_ORDER, MAX_ORDER)): discretised filters ------
+# Digital form of each filter (state w, input v held or interpolated, see filters.py):
+#   state estimate at the sample   z_k = w_k + D v_k
+#   top derivative                 z^(m)_k = c_0 v_k - sum_i c_i z_k[i]
+#   advance over the period        w_{k+1} = Phi w_k + E v_k
+FB_PHI_REF = 0  # reference-model Phi (m x m)
+FB_PHI_EST = 1  # estimator Phi ((m-1) x (m-1))
+FB_VEC = 2  # rows of vectors:
+FBV_C_REF, FBV_C_EST, FBV_E_REF, FBV_E_EST = 0, 1, 2, 3  # coefficients c and input vectors E, in block FB_VEC
+FB_VEC2 = 3  # more rows:
+FBV_D_REF, FBV_D_EST = 0, 1  # feed-through vectors D, in block FB_VEC2
+N_FB = 4
 
 # --- Reference signal spec row ------------------------------------------------
 R_KIND = 0  # one of REF_* below

@@ -117,7 +117,7 @@ def friction_torque(t, omega, events, delta_friction):
 def plant_rhs(x, u, tf, p, dx):
     """Write x' of Eq. (1) into ``dx`` for current u [mA] and friction tf [N*m].
 
-    The expression shapes match :func:`_lane_rhs` exactly, so the scalar and
+    The expression shapes match :func:`lane_rhs` exactly, so the scalar and
     lane integrators agree to the last bit.
     """
     x2 = x[X_OMEGA]
@@ -195,7 +195,7 @@ def lane_constants(P, out):
 
 
 @jit
-def _lane_rhs(X, A, U, c, D, B):
+def lane_rhs(X, A, U, c, D, B):
     """D[:, b] = x' for every lane b; X, D are (4, B); A = friction amplitudes (B,)."""
     for b in range(B):
         x2 = X[1, b]
@@ -235,19 +235,19 @@ def integrate_lanes(X, U, t0, h, substeps, c, events, work):
         # friction switched on the substep grid, as in integrate_plant
         for b in range(B):
             amp[b] = active_amplitude(t0 + (j + 0.5) * dt, events[b])
-        _lane_rhs(X, amp, U, c, k1, B)
+        lane_rhs(X, amp, U, c, k1, B)
         for i in range(4):
             for b in range(B):
                 xt[i, b] = X[i, b] + 0.5 * dt * k1[i, b]
-        _lane_rhs(xt, amp, U, c, k2, B)
+        lane_rhs(xt, amp, U, c, k2, B)
         for i in range(4):
             for b in range(B):
                 xt[i, b] = X[i, b] + 0.5 * dt * k2[i, b]
-        _lane_rhs(xt, amp, U, c, k3, B)
+        lane_rhs(xt, amp, U, c, k3, B)
         for i in range(4):
             for b in range(B):
                 xt[i, b] = X[i, b] + dt * k3[i, b]
-        _lane_rhs(xt, amp, U, c, k4, B)
+        lane_rhs(xt, amp, U, c, k4, B)
         for i in range(4):
             for b in range(B):
                 X[i, b] += dt / 6.0 * (k1[i, b] + 2.0 * k2[i, b] + 2.0 * k3[i, b] + k4[i, b])

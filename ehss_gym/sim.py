@@ -1,8 +1,10 @@
 """Closed-loop simulator: the digital Sontag controller driving the EHSS plant.
 
-The loop is what a digital controller does (see :func:`ehss_gym.control.control_step`):
+The loop is what a digital controller does (see :func:`ehss_gym.control.controller_update`):
 sample, compute, hold the current for one control period (ZOH) while the plant
-is integrated with RK4 substeps. Many scenarios run in one compiled, parallel
+is integrated with RK4 substeps. The reference model and the derivative estimator
+are digital filters (``Scenario.estimator``: "foh", the default, or "zoh") or, with
+"analog", continuous filters integrated together with the plant. Many scenarios run in one compiled, parallel
 call; per-step metrics accumulate online at the full control rate, while the
 trajectory is logged every ``log_interval``.
 
@@ -22,7 +24,7 @@ import numba as nb
 import numpy as np
 
 from . import layout as L
-from .control import check_state, controller_apply, controller_update
+from .control import check_state, controller_apply, controller_update, integrate_lanes_analog
 from .filters import butterworth_coefficients, padded_filter
 from .params import PlantParams, check_finite, check_positive
 from .physics import N_LANE_CONST, integrate_lanes, jit, jit_noalloc, lane_constants
@@ -79,6 +81,11 @@ class Scenario:
         seed: noise seed (integer >= 0).
         ref_model_hz: reference-model cutoff [Hz] (Table I: 20).
         estimator_hz: output-derivative estimator cutoff [Hz] (Table I: 1000).
+        estimator: how the reference model and the estimator (continuous filters in the paper) run:
+            "foh" (default: first-order-hold discretisation with a feed-through term, O(h^2) to the
+            analog filters), "zoh" (zero-order hold with the top derivative from the current sample:
+            biased by O(h), wave 1's scheme) or "analog" (the continuous filters integrated with the
+            plant's RK4; the reference). See docs/MODEL.md, "Digital filters".
         omega_max: divergence bound on |x2| [rad/s].
         pressure_bound: divergence bound on |x3| as a multiple of P_s.
     """
@@ -101,12 +108,15 @@ class Scenario:
     seed: int = 0
     ref_model_hz: float = 20.0
     estimator_hz: float = 1000.0
+    estimator: str = "foh"
     omega_max: float = 1e3
     pressure_bound: float = 1.5
 
     def __post_init__(self):
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {sorted(TASKS)}, got {self.task!r}")
+        if self.estimator not in L.ESTIMATORS:
+            raise ValueError(f"estimator must be one of {list(L.ESTIMATORS)}, got {self.estimator!r}")
         object.__setattr__(self, "n", check_n(self.n))
         for name in ("fr", "sigma", "control_period", "t_end", "log_interval", "ref_model_hz", "estimator_hz",
                      "omega_max", "pressure_bound"):
@@ -176,27 +186,48 @@ def ctrl_row(sc: Scenario) -> np.ndarray:
     row[L.C_OMEGA_MAX] = sc.omega_max
     row[L.C_P_BOUND] = sc.pressure_bound
     row[L.C_BASE] = 1.0
+    row[L.C_EST] = L.ESTIMATORS.index(sc.estimator)
     return row
 
 
-def filter_block(order: int, ref_hz: float, est_hz: float, h: float) -> np.ndarray:
-    """The (3, 4, 4) filter block read by control_step."""
-    cr, pr, gr = padded_filter(order, ref_hz, h)
-    ce, pe, ge = padded_filter(order - 1, est_hz, h)
-    f = np.zeros((3, 4, 4))
-    f[0] = pr
-    f[1] = pe
-    f[2, 0] = cr
-    f[2, 1] = ce
-    f[2, 2] = gr
-    f[2, 3] = ge
+def filter_block(order: int, ref_hz: float, est_hz: float, h: float, scheme: str = "foh") -> np.ndarray:
+    """The (N_FB, 4, 4) filter block (layout FB_*) read by the controller kernels."""
+    cr, pr, er, dr = padded_filter(order, ref_hz, h, scheme)
+    ce, pe, ee, de = padded_filter(order - 1, est_hz, h, scheme)
+    f = np.zeros((L.N_FB, L.MAX_ORDER, L.MAX_ORDER))
+    f[L.FB_PHI_REF] = pr
+    f[L.FB_PHI_EST] = pe
+    f[L.FB_VEC, L.FBV_C_REF] = cr
+    f[L.FB_VEC, L.FBV_C_EST] = ce
+    f[L.FB_VEC, L.FBV_E_REF] = er
+    f[L.FB_VEC, L.FBV_E_EST] = ee
+    f[L.FB_VEC2, L.FBV_D_REF] = dr
+    f[L.FB_VEC2, L.FBV_D_EST] = de
     return f
 
 
-def initial_state(sc: Scenario) -> np.ndarray:
+def scenario_filter_block(sc: Scenario) -> np.ndarray:
+    """The filter block of a scenario."""
+    return filter_block(sc.order, sc.ref_model_hz, sc.estimator_hz, sc.control_period, sc.estimator)
+
+
+@jit
+def init_filters(z, filt, r0):
+    """Reference model at its steady state for r(0) = ``r0``, estimator at rest (y(0) = 0): z[4:] in place.
+
+    The state w of a digital filter is z - D v at the sample (layout FB_*), so w = (r0, 0, ...) - D r0.
+    """
+    for i in range(L.N_PLANT, L.N_LOOP):
+        z[i] = 0.0
+    d = filt[L.FB_VEC2, L.FBV_D_REF]
+    for i in range(L.MAX_ORDER):
+        z[L.Z_REF + i] = (r0 if i == 0 else 0.0) - d[i] * r0
+
+
+def initial_state(sc: Scenario, filt: np.ndarray | None = None) -> np.ndarray:
     """Plant at rest; reference model and estimator at their steady state for r(0) and y(0)."""
     z = np.zeros(L.N_LOOP)
-    z[L.Z_REF] = sc.reference(0.0)
+    init_filters(z, scenario_filter_block(sc) if filt is None else filt, float(sc.reference(0.0)))
     return z
 
 
@@ -222,14 +253,14 @@ class LoopArrays:
             if s.friction:
                 events[i, :len(s.friction)] = s.friction
         cache = {}
-        filt = np.empty((len(scenarios), 3, 4, 4))
+        filt = np.empty((len(scenarios), L.N_FB, L.MAX_ORDER, L.MAX_ORDER))
         for i, s in enumerate(scenarios):
-            key = (s.order, s.ref_model_hz, s.estimator_hz)
+            key = (s.order, s.ref_model_hz, s.estimator_hz, s.estimator)
             if key not in cache:
-                cache[key] = filter_block(s.order, s.ref_model_hz, s.estimator_hz, h)
+                cache[key] = filter_block(s.order, s.ref_model_hz, s.estimator_hz, h, s.estimator)
             filt[i] = cache[key]
         return cls(
-            z0=np.stack([initial_state(s) for s in scenarios]),
+            z0=np.stack([initial_state(s, f) for s, f in zip(scenarios, filt)]),
             plant=np.stack([s.plant.as_array() for s in scenarios]),
             model=np.stack([(s.model or s.plant).as_array() for s in scenarios]),
             ctrl=np.stack([ctrl_row(s) for s in scenarios]),
@@ -300,20 +331,6 @@ def _diverge(acc, code, k, h):
     acc[L.M_T_DIVERGED] = (k + 1) * h
 
 
-class LaneScratch:
-    """Working arrays for :func:`lanes_period` for B lanes (allocated once, reused)."""
-
-    def __init__(self, plant: np.ndarray):
-        B = plant.shape[0]
-        self.c = np.zeros((N_LANE_CONST, B))
-        lane_constants(plant, self.c)
-        self.X = np.zeros((4, B))
-        self.U = np.zeros(B)
-        self.zprev = np.zeros((B, L.N_LOOP))
-        self.work = np.zeros((8, 4))
-        self.lwork = np.zeros((6, 4, B))
-
-
 @jit_noalloc
 def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
                  zprev, work, lwork, pre, peek):
@@ -334,6 +351,12 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
     """
     B = z.shape[0]
     n_active = 0
+    analog = False
+    for b in range(B):
+        if active[b] and ctrl[b, L.C_EST] == L.EST_ANALOG:
+            analog = True
+    nx = L.N_LOOP if analog else L.N_PLANT  # rows integrated: the plant, and with analog lanes the filters too
+    ynoise = lwork[5, 1]
     for b in range(B):
         if not active[b]:
             U[b] = 0.0
@@ -358,16 +381,21 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
             U[b] = 0.0
             continue
         U[b] = u
-        for i in range(4):
+        for i in range(nx):
             X[i, b] = z[b, i]
+        # the sensor noise on the output at this sample, held over the period for an analog estimator
+        ynoise[b] = info[b, L.I_YE] - z[b, L.X_THETA if ctrl[b, L.C_ORDER] == 4 else L.X_OMEGA]
         n_active += 1
     if n_active == 0:
         return 0
-    integrate_lanes(X, U, k * h, h, substeps, c, events, lwork)
+    if analog:
+        integrate_lanes_analog(X, U, k * h, h, substeps, c, events, lwork, ctrl, ref, filt, ynoise)
+    else:
+        integrate_lanes(X, U, k * h, h, substeps, c, events, lwork)
     for b in range(B):
         if not active[b]:
             continue
-        for i in range(4):
+        for i in range(nx):
             z[b, i] = X[i, b]
         code = check_state(z[b], ctrl[b], plant[b])
         if code != L.DIV_NONE:
@@ -375,7 +403,7 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
             active[b] = False
             for i in range(z.shape[1]):
                 z[b, i] = zprev[b, i]
-            for i in range(4):
+            for i in range(nx):
                 X[i, b] = z[b, i]
             n_active -= 1
             continue
@@ -389,13 +417,13 @@ def run_lanes(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, event
     B = z.shape[0]
     c = np.zeros((N_LANE_CONST, B))
     lane_constants(plant, c)
-    X = np.zeros((4, B))
+    X = np.zeros((L.N_LOOP, B))
     U = np.zeros(B)
     u_res = np.zeros(B)
     active = np.ones(B, dtype=np.bool_)
     info = np.zeros((B, L.N_INFO))
     work = np.zeros((8, 4))
-    lwork = np.zeros((6, 4, B))
+    lwork = np.zeros((6, L.N_LOOP, B))
     zprev = np.zeros_like(z)
     pre = np.zeros(B, dtype=np.bool_)  # no lane is pre-sensed in a plain simulation
     peek = np.zeros((B, L.N_INFO + L.N_LOOP))

@@ -1,9 +1,12 @@
 """Slow, independent reference implementations used by the tests.
 
 Nothing here imports the compiled kernels: the plant is written again from
-Eq. (1), the Lie derivatives are derived symbolically by sympy, the filters are
-discretised by ``scipy.signal.cont2discrete``, and the plant is integrated by
-``scipy.integrate.solve_ivp``.
+Eq. (1), the Lie derivatives are derived symbolically by sympy, and the plant,
+the reference model and the derivative estimator are integrated together, as the
+continuous-time systems the paper draws (Eqs. 1, 5, 19, 21, 24), by
+``scipy.integrate.solve_ivp``. No filter is discretised here: a reference that
+shared the code's discretisation could not see its error (wave 1's ZOH estimator
+was biased by O(h) and a ZOH reference agreed with it).
 """
 
 from __future__ import annotations
@@ -76,25 +79,28 @@ def butter_c(order, hz):
     return np.asarray(a[::-1][:order] / a[0])
 
 
-def _dfilter(c, h):
+def companion_np(c):
+    """(A, b) of the unit-DC-gain state-variable filter z^(m) + c_{m-1} z^(m-1) + ... + c_0 z = c_0 v."""
     m = len(c)
     A = np.zeros((m, m))
     A[:-1, 1:] = np.eye(m - 1)
-    A[-1] = -c
-    B = np.zeros((m, 1))
-    B[-1, 0] = c[0]
-    Ad, Bd, *_ = scipy.signal.cont2discrete((A, B, np.eye(m), np.zeros((m, 1))), h, method="zoh")
-    return Ad, Bd[:, 0]
+    A[-1] = -np.asarray(c)
+    b = np.zeros(m)
+    b[-1] = c[0]
+    return A, b
 
 
 def reference_closed_loop(sc, rtol=1e-12, atol_scale=1e-14):
-    """The scenario's closed loop with the plant integrated by solve_ivp (Radau, tight tolerances).
+    """The scenario's closed loop in continuous time, integrated by solve_ivp (Radau, tight tolerances).
 
-    The controller (reference model, estimator, Sontag law) is re-implemented in
-    numpy from the same equations; the current is held over each control period.
+    The state is (plant x1..x4, reference model y_d..y_d^(m-1), estimator y_e..y_e^(m-2)); the reference
+    model is driven by r(t) and the estimator by the plant output y(t), both continuously. Every control
+    period the law (re-implemented in numpy from the same equations) samples this state, and its
+    current is held over the period: the paper's analog filters around a digital law. Noise-free.
 
     Returns:
-        (t_k, x_k) at the control instants, x_k of shape (n_steps + 1, 4).
+        (t_k, x_k, w_k) at the control instants: plant states (n_steps + 1, 4) and filter states
+        (n_steps + 1, 2m - 1).
     """
     p = sc.plant
     m = sc.order
@@ -102,20 +108,28 @@ def reference_closed_loop(sc, rtol=1e-12, atol_scale=1e-14):
     cr = butter_c(m, sc.ref_model_hz)
     ce = butter_c(m - 1, sc.estimator_hz)
     lam = butter_c(m - 1, sc.fr)
-    Ar, br = _dfilter(cr, h)
-    Ae, be = _dfilter(ce, h)
-    zr = np.zeros(m)
-    zr[0] = sc.reference(0.0)
-    ze = np.zeros(m - 1)
-    x = np.zeros(4)
+    Ar, br = companion_np(cr)
+    Ae, be = companion_np(ce)
+    out = 0 if m == 4 else 1
     ulim = math.inf if sc.current_limit is None else sc.current_limit
-    scale = np.array([1.0, 1.0, p.P_s, p.K])
-    xs = [x.copy()]
+
+    def rhs(t, w, u):
+        x = w[:4]
+        dx = plant_rhs_np(t, x, u, p, sc.friction)
+        dzr = Ar @ w[4:4 + m] + br * float(sc.reference(t))
+        dze = Ae @ w[4 + m:] + be * x[out]
+        return np.concatenate([dx, dzr, dze])
+
+    w = np.zeros(4 + m + m - 1)
+    w[4] = sc.reference(0.0)
+    scale = np.concatenate([[1.0, 1.0, p.P_s, p.K], np.full(2 * m - 1, 1.0)])
+    ws = [w.copy()]
     ts = [0.0]
     for k in range(sc.n_steps):
         t = k * h
+        x, zr, ze = w[:4], w[4:4 + m], w[4 + m:]
         r = float(sc.reference(t))
-        y = x[0] if m == 4 else x[1]
+        y = x[out]
         yd = list(zr) + [cr[0] * r - cr @ zr]
         ye = [y] + list(ze[1:]) + [ce[0] * y - ce @ ze]
         e = [ye[i] - yd[i] for i in range(m)]
@@ -124,14 +138,13 @@ def reference_closed_loop(sc, rtol=1e-12, atol_scale=1e-14):
         psi = F - yd[m] + sum(lam[i] * e[i + 1] for i in range(m - 1))
         u = sontag_reference(psi, G, s, sc.n, sc.sigma, sc.smoothing)
         u = min(max(u, -ulim), ulim)
-        zr = Ar @ zr + br * r
-        ze = Ae @ ze + be * y
-        sol = solve_ivp(plant_rhs_np, (t, t + h), x, method="Radau", rtol=rtol, atol=atol_scale * scale,
-                        args=(u, p, sc.friction))
-        x = sol.y[:, -1]
-        xs.append(x.copy())
+        sol = solve_ivp(rhs, (t, t + h), w, method="Radau", rtol=rtol, atol=atol_scale * scale, args=(u,))
+        w = sol.y[:, -1]
+        assert abs(w[2]) < p.P_s, "the relief valves would act: this reference does not model them"
+        ws.append(w.copy())
         ts.append(t + h)
-    return np.array(ts), np.array(xs)
+    W = np.array(ws)
+    return np.array(ts), W[:, :4], W[:, 4:]
 
 
 def sontag_reference(psi, G, s, n, sigma, w):

@@ -51,6 +51,7 @@ def test_simulate_reports_divergence(tmp_path, capsys):
     (["--current-limit", "abc"], "--current-limit must be 'none' or a finite number > 0"),
     (["--current-limit", "0"], "--current-limit must be 'none' or a finite number > 0"),
     (["--task", "torque"], "invalid choice"),
+    (["--estimator", "bilinear"], "argument --estimator: invalid choice: 'bilinear'"),
 ])
 def test_bad_arguments_exit_2_and_name_the_parameter(tmp_path, args, needle, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -68,3 +69,10 @@ def test_t_end_shorter_than_control_period_is_a_cli_error(tmp_path, capsys):
 def test_console_script_entry_point():
     r = subprocess.run([sys.executable, "-m", "ehss_gym.cli", "--version"], capture_output=True, text=True)
     assert r.returncode == 0 and "ehss-gym" in r.stdout
+
+
+def test_simulate_takes_the_estimator(tmp_path, capsys):
+    for scheme in ("zoh", "analog"):
+        assert main(["simulate", "--estimator", scheme, "--sigma", "1e5", "--current-limit", "10", "--t-end", "0.05",
+                     "--control-period", "3e-5", "--substeps", "1", "--out", str(tmp_path / scheme)]) == 0
+        assert f"estimator={scheme}" in capsys.readouterr().out

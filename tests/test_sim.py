@@ -25,14 +25,19 @@ STABLE = {
 
 
 def _ivp_error(task, n, t_end):
+    """Largest relative difference between the project's "analog" loop and the continuous solve_ivp loop."""
     sc = Scenario(task=task, n=n, t_end=t_end, control_period=1e-4, substeps=10, log_interval=1e-4,
-                  friction=((1.8, 0.4 * t_end, 0.6 * t_end),), **STABLE[task])
+                  friction=((1.8, 0.4 * t_end, 0.6 * t_end),), estimator="analog", **STABLE[task])
     tr = simulate(sc)
     assert not tr.diverged
-    _, x_ref = reference_closed_loop(sc)
+    _, x_ref, w_ref = reference_closed_loop(sc)
+    m = sc.order
     x = tr.x  # states at t_k, k = 0..n_steps-1
-    scale = np.max(np.abs(x_ref), axis=0)
-    return np.max(np.abs(x - x_ref[:-1]) / scale)
+    err = [np.max(np.abs(x - x_ref[:-1]) / np.max(np.abs(x_ref), axis=0))]
+    # the filters' states: the reference model's y_d..y_d^(m-1) and the estimator's y_e'..y_e^(m-2)
+    for got, want in ((tr.y_ref_derivs[:, :m], w_ref[:-1, :m]), (tr.y_est_derivs[:, 1:m - 1], w_ref[:-1, m + 1:])):
+        err.append(np.max(np.abs(got - want) / np.max(np.abs(want), axis=0)))
+    return max(err)
 
 
 @pytest.mark.parametrize("task", ["velocity", "position"])
@@ -46,6 +51,24 @@ def test_matches_solve_ivp_closed_loop_short(task, n):
 @pytest.mark.parametrize("n", [2, 4, 6])
 def test_matches_solve_ivp_closed_loop_one_second(task, n):
     assert _ivp_error(task, n, 1.0) < 1e-6
+
+
+@pytest.mark.parametrize("task,kw", [
+    ("velocity", dict(fr=100.0, sigma=1e5, smoothing=100.0)),
+    ("position", dict(fr=60.0, sigma=1e7, smoothing=0.0)),
+])
+def test_analog_loop_matches_solve_ivp_at_the_paper_bandwidth(task, kw):
+    """The paper's 1 kHz estimator at the env's 30 us period (3 RK4 substeps: a friction edge between grid
+    points is then resolved to 10 us; with 1 it costs 1e-2 here)."""
+    # 50 ms with a friction event on and off (later, with the valve crossing its sigmoid's 1e-9 m^2 band, Radau
+    # needs thousands of evaluations per period)
+    sc = Scenario(task=task, n=2, t_end=0.05, control_period=3e-5, substeps=3, log_interval=3e-5, current_limit=10.0,
+                  friction=((1.8, 0.02, 0.035),), estimator="analog", **kw)
+    tr = simulate(sc)
+    _, x_ref, w_ref = reference_closed_loop(sc)
+    m = sc.order
+    assert np.max(np.abs(tr.x - x_ref[:-1]) / np.max(np.abs(x_ref), axis=0)) < 1e-6
+    assert np.max(np.abs(tr.y_ref_derivs[:, :m] - w_ref[:-1, :m]) / np.max(np.abs(w_ref[:, :m]), axis=0)) < 1e-6
 
 
 def test_batch_equals_single_runs_bitwise():
@@ -124,15 +147,23 @@ def test_clf_decreases_along_the_continuous_flow(task, n):
         dyd = np.append(yd[1:], ydm)
         # time step small against every state's local scale: the orifice pressure drop near the
         # relief limit (laminar below dp_transition) and the valve sigmoid's ~1e-9 m^2 band
+        # (1e-4 of the fastest scale: rounding, not truncation, limits the quotient here; at 1e-7 it
+        # reached 1e-4 relative on the tracking position loop's states, at 1e-4 it is below 3e-6)
         scale = np.array([1.0, 1.0, max(p.P_s - abs(x[2]), p.dp_transition), max(abs(x[3]), 1e-10)])
-        eps = 1e-7 / max(np.max(np.abs(dx) / scale), 1e-3)
+        eps = 1e-4 / max(np.max(np.abs(dx) / scale), 1e-3)
 
-        def sdot_at(ep):
-            sp, _ = s_of(x + ep * dx, yd + ep * dyd)
-            sm, _ = s_of(x - ep * dx, yd - ep * dyd)
-            return (sp - sm) / (2 * ep)
+        def edot_at(ep):
+            # each e^(i) differenced on its own, then combined: s itself is a sum of terms up to ~1e4 times
+            # larger than s (lambda_0 e with lambda_0 ~ 5e7 for position), whose rounding a quotient of s
+            # would amplify; y_d moves along its own exact derivative dyd
+            hp = np.zeros(4)
+            hm = np.zeros(4)
+            lie_derivatives(x + ep * dx, pa, m, hp)
+            lie_derivatives(x - ep * dx, pa, m, hm)
+            return (hp[:m] - hm[:m]) / (2 * ep) - dyd[:m]
 
-        sdot = (4 * sdot_at(eps / 2) - sdot_at(eps)) / 3
+        edot = (4 * edot_at(eps / 2) - edot_at(eps)) / 3
+        sdot = edot[m - 1] + lam @ edot[: m - 1]
         vdot = (s / sigma) ** (n - 1) / sigma * sdot
         assert vdot < 0, (i, s, sdot)
         checked += 1
@@ -141,7 +172,7 @@ def test_clf_decreases_along_the_continuous_flow(task, n):
         # reaches ~1e7 mA, G u cancels F to six digits, and no difference quotient resolves the remainder.
         if abs(x[2]) <= 2 / 3 * p.P_s:
             expect = -np.sign(s) * math.hypot(psi, abs(s / sigma) ** (n - 1) * G * G / sigma)
-            assert sdot == pytest.approx(expect, rel=1e-4)
+            assert sdot == pytest.approx(expect, rel=2e-5)
             rate_checked += 1
     assert checked > 150 and rate_checked > 50
 
