@@ -14,7 +14,8 @@ import sys
 from .layout import ESTIMATORS
 
 # sub-command modules, each exposing register(subparsers)
-COMMANDS = ("ehss_gym.cli", "ehss_gym.bench", "ehss_gym.reproduce", "ehss_gym.trainer_cli", "ehss_gym.evaluate")
+COMMANDS = ("ehss_gym.cli", "ehss_gym.bench", "ehss_gym.reproduce", "ehss_gym.trainer_cli", "ehss_gym.evaluate",
+            "ehss_gym.fidelity")
 EXTRA_COMMANDS: tuple[str, ...] = ()
 
 

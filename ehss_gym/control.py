@@ -65,6 +65,7 @@ from .layout import (
     I_FRIC_ON,
     I_G,
     I_PSI,
+    I_QUIET,
     I_R,
     I_S,
     I_SAT,
@@ -79,6 +80,8 @@ from .layout import (
     I_YD,
     I_YE,
     N_PLANT,
+    QUIET_GUARD,
+    QUIET_STARTUP,
     X_OMEGA,
     X_PL,
     X_THETA,
@@ -252,10 +255,14 @@ def controller_sense(z, k, h, plant_p, model_p, ctrl, ref, events, filt, info, w
     info[I_UBASE] = u_base
     info[I_TF] = tf
     on = 0.0
+    quiet = 1.0 if t >= QUIET_STARTUP else 0.0
     for i in range(events.shape[0]):
-        if events[i, 1] <= t < events[i, 2] and events[i, 0] != 0.0:
-            on = 1.0
+        if events[i, 0] != 0.0 and events[i, 1] <= t < events[i, 2] + QUIET_GUARD:
+            quiet = 0.0
+            if t < events[i, 2]:
+                on = 1.0
     info[I_FRIC_ON] = on
+    info[I_QUIET] = quiet
     return u_base
 
 

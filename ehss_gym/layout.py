@@ -94,7 +94,10 @@ I_SAT = 23  # 1 if the limit was active
 I_TF = 24  # friction torque at the sample [N*m]
 I_FRIC_ON = 25  # 1 if a friction event is active
 I_XM = 26  # measured plant states x1..x4 (with noise), 4 slots
-N_INFO = 30
+I_QUIET = 30  # 1 if the sample counts for the quiet RMSE: past the start-up, away from friction and its settling
+N_INFO = 31
+QUIET_STARTUP = 0.2  # [s] the start-up transient excluded from the quiet RMSE
+QUIET_GUARD = 0.2  # [s] settling time excluded after each friction event ends
 
 # --- Online metrics accumulator -------------------------------------------
 M_STEPS = 0  # control steps taken
@@ -116,7 +119,9 @@ M_DIVERGED = 15  # 0, or a DIV_* code
 M_T_DIVERGED = 16  # time of divergence [s], nan-free: -1 if none
 M_SUM_E2_NOFRIC = 17
 M_STEPS_NOFRIC = 18
-N_METRICS = 19
+M_SUM_E2_QUIET = 19  # sum e^2 over the quiet samples (I_QUIET)
+M_STEPS_QUIET = 20
+N_METRICS = 21
 
 DIV_NONE = 0
 DIV_NONFINITE = 1

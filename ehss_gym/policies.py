@@ -323,22 +323,23 @@ def tune_pid(env_or_config=None, relay_ma: float = 0.05, relay_seconds: float = 
 
 # Output of tune_pid() for the default settings of each (task, mode), (kp, ki, kd); regenerate with
 # {key: tune_pid(EnvConfig.from_kwargs({"task": t, "mode": m}))["gains"]}; checked by tests/test_policies.py.
-# Tuning-scenario RMSE: velocity residual 1.265e-3 rad/s, velocity direct 7.537e-2 rad/s, position residual
-# 3.94e-3 rad, position direct 2.209e-2 rad (all four from the ZN-PID rule).
+# Tuning-scenario RMSE at the defaults re-derived on the corrected loop (h = 50 us, f_r 60 / 20 Hz):
+# velocity residual 1.463e-3 rad/s (Tyreus-Luyben PID), velocity direct 7.597e-2 rad/s, position residual
+# 2.99e-4 rad, position direct 1.909e-2 rad (ZN-PID).
 PID_GAINS: dict[tuple[str, str], tuple[float, float, float]] = {
-    ("velocity", "residual"): (1264.8700630702165, 1073223.083817153, 0.5217589010164644),
-    ("velocity", "direct"): (0.1443765306932432, 1.3333218164683067, 0.003908392999641671),
-    ("position", "residual"): (62.61010712987516, 5813.380420601222, 0.030103163115569445),
-    ("position", "direct"): (0.8051258335243981, 21.19031013355436, 0.015295378022379758),
+    ("velocity", "residual"): (125.91967545728258, 170.34588130043636, 0.20986612576213765),
+    ("velocity", "direct"): (0.14329896123699692, 1.320727753336377, 0.003886984323553541),
+    ("position", "residual"): (64.74400704355006, 811.3284090670434, 1.8452042007411764),
+    ("position", "direct"): (0.8061566651706392, 29.70050871681302, 0.030633953276484285),
 }
 
 
 # Relay-experiment ultimate points (K_u [mA/U], T_u [s]) behind PID_GAINS.
 PID_RELAY: dict[tuple[str, str], tuple[float, float]] = {
-    ("velocity", "residual"): (1505.7976941312102, 0.0033000000000000004),
-    ("velocity", "direct"): (0.061384579376378916, 0.10828333333333334),
-    ("position", "residual"): (13.309971753799994, 0.02154),
-    ("position", "direct"): (0.958483135148093, 0.15198000000000003),
+    ("velocity", "residual"): (71.38303597351621, 0.0105),
+    ("velocity", "direct"): (0.06092642909736264, 0.1085),
+    ("position", "residual"): (55.05442775812081, 0.057),
+    ("position", "direct"): (0.9597103156793325, 0.152),
 }
 
 

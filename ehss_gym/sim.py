@@ -289,6 +289,9 @@ def accumulate(acc, info, h, k):
     else:
         acc[L.M_STEPS_NOFRIC] += 1.0
         acc[L.M_SUM_E2_NOFRIC] += e * e
+    if info[L.I_QUIET] > 0.0:
+        acc[L.M_STEPS_QUIET] += 1.0
+        acc[L.M_SUM_E2_QUIET] += e * e
     u = info[L.I_UAPP]
     if k > 0:
         acc[L.M_TV_U] += abs(u - acc[L.M_LAST_U])

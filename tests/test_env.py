@@ -416,3 +416,21 @@ def test_default_base_law_is_not_a_relay_on_the_paper_run():
     # Measured under the defaults: saturation 0.00028 (the start-up transient), rmse 5.4e-3 rad/s.
     m = simulate(paper_scenario(EnvConfig.from_kwargs({}).template())).metrics()
     assert not m["diverged"] and m["saturation"] < 0.01
+
+
+def test_env_defaults_are_the_reproduction_studys_recommendation():
+    """ehss_gym.env.DEFAULTS restate reports/paper/recommended_defaults.json (made by `ehss reproduce`)."""
+    import json
+    import pathlib
+
+    from ehss_gym.env import DEFAULTS
+
+    rec = json.loads((pathlib.Path(__file__).parents[1] / "reports/paper/recommended_defaults.json").read_text())
+    assert not rec["quick_mode"]
+    assert DEFAULTS.estimator == rec["estimator"]
+    assert DEFAULTS.control_period == rec["control_period_s"] and DEFAULTS.substeps == rec["substeps"]
+    assert DEFAULTS.current_limit == rec["current_limit_mA"] and DEFAULTS.n == rec["n"]
+    for task in ("velocity", "position"):
+        td = getattr(DEFAULTS, task)
+        assert (td.fr, td.sigma, td.smoothing, td.estimator_hz) == (
+            rec["fr_hz"][task], rec["sigma"][task], rec["smoothing"][task], rec["estimator_hz"][task]), task

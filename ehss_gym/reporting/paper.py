@@ -1,0 +1,422 @@
+"""The reproduction study's report: figures, CSV tables and numbers computed here, prose in templates/paper.md.j2.
+
+:func:`write_report` writes ``REPORT.md``, ``figures/``, ``data/`` and ``recommended_defaults.json``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import time
+from collections.abc import Sequence
+
+import numba as nb
+
+from ..fmt import fmt_axis, md_table
+from ..fmt import fmt_num as _f
+from ..params import PlantParams
+from ..study.claims import CLAIM_FIG, CLAIMS, VERDICTS, best_verdict, evaluate_claims, sweep_claims
+from ..study.config import (
+    C4_TOL,
+    CHATTER_STRONG,
+    CONFIG_FIGS,
+    CONFIGS,
+    EDGE_TOL,
+    G_NOMINAL,
+    MATTERS,
+    NS,
+    OSC_PAPER,
+    OSC_RATIO,
+    REC_ABS,
+    ROBUST_MARGIN,
+    SAT_MATTERS,
+    SLIGHT_TOL,
+    SUPPRESS,
+    TRACK_TOL,
+)
+from ..study.records import Record
+from ..study.rules import attraction_bounds, lost_table
+from ..study.stages import Study
+from ..util import atomic_write, atomic_write_text
+from .paper_figures import (
+    plot_divergence,
+    plot_lost_track,
+    plot_paper_set,
+    plot_relay,
+    plot_smoothing,
+    plot_sweep_maps,
+    run_plot_jobs,
+)
+from .render import render
+
+METRIC_COLS = (("rmse", "RMSE"), ("rmse_quiet", "RMSE quiet"), ("max_abs_e_friction", "max abs e friction"),
+               ("recovery_on", "rec. on [s]"), ("recovery_off", "rec. off [s]"), ("tv_u_rate", "TV rate [mA/s]"),
+               ("peak_u", "peak abs u cmd [mA]"), ("peak_u_applied", "peak abs u applied [mA]"),
+               ("saturation", "saturation"))
+SET_TITLES = {
+    "P0": "the law as printed: sigma = 1, no current limit (the paper's)",
+    "P1": "sigma = 1 with a 10 mA limit at the core's default 10 kHz",
+    "P2": "sigma = 1 with a 10 mA limit at 100 kHz",
+    "P3": "normalised CLF (recommended sigma, period, substeps, limit), plain law w = 0",
+    "P4": "the recommended env defaults (P3 plus the chosen smoothing)",
+    "P1_old": "P1 with wave 1's biased ZOH filters",
+    "P3_old": "wave 1's P3 (its recommended settings) with its ZOH filters",
+}
+CLAIM_SETS = ("P0", "P1", "P2", "P3")
+OLD_NEW = (("P1", "P1_old"), ("P3", "P3_old"))
+FINAL_ROWS = (("old", "wave 1's defaults, its ZOH filters"), ("fixed", "wave 1's defaults, corrected filters"),
+              ("new", "the new defaults, corrected filters"))
+
+
+def csv_write(path: str, records: Sequence[Record]) -> None:
+    """Settings, metrics and features of runs as one CSV table."""
+    pkeys = ["group", "task", "fr", "n", "sigma", "smoothing", "limit", "h", "substeps", "t_end", "estimator_hz",
+             "estimator"]
+    mkeys = ["diverged", "t_diverged", "divergence_reason", "rmse", "rmse_nominal", "rmse_quiet", "iae", "max_abs_e",
+             "max_abs_e_friction", "recovery_on", "recovery_off", "tv_u", "tv_u_rate", "peak_u", "peak_u_applied",
+             "rms_u", "saturation", "v_decrease", "steps"]
+    fkeys = sorted({k for r in records for k in r.features})
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(pkeys + mkeys + fkeys)
+    for r in records:
+        w.writerow([r.group] + [r.params.get(k) for k in pkeys[1:]] + [r.metrics.get(k) for k in mkeys]
+                   + [r.features.get(k) for k in fkeys])
+    atomic_write(path, lambda f: f.write(buf.getvalue()), mode="w")
+
+
+def metric_row(r: Record) -> list:
+    m = r.metrics
+    cells = [f"{r.params['task']} {r.params['fr']:g} Hz", str(r.params["n"])]
+    cells.append(f"**diverged** at {m['t_diverged']:.4g} s ({m['divergence_reason']})" if m["diverged"] else "no")
+    cells += [_f(m[k]) if k != "saturation" else f"{m[k]:.2%}" for k, _ in METRIC_COLS]
+    return cells
+
+
+def set_desc(recs: Sequence[Record]) -> str:
+    p = recs[0].params
+    lim = "none" if p["limit"] is None else f"{p['limit']:g} mA"
+    sig = sorted({(r.params["task"], r.params["sigma"]) for r in recs})
+    sg = ", ".join(f"{t} {s:g}" for t, s in sig) if len({s for _, s in sig}) > 1 else f"{sig[0][1]:g}"
+    return (f"sigma = {sg}; h = {p['h']:g} s; {p['substeps']} RK4 substeps; current limit {lim}; "
+            f"smoothing w = {p['smoothing']:g}; filters {p['estimator']}; {p['t_end']:g} s")
+
+
+def runs_by_set(st: Study, key: str) -> dict:
+    """(task, f_r, n) -> record of one paper set."""
+    return {(r.params["task"], r.params["fr"], r.params["n"]): r for r in st.group(key)}
+
+
+def rec_of(st: Study, group: str, **params):
+    """The first record of ``group`` whose params match, or None."""
+    return next((r for r in st.group(group) if all(r.params.get(k) == v for k, v in params.items())), None)
+
+
+# ------------------------------------------------------------------------------------------------
+# Figures and data
+# ------------------------------------------------------------------------------------------------
+
+SWEEPS = (("sigma_period", "sigma", "h", "CLF scale sigma", "control period h [s]"),
+          ("position_sigma_period", "sigma", "h", "CLF scale sigma", "control period h [s]"),
+          ("sigma_limit", "sigma", "limit", "CLF scale sigma", "current limit [mA]"),
+          ("sigma_fr", "sigma", "fr", "CLF scale sigma", "f_r [Hz]"),
+          ("position_sigma", "sigma", "task", "CLF scale sigma", ""))
+
+
+def _sweep_desc(st: Study, name: str) -> str:
+    cfg, rec = st.cfg, st.rec
+    tiny = f"; * = {cfg.tiny_t_end:g} s runs" if cfg.tiny_periods else ""
+    return {"sigma_period": "velocity, f_r = 100 Hz, limit 10 mA, plain law" + tiny,
+            "position_sigma_period": "position, f_r = 60 Hz, limit 10 mA, plain law, n = 2",
+            "sigma_limit": f"velocity, f_r = {rec['fr_velocity']:g} Hz, h = {rec['h']:g} s, plain law",
+            "sigma_fr": f"velocity, limit 10 mA, h = {rec['h']:g} s, plain law",
+            "position_sigma": f"position, f_r = 60 Hz, limit 10 mA, h = {rec['h']:g} s, plain law"}[name]
+
+
+def figure_jobs(st: Study, figs: str, cmd: str) -> list:
+    """(function, args) of every figure."""
+    cfg, rec = st.cfg, st.rec
+    jobs = []
+    for key, title in SET_TITLES.items():
+        recs = st.group(key)
+        if not recs:
+            continue
+        if key == "P0":
+            jobs.append((plot_divergence, (recs, os.path.join(figs, "paper_P0_divergence.png"), cmd)))
+            continue
+        for task, fr in CONFIGS:
+            jobs.append((plot_paper_set, (recs, task, fr, os.path.join(figs, f"paper_{key}_{task}_{fr:g}.png"),
+                                          f"{CONFIG_FIGS[(task, fr)]} ({task}, f_r = {fr:g} Hz), set {key}: "
+                                          f"{title}\n{set_desc(recs)}", cmd)))
+    fric = (f"{cfg.sweep_t_end:g} s runs, friction {cfg.sweep_friction[0][0]:g} N m on "
+            f"[{cfg.sweep_friction[0][1]:.3f}, {cfg.sweep_friction[0][2]:.3f}) s")
+    for name, row, col, rl, cl in SWEEPS:
+        if st.group(name):
+            jobs.append((plot_sweep_maps, (st.group(name), row, col, os.path.join(figs, f"sweep_{name}.png"),
+                                           f"Sweep {name}: {_sweep_desc(st, name)}; {fric}", cmd, rl, cl,
+                                           cfg.tiny_periods if name == "sigma_period" else ())))
+    lim_recs = [r for g in ("sigma_period", "sigma_limit", "sigma_fr") for r in st.group(g)
+                if r.params["limit"] is not None]
+    jobs.append((plot_relay, (lim_recs, os.path.join(figs, "relay_index.png"), cmd)))
+    jobs.append((plot_smoothing, (st.group("smoothing"), st.group("smoothing_coarse"), st.group("snippet"),
+                                  os.path.join(figs, "smoothing.png"), cmd)))
+    h_old = cfg.old("velocity")["control_period"]
+    jobs.append((plot_lost_track, (rec["dist_table"], rec["h"],
+                                   lost_table(st.group("map_old"), ("h", "fr", "sigma"), cfg.lost_rms), h_old,
+                                   lost_table(st.group("map_smoothing"), ("fr", "smoothing"), cfg.lost_rms),
+                                   lost_table(st.group("map_limit"), ("fr", "limit"), cfg.lost_rms),
+                                   attraction_bounds(st.group("roa"), cfg.lost_rms),
+                                   os.path.join(figs, "lost_track.png"), cmd)))
+    return jobs
+
+
+DATA_GROUPS = ("sigma_period", "position_sigma_period", "sigma_limit", "sigma_fr", "position_sigma", "smoothing",
+               "smoothing_position", "smoothing_coarse", "substeps", "divergence", "probe", "position_probe", "roa")
+
+
+def write_data(st: Study, data: str) -> None:
+    """Every group of runs as CSV: sweeps, probes, paper runs, and the randomised-scenario checks."""
+    for g in DATA_GROUPS:
+        if st.group(g):
+            csv_write(os.path.join(data, f"{'sweep_' if g in dict.fromkeys(s[0] for s in SWEEPS) else ''}{g}.csv"),
+                      st.group(g))
+    csv_write(os.path.join(data, "paper_runs.csv"), [r for k in SET_TITLES for r in st.group(k)])
+    dist = [r for g in sorted(st.records) if g.startswith(("distribution", "map_", "final_")) for r in st.group(g)]
+    csv_write(os.path.join(data, "randomised_scenarios.csv"), dist)
+
+
+# ------------------------------------------------------------------------------------------------
+# Claims
+# ------------------------------------------------------------------------------------------------
+
+
+def _claim_row(cid: str, text: str, per: dict, cells: list) -> list:
+    """One row of the claims table: the best verdict over the sets and the sweep cells, with its evidence."""
+    verdict, where = best_verdict(per)
+    cell_best = next((v for v in VERDICTS if any(r.verdict == v for _, r in cells)), None)
+    if cell_best is not None and VERDICTS.index(cell_best) < VERDICTS.index(verdict):
+        verdict, where = cell_best, []
+    hits = [(lab, r) for lab, r in cells if r.verdict == verdict] if verdict != VERDICTS[2] else []
+    pref = [k for k in ("P1", "P2", "P3", "P0") if k in where]
+    if pref:
+        ev, fig = f"[{pref[0]}] " + per[pref[0]].evidence, f"paper_{pref[0] if pref[0] != 'P0' else 'P1'}"
+    elif hits:
+        ev, fig = f"[{hits[0][0]}] " + hits[0][1].evidence, f"sweep_{hits[0][0].split(':')[0]}"
+    else:
+        k = next(k for k in ("P1", "P3", "P2", "P0") if k in per)
+        ev, fig = f"[{k}] " + per[k].evidence, f"paper_{k if k != 'P0' else 'P1'}"
+    figname = f"{fig}_{CLAIM_FIG[cid]}.png" if fig.startswith("paper") else f"{fig}.png"
+    if verdict == VERDICTS[2]:
+        settings = "none of " + ", ".join(per) + f" nor of {len(cells)} sweep cells"
+    else:
+        settings = ", ".join(k for k in per if per[k].verdict == verdict)
+        if hits:
+            settings += ("; " if settings else "") + f"{len(hits)} of {len(cells)} sweep cells, e.g. " + \
+                "; ".join(lab for lab, _ in hits[:3])
+    return [cid, text, f"**{verdict}**", ev, f"[fig](figures/{figname})", settings]
+
+
+def claims_context(st: Study, data: str) -> dict:
+    """The claims table, the verdict per set, old against new, and data/claims.csv."""
+    claim_sets = {k: evaluate_claims(runs_by_set(st, k)) for k in CLAIM_SETS if st.group(k)}
+    old_sets = {k: evaluate_claims(runs_by_set(st, k)) for pair in OLD_NEW for k in pair if st.group(k)}
+    sweep_res = sweep_claims(st.records)
+    rows, detail = [], []
+    for cid, (text, _) in CLAIMS.items():
+        per = {k: res[cid] for k, res in claim_sets.items()}
+        cells = sweep_res.get(cid, [])
+        rows.append(_claim_row(cid, text, per, cells))
+        counts = {v: sum(r.verdict == v for _, r in cells) for v in VERDICTS}
+        detail.append([cid] + [per[k].verdict for k in claim_sets]
+                      + [f"{counts[VERDICTS[0]]} / {counts[VERDICTS[1]]} / {len(cells)}"])
+    old_new = [[cid] + [f"{old_sets[old][cid].verdict} -> {old_sets[new][cid].verdict}" for new, old in OLD_NEW
+                        if new in old_sets and old in old_sets] for cid in CLAIMS]
+    changed = [(cid, new, old_sets[old][cid], old_sets[new][cid]) for cid in CLAIMS for new, old in OLD_NEW
+               if new in old_sets and old in old_sets and old_sets[old][cid].verdict != old_sets[new][cid].verdict]
+
+    def write(f):
+        w = csv.writer(f)
+        w.writerow(["claim", "set", "verdict", "evidence"])
+        for k, res in {**claim_sets, **old_sets}.items():
+            for cid, r in res.items():
+                w.writerow([cid, k, r.verdict, r.evidence])
+        for cid, cells in sweep_res.items():
+            for lab, r in cells:
+                w.writerow([cid, lab, r.verdict, r.evidence])
+
+    atomic_write(os.path.join(data, "claims.csv"), write, mode="w")
+    return {"claims_table": md_table(["claim", "paper says", "verdict", "measured evidence (best set)", "figure",
+                                      "settings"], rows),
+            "claims_detail": md_table(["claim"] + list(claim_sets) + ["sweep cells: reproduced / partly / tested"],
+                                      detail),
+            "claims_old_new": md_table(["claim"] + [f"{old} -> {new}" for new, old in OLD_NEW], old_new),
+            "claims_changed": changed}
+
+
+# ------------------------------------------------------------------------------------------------
+# Recommended defaults and the report
+# ------------------------------------------------------------------------------------------------
+
+
+def recommendation_json(st: Study) -> dict:
+    """The recommended env defaults, machine-readable, with the rules that chose them."""
+    from .. import __version__
+
+    rec, cfg = st.rec, st.cfg
+    p4 = runs_by_set(st, "P4")
+    return {
+        "generated_by": "ehss reproduce",
+        "ehss_gym_version": __version__,
+        "quick_mode": cfg.quick,
+        "estimator": cfg.estimator,
+        "n": 2,
+        "control_period_s": rec["h"],
+        "control_period_paper_s": rec["h_paper"],
+        "control_period_rule_s": {"velocity": rec["h_velocity_rule"], "position": rec["h_position_rule"]},
+        "substeps": rec["substeps"],
+        "current_limit_mA": rec["limit"],
+        "current_limit_paper_mA": rec["limit_paper"],
+        "fr_hz": {"velocity": rec["fr_velocity"], "position": rec["fr_position"]},
+        "sigma": {"velocity": rec["sigma_velocity"], "position": rec["sigma_position"]},
+        "sigma_paper_rule": {"velocity": rec["sigma_paper"], "position": rec["sigma_position_paper"]},
+        "sigma_by_n": {"velocity": {str(k): v for k, v in rec["sigma_by_n_velocity"].items()},
+                       "position": {str(k): v for k, v in rec["sigma_by_n_position"].items()}},
+        "smoothing": {"velocity": rec["smoothing"], "position": rec["smoothing_position"]},
+        "estimator_hz": {"velocity": 1000.0, "position": 1000.0},
+        "robust_rule_met": {"velocity": bool(rec["dist_rule_met"]), "position": bool(rec["pos_dist_rule_met"]),
+                            "current_limit": bool(rec["dist_limit_rule_met"])},
+        "lost_share": {f"{t}_{suite}_{kind}": lost_table(st.group(f"final_{t}_{suite}_{kind}"), ("task",),
+                                                         cfg.lost_rms).get(t, (math.nan,))[0]
+                       for t in ("velocity", "position") for suite in ("random", "heldout")
+                       for kind in ("old", "fixed", "new")},
+        "position_base_law_saturates": bool(rec.get("position_saturating")),
+        "base_law_saturation_fraction": {f"{t}_{fr:g}Hz_n{n}": r.metrics["saturation"]
+                                         for (t, fr, n), r in p4.items()},
+        "rules": {
+            "control_period": "per task, the largest h whose best non-saturating (<= 1 %) sigma gives a quiet RMSE "
+                              "within 2x the best over all h (n = 2, 10 mA, plain law; f_r 100 Hz velocity, 60 Hz "
+                              "position); the env's one period is the shorter of the two (control_period_paper_s), "
+                              "then the shortest h >= it at which some (f_r, sigma) loses track on <= "
+                              f"{cfg.max_lost:.0%} of {cfg.dist_episodes} randomised training scenarios (velocity)",
+            "fr_sigma": "at that period, among f_r in the candidates and every sigma the first rule admits, the cell "
+                        "with the lowest median RMSE over the randomised scenarios among those losing track on <= "
+                        f"{cfg.max_lost:.0%}; position the same at the env's period (if none passes, the lowest "
+                        "lost share and robust_rule_met = false)",
+            "substeps": "smallest substeps whose quiet RMSE and friction peak are within 2 % of 8 substeps' for "
+                        "n = 2, 4, 6",
+            "current_limit": "smallest limit with saturation <= 1 %, recovery after both friction edges and quiet "
+                             "RMSE within 25 % of the unlimited law's (n = 2): current_limit_paper_mA; then the "
+                             "smallest limit >= it (up to 10 mA) that passes the lost-track check",
+            "smoothing": "width with the lowest control TV among those keeping quiet RMSE and friction peak within "
+                         "10 % of the plain law's (n = 2), per task",
+        },
+    }
+
+
+def _cpu_seconds() -> float:
+    """CPU time of this process and its finished children (the plot workers) [s]."""
+    import resource
+
+    a = resource.getrusage(resource.RUSAGE_SELF)
+    b = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
+def paper_tables(st: Study) -> dict:
+    """Markdown tables of the paper sets, the sweeps' settings, substeps and limits."""
+    rec = st.rec
+    sets = {}
+    for k in SET_TITLES:
+        recs = sorted(st.group(k), key=lambda r: (CONFIGS.index((r.params["task"], r.params["fr"])), r.params["n"]))
+        if recs and k != "P0":
+            sets[k] = {"title": SET_TITLES[k], "desc": set_desc(recs),
+                       "table": md_table(["config", "n", "diverged"] + [c for _, c in METRIC_COLS],
+                                         [metric_row(r) for r in recs])}
+    ssr = sorted(st.group("substeps"), key=lambda r: (r.params["n"], r.params["substeps"]))
+    lim = sorted((r for r in st.group("sigma_limit") if r.params["sigma"] == rec["sigma_velocity"]
+                  and r.params["n"] == 2), key=lambda r: (r.params["limit"] is not None, r.params["limit"] or 0))
+    pp = sorted(st.group("position_probe"), key=lambda r: (r.params["estimator"] != st.cfg.estimator, r.params["h"],
+                                                           r.params["fr"], r.params["limit"] is None))
+    return {
+        "set_rows": md_table(["set", "what", "settings"], [[k, SET_TITLES[k], set_desc(st.group(k))]
+                                                          for k in SET_TITLES if st.group(k)]),
+        "sets": sets,
+        "substeps_table": md_table(["n", "sigma", "substeps", "RMSE quiet", "friction peak", "TV rate"],
+                                   [[r.params["n"], f"{r.params['sigma']:g}", r.params["substeps"],
+                                     _f(r.get("rmse_quiet"), ".5g"), _f(r.get("max_abs_e_friction"), ".5g"),
+                                     _f(r.get("tv_u_rate"), ".4g")] for r in ssr]),
+        "limit_table": md_table(["limit [mA]", "diverged", "RMSE quiet", "friction peak", "rec. on", "rec. off",
+                                 "saturation"],
+                                [[fmt_axis(r.params["limit"]), "yes" if r.get("diverged") else "no",
+                                  _f(r.get("rmse_quiet")), _f(r.get("max_abs_e_friction")), _f(r.get("recovery_on")),
+                                  _f(r.get("recovery_off")), f"{r.get('saturation'):.2%}"] for r in lim]),
+        "limit_runs": {r.params["limit"]: r for r in lim},
+        "position_probe_table": md_table(
+            ["filters", "h [s]", "f_r [Hz]", "sigma", "limit", "diverged", "RMSE [rad]", "median abs psi/G [mA]",
+             "peak abs u cmd [mA]", "TV rate [mA/s]", "saturation"],
+            [[r.params["estimator"], f"{r.params['h']:g}", f"{r.params['fr']:g}", fmt_axis(r.params["sigma"]),
+              fmt_axis(r.params["limit"]), f"at {r.get('t_diverged'):.3g} s" if r.get("diverged") else "no",
+              _f(r.get("rmse")), _f(r.get("psi_over_G")), _f(r.get("peak_u")), _f(r.get("tv_u_rate")),
+              f"{r.get('saturation'):.1%}"] for r in pp]),
+    }
+
+
+def report_context(st: Study, data: str, cmd: str, wall_s: float | None) -> dict:
+    """Everything templates/paper.md.j2 cites."""
+    from .. import __version__
+    from . import paper_facts as F
+
+    cfg, rec = st.cfg, st.rec
+    ctx = dict(cfg=cfg, rec=rec, cmd=cmd, version=__version__, timings=st.timings, wall_s=wall_s,
+               cpu_s=_cpu_seconds(), cpus=os.cpu_count(), threads=nb.get_num_threads(), NS=NS,
+               thresholds=dict(TRACK_TOL=TRACK_TOL, SLIGHT_TOL=SLIGHT_TOL, EDGE_TOL=EDGE_TOL, OSC_RATIO=OSC_RATIO,
+                               OSC_PAPER=OSC_PAPER, SUPPRESS=SUPPRESS, C4_TOL=C4_TOL, CHATTER_STRONG=CHATTER_STRONG,
+                               ROBUST_MARGIN=ROBUST_MARGIN, MATTERS=MATTERS, SAT_MATTERS=SAT_MATTERS,
+                               REC_ABS=REC_ABS),
+               by_group=sorted(st.timings.get("by_group", {}).items(), key=lambda kv: -kv[1]),
+               math=math, G_NOMINAL=G_NOMINAL)
+    ctx.update(paper_tables(st))
+    ctx.update(claims_context(st, data))
+    ctx.update(regions=F.regions(st), div=F.divergence_facts(st), probes=F.probe_facts(st), lim=F.limit_facts(st),
+               fr=F.fr_facts(st), n_counts=F.n_matters_counts(st), lost=F.lost_track(st),
+               smooth_rows=md_table(["n", "w", "diverged", "RMSE quiet", "friction peak", "rec. on [s]",
+                                     "TV rate [mA/s]", "saturation"], F.smoothing_rows(st, "smoothing")),
+               smooth_pos_rows=md_table(["n", "w", "diverged", "RMSE quiet [rad]", "friction peak [rad]",
+                                         "rec. on [s]", "TV rate [mA/s]", "saturation"],
+                                        F.smoothing_rows(st, "smoothing_position")),
+               smooth_gain=F.smoothing_gain(st, "smoothing", rec["smoothing"]),
+               smooth_gain_pos=F.smoothing_gain(st, "smoothing_position", rec["smoothing_position"]),
+               period_rows=md_table(["h [s]", "best sigma", "RMSE quiet", "saturation"],
+                                    F.period_rows(rec["period_table"])),
+               pos_period_rows=md_table(["h [s]", "best sigma", "RMSE quiet [rad]", "saturation"],
+                                        F.period_rows(rec["pos_period_table"])),
+               best_n=F.best_by_n(st, "sigma_period", rec["h_paper"]), qmax=F.qmax,
+               p3=runs_by_set(st, "P3"), p4=runs_by_set(st, "P4"), p1=runs_by_set(st, "P1"), p2=runs_by_set(st, "P2"),
+               p3_old=runs_by_set(st, "P3_old"), d_m=PlantParams().d_m,
+               dist_limit_rows=md_table(["limit [mA]", "lost", "mean RMSE", "median RMSE", "mean saturation"],
+                                        [[f"{k:g}", f"{v[0]:.1%}", _f(v[1]), _f(v[2]), f"{v[3]:.2%}"]
+                                         for k, v in rec["dist_limit_table"].items()]))
+    return ctx
+
+
+def write_report(st: Study, out: str, cmd: str, t_start: float | None = None) -> str:
+    """Write REPORT.md, figures/, data/ and recommended_defaults.json under ``out``; returns REPORT.md's path."""
+    from .. import plotting  # noqa: F401  (selects the Agg backend)
+
+    figs, data = os.path.join(out, "figures"), os.path.join(out, "data")
+    os.makedirs(figs, exist_ok=True)
+    os.makedirs(data, exist_ok=True)
+    t0 = time.perf_counter()
+    run_plot_jobs(figure_jobs(st, figs, cmd), workers=2)
+    write_data(st, data)
+    rec_json = recommendation_json(st)
+    atomic_write_text(os.path.join(out, "recommended_defaults.json"), json.dumps(rec_json, indent=2) + "\n")
+    st.timings["plots_s"] = time.perf_counter() - t0
+    wall_s = time.perf_counter() - t_start if t_start is not None else None
+    md = render("paper.md.j2", **report_context(st, data, cmd, wall_s))
+    path = os.path.join(out, "REPORT.md")
+    atomic_write_text(path, md)
+    return path

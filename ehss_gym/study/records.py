@@ -1,0 +1,206 @@
+"""One simulated run of the study (Record), the features beyond the core metrics, and the batch runner."""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numba as nb
+import numpy as np
+
+from .. import layout as L
+from ..physics import lie_derivatives
+from ..sim import Scenario, lambdas, simulate_batch
+
+
+@dataclass
+class Record:
+    """One simulated run: its settings, metrics and the features the claims and maps use."""
+
+    group: str  # which part of the study: P0..P4, sweep name, probe, ...
+    params: dict
+    metrics: dict
+    features: dict
+    traj: object = field(default=None, repr=False)  # kept for paper runs and probes only
+
+    def get(self, key, default=math.nan):
+        if key in self.metrics:
+            return self.metrics[key]
+        return self.features.get(key, default)
+
+
+def params_of(sc: Scenario) -> dict:
+    return {"task": sc.task, "fr": sc.fr, "n": sc.n, "sigma": sc.sigma, "smoothing": sc.smoothing,
+            "limit": sc.current_limit, "h": sc.control_period, "substeps": sc.substeps, "t_end": sc.t_end,
+            "estimator_hz": sc.estimator_hz, "estimator": sc.estimator}
+
+
+@nb.njit(cache=True)
+def _relay_ratios(log, n_rows, m, n, sigma, lam, model_p, ulim):
+    """Per logged sample: beta = |s/sigma|^(n-1) |G|/sigma against |psi/G| and the limit.
+
+    Returns (median log10(beta/|psi/G|), median log10(beta/limit), median |psi/G| [mA], median |G|).
+    """
+    hd = np.zeros(4)
+    r1 = np.empty(n_rows)
+    r2 = np.empty(n_rows)
+    pg = np.empty(n_rows)
+    ga = np.empty(n_rows)
+    k = 0
+    for i in range(n_rows):
+        x = log[i, L.L_X:L.L_X + 4]
+        F, G = lie_derivatives(x, model_p, m, hd)
+        if G == 0.0 or not math.isfinite(G):
+            continue
+        psi = F - log[i, L.L_YD + m]
+        for j in range(m - 1):
+            psi += lam[j] * log[i, L.L_E + j + 1]
+        s = log[i, L.L_S]
+        ratio = abs(psi / G)
+        if s == 0.0 or ratio == 0.0:
+            continue
+        lb = (n - 1.0) * math.log10(abs(s) / sigma) + math.log10(abs(G) / sigma)
+        r1[k] = lb - math.log10(ratio)
+        r2[k] = lb - math.log10(ulim) if math.isfinite(ulim) else math.nan
+        pg[k] = ratio
+        ga[k] = abs(G)
+        k += 1
+    if k == 0:
+        return math.nan, math.nan, math.nan, math.nan
+    return np.median(r1[:k]), np.median(r2[:k]), np.median(pg[:k]), np.median(ga[:k])
+
+
+def _window_max(t, e, a, b):
+    sel = (t >= a) & (t < b)
+    return float(np.max(np.abs(e[sel]))) if sel.any() else math.nan
+
+
+def features_of(traj) -> dict:
+    """Features beyond the core metrics, from the logged trajectory (log interval, not control rate).
+
+    - amp_pre: max|e| in the second before friction switches on.
+    - amp_fric_sus / amp_post_sus: max|e| from 0.5 s after the friction switches on (off) to the
+      next edge (the end): a sustained oscillation, not the edge transient.
+    - peak_edge_dist: time from the friction-window error peak to the nearest friction edge [s].
+    - tv_smooth_rate: TV rate of the 50 ms moving average of the applied current [mA/s];
+      chatter_ratio = control TV rate / tv_smooth_rate.
+    - relay_log_ratio: median log10(beta / |psi/G|); beta_log_limit: median log10(beta / limit);
+      psi_over_G: median |psi/G| [mA] (the equivalent control); G_med: median |G|.
+    - window_rms_max: largest RMS error over consecutive 0.1 s windows after the first 0.2 s (the
+      start-up transient) [output unit]; large when the loop has lost track.
+    """
+    sc = traj.scenario
+    t, e = traj.t, traj.e
+    f = {}
+    ev = [x for x in sc.friction if x[0] > 0]
+    f["t_fric_on"] = ev[0][1] if ev else math.nan
+    f["r0"] = float(sc.reference(0.0))
+    f["family"] = sc.reference.family
+    if ev and len(t) > 1:
+        on, off = ev[0][1], ev[0][2]
+        f["amp_pre"] = _window_max(t, e, on - 1.0, on)
+        f["amp_fric_sus"] = _window_max(t, e, on + 0.5, off)
+        f["amp_post_sus"] = _window_max(t, e, off + 0.5, sc.t_end + 1.0)
+        sel = (t >= on) & (t < off + 0.5)
+        if sel.any():
+            i = int(np.argmax(np.abs(e[sel])))
+            tp = t[sel][i]
+            f["peak_edge_dist"] = float(min(abs(tp - on), abs(tp - off)))
+            f["t_peak_fric"] = float(tp)
+        else:
+            f["peak_edge_dist"] = f["t_peak_fric"] = math.nan
+    else:
+        for k in ("amp_pre", "amp_fric_sus", "amp_post_sus", "peak_edge_dist", "t_peak_fric"):
+            f[k] = math.nan
+    ua = traj.u_applied
+    dt_log = float(t[1] - t[0]) if len(t) > 1 else sc.control_period
+    nw = max(1, int(round(0.1 / dt_log)))
+    tail = e[t >= 0.2]
+    k = len(tail) // nw
+    f["window_rms_max"] = float(np.sqrt(np.mean(tail[:k * nw].reshape(k, nw) ** 2, axis=1)).max()) if k else math.nan
+    w = max(1, int(round(0.05 / dt_log)))
+    if len(ua) > 2 * w:
+        sm = np.convolve(ua, np.ones(w) / w, mode="valid")
+        dur = max(float(t[-1] - t[0]), 1e-12)
+        f["tv_smooth_rate"] = float(np.sum(np.abs(np.diff(sm))) / dur)
+    else:
+        f["tv_smooth_rate"] = math.nan
+    tvr = traj.acc[L.M_TV_U] / max(traj.acc[L.M_STEPS] * sc.control_period, 1e-12)
+    f["chatter_ratio"] = float(tvr / f["tv_smooth_rate"]) if f["tv_smooth_rate"] > 0 else math.nan
+    if len(t) > 1:
+        lam = np.zeros(3)
+        lv = lambdas(sc.order, sc.fr)
+        lam[:len(lv)] = lv
+        ulim = math.inf if sc.current_limit is None else sc.current_limit
+        r1, r2, pg, ga = _relay_ratios(traj.log, len(t), sc.order, float(sc.n), sc.sigma, lam,
+                                       (sc.model or sc.plant).as_array(), ulim)
+        f.update(relay_log_ratio=float(r1), beta_log_limit=float(r2), psi_over_G=float(pg), G_med=float(ga))
+    else:
+        f.update(relay_log_ratio=math.nan, beta_log_limit=math.nan, psi_over_G=math.nan, G_med=math.nan)
+    return f
+
+
+def probe_summary(r: Record) -> Record:
+    """Dominant frequency and amplitude of the applied current over the probe's second half."""
+    tr = r.traj
+    sel = tr.t >= 0.5 * tr.scenario.t_end
+    u = tr.u_applied[sel]
+    f_dom = math.nan
+    if u.size > 8 and not tr.diverged:
+        u = u - u.mean()
+        spec = np.abs(np.fft.rfft(u * np.hanning(u.size)))
+        fq = np.fft.rfftfreq(u.size, float(tr.t[1] - tr.t[0]))
+        f_dom = float(fq[1 + int(np.argmax(spec[1:]))])
+    r.features["f_dom"] = f_dom
+    r.features["e_rms_probe"] = float(np.sqrt(np.mean(tr.e[sel] ** 2))) if sel.any() else math.nan
+    r.traj = None
+    return r
+
+
+class Runner:
+    """Batches scenarios by time grid into ``simulate_batch`` calls, with one tqdm bar over batches."""
+
+    def __init__(self, max_batch: int = 64, progress: bool = True):
+        from tqdm import tqdm
+
+        self.max_batch = max_batch
+        self.bar = tqdm(total=0, desc="ehss reproduce", unit="batch", disable=not progress, file=sys.stderr)
+        self.n_runs = 0
+        self.sim_seconds = 0.0
+        self.by_group: dict[str, float] = {}  # wall time [s] per study part (a batch is timed under its first run)
+
+    def run(self, items: Sequence[tuple[str, Scenario]], keep: bool = False) -> list[Record]:
+        """Simulate (group, scenario) pairs; returns Records in the same order."""
+        groups: dict[tuple, list[int]] = {}
+        for i, (_, sc) in enumerate(items):
+            groups.setdefault(sc.grid(), []).append(i)
+        batches = []
+        for idx in groups.values():
+            # interleave so both threads' chunks mix cheap (diverging) and long runs
+            rng = np.random.default_rng(len(idx))
+            idx = [idx[j] for j in rng.permutation(len(idx))]
+            n_b = -(-len(idx) // self.max_batch)
+            size = -(-len(idx) // n_b)
+            batches += [idx[k:k + size] for k in range(0, len(idx), size)]
+        self.bar.total += len(batches)
+        self.bar.refresh()
+        out: list[Record | None] = [None] * len(items)
+        for b in batches:
+            t0 = time.perf_counter()
+            trajs = simulate_batch([items[i][1] for i in b])
+            dt = time.perf_counter() - t0
+            self.sim_seconds += dt
+            g = items[b[0]][0]
+            self.by_group[g] = self.by_group.get(g, 0.0) + dt
+            for i, tr in zip(b, trajs):
+                out[i] = Record(items[i][0], params_of(tr.scenario), tr.metrics(), features_of(tr),
+                                tr if keep else None)
+            self.n_runs += len(b)
+            self.bar.update(1)
+        return out
+
+    def close(self):
+        self.bar.close()
