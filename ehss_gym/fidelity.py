@@ -34,6 +34,7 @@ import time
 import numpy as np
 
 from .control import advance_filter, filter_outputs
+from .env import DEFAULTS
 from .filters import butterworth_coefficients, padded_filter
 from .layout import L_E, L_UBASE, L_X, L_YD
 from .physics import jit, lie_derivatives
@@ -41,7 +42,7 @@ from .sim import Scenario, lambdas, simulate_batch
 from .util import atomic_write, atomic_write_text
 
 PROG = "python -m ehss_gym.fidelity"
-PERIODS = (3e-5, 1e-5, 3e-6)  # control periods h [s]
+PERIODS = (3e-5, 1e-5, 3e-6)  # control periods h [s] of the order fits
 QUICK_PERIODS = (3e-5, 1e-5)  # closed-loop periods with --quick [s]
 SCHEMES = ("zoh", "foh")  # the digital schemes; "analog" is the reference
 CLOSED_SCHEMES = ("zoh", "foh", "analog")
@@ -711,7 +712,8 @@ def run(out: str = "reports/fidelity", docs: str | None = "docs/MODEL.md", quick
         with open(docs, encoding="utf-8") as f:
             doc_text = f.read()
         replace_block(doc_text, "")  # fail early on missing markers
-    cl_periods = QUICK_PERIODS if quick else PERIODS
+    # the closed loop also at the env's default period (the check "and at the new default period")
+    cl_periods = QUICK_PERIODS if quick else tuple(sorted(set(PERIODS) | {DEFAULTS.control_period}, reverse=True))
     t_end = QUICK_T_END if quick else T_END
     jobs = open_loop_jobs(PERIODS)
     bar = tqdm(total=len(jobs) + len(cl_periods), desc="ehss fidelity", unit="job", file=sys.stderr,
