@@ -6,7 +6,7 @@ from the env's own action space, reset on termination or truncation (resets are
 counted in the time, as a training loop sees them). Cases are interleaved and
 repeated; the median steps/s is quoted.
 
-The native vector env (``ehss_gym.vector_env``) is stepped the same way at 1, 16,
+The native vector env (``ehss_gym.envs.vector``) is stepped the same way at 1, 16,
 256 and 1024 sub-envs; its rate counts sub-env steps (num_envs x vector steps).
 """
 
@@ -67,18 +67,18 @@ def make_vector(n: int):
     """The native vector env with n sub-envs.
 
     Uses the registered vector entry point (``gym.make_vec(..., vectorization_mode="vector_entry_point")``)
-    if there is one, else the VectorEnv subclass defined in ``ehss_gym.vector_env``.
+    if there is one, else the VectorEnv subclass defined in ``ehss_gym.envs.vector``.
     """
     import ehss_gym  # noqa: F401
 
     spec = gym.spec(ENV_ID)
     if getattr(spec, "vector_entry_point", None):
         return gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point")
-    mod = importlib.import_module("ehss_gym.vector_env")
+    mod = importlib.import_module("ehss_gym.envs.vector")
     classes = [c for c in vars(mod).values() if isinstance(c, type) and issubclass(c, gym.vector.VectorEnv)
                and c.__module__ == mod.__name__]
     if not classes:
-        raise RuntimeError("ehss_gym.vector_env defines no gymnasium.vector.VectorEnv subclass")
+        raise RuntimeError("ehss_gym.envs.vector defines no gymnasium.vector.VectorEnv subclass")
     cls = classes[0]
     params = inspect.signature(cls).parameters
     if "num_envs" in params:
@@ -171,7 +171,7 @@ def _describe(env) -> str:
 def _step_breakdown(quick: bool) -> dict | None:
     """Time the pieces of one EHSSTracking-v0 step [us]; None if the env's internals are not as expected.
 
-    Uses the env's compiled step (``ehss_gym.env.advance`` on ``env.unwrapped._lanes._args``) and the
+    Uses the env's compiled step (``ehss_gym.envs.env.advance`` on ``env.unwrapped._lanes._args``) and the
     core's kernels through :mod:`benchmarks.kernel_profile`, at the env's own control period and substeps.
     """
     import numba as nb
@@ -192,7 +192,7 @@ def _step_breakdown(quick: bool) -> dict | None:
            "loopB": kernel_profile.loop_us_per_lane(sc, 128)}
     out["floor1"] = ap * (out["ctrl"] + out["plant1"])
     try:
-        from ehss_gym.env import advance
+        from ehss_gym.envs.env import advance
 
         args = u._lanes._args
     except (ImportError, AttributeError):

@@ -20,7 +20,7 @@ import time
 
 from .common import Section, Table, log, repo_root
 
-N_LOG_COLUMNS = 26  # ehss_gym.layout.N_LOG, repeated here so the parent need not import the package
+N_LOG_COLUMNS = 26  # ehss_gym.core.layout.N_LOG, repeated here so the parent need not import the package
 
 
 def _mem_available() -> int | None:

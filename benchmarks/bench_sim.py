@@ -1,6 +1,6 @@
 """Closed-loop simulation: ours against the same loop stepped by ``scipy.integrate.solve_ivp``.
 
-Peer (B). The plant of Eq. (1), as documented in ``ehss_gym/physics.py``, is written
+Peer (B). The plant of Eq. (1), as documented in ``ehss_gym/core/physics.py``, is written
 again here in plain Python floats and integrated by ``solve_ivp`` once per control
 period with the current held (zero-order hold), the way a user without this package
 would build the loop. The control law itself is the core's compiled
@@ -35,9 +35,9 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ehss_gym import Scenario, simulate, simulate_batch
-from ehss_gym import layout as L
-from ehss_gym.control import controller_update
-from ehss_gym.sim import LoopArrays, run_lanes
+from ehss_gym.core import layout as L
+from ehss_gym.core.control import controller_update
+from ehss_gym.core.sim import LoopArrays, run_lanes
 
 from . import kernel_profile
 from .common import Section, Table, Target, interleave, log, median, repo_root, spread

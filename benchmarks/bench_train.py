@@ -102,10 +102,10 @@ def run(quick: bool) -> Section:
 
 
 def recipe_cost(sec: Section, quick: bool, pend_rate: float) -> None:
-    """One seed of the shipped residual-PPO recipe through ``ehss_gym.rl.train.train`` (progress bar off;
+    """One seed of the shipped residual-PPO recipe through ``ehss_gym.train.loop.train`` (progress bar off;
     held-out evaluations, checkpoints and exports included), next to PPO on Pendulum-v1 for as many steps
     with the throughput measured above. --quick trains 1/100 of the steps and extrapolates linearly."""
-    from ehss_gym.rl.train import Config, train
+    from ehss_gym.train.loop import Config, train
 
     steps = RECIPE_STEPS // 100 if quick else RECIPE_STEPS
     log(f"train: residual-ppo velocity n=2 seed 0, {steps} agent steps (the shipped recipe's settings)")

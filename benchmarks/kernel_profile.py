@@ -23,10 +23,10 @@ import time
 import numba as nb
 import numpy as np
 
-from ehss_gym import layout as L
-from ehss_gym.control import controller_update
-from ehss_gym.physics import N_LANE_CONST, lane_rhs, integrate_lanes, integrate_plant, lane_constants
-from ehss_gym.sim import MAX_LANES, LoopArrays, run_lanes
+from ehss_gym.core import layout as L
+from ehss_gym.core.control import controller_update
+from ehss_gym.core.physics import N_LANE_CONST, integrate_lanes, integrate_plant, lane_constants, lane_rhs
+from ehss_gym.core.sim import MAX_LANES, LoopArrays, run_lanes
 
 
 @nb.njit(cache=True, error_model="numpy")

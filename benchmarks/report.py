@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 import time
 
-from ehss_gym.util import atomic_write_text
+from ehss_gym.core.util import atomic_write_text
 
 from .common import Section, Table, fmt
 

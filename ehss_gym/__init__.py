@@ -3,14 +3,14 @@ verified simulator and a Gymnasium environment.
 
 Quick start::
 
-    from ehss_gym import Scenario, simulate
+    from . import Scenario, simulate
     traj = simulate(Scenario(task="velocity", n=2, fr=100.0, current_limit=10.0, t_end=20.0))
     print(traj.metrics()["rmse"])
 """
 
-from .params import PlantParams, make_plant_params
-from .signals import Reference, chirp, multisine, paper_reference, sine, step
-from .sim import PAPER_FRICTION, TASKS, Scenario, Trajectory, simulate, simulate_batch
+from .core.params import PlantParams, make_plant_params
+from .core.signals import Reference, chirp, multisine, paper_reference, sine, step
+from .core.sim import PAPER_FRICTION, TASKS, Scenario, Trajectory, simulate, simulate_batch
 
 __version__ = "0.1.0"
 
@@ -31,4 +31,4 @@ __all__ = [
     "TASKS",
     "__version__",
 ]
-from .env import EHSSTrackingEnv  # noqa: E402,F401  (registers EHSSTracking-v0 with Gymnasium)
+from .envs.env import EHSSTrackingEnv

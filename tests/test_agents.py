@@ -3,9 +3,8 @@
 import numpy as np
 import pytest
 import torch
-
-from ehss_gym.rl.agents import AGENTS, AgentSpec, env_kwargs_for, get_spec, initial_mean_abs, make_agent
-from ehss_gym.rl.train import make_env
+from ehss_gym.agents.specs import AGENTS, AgentSpec, env_kwargs_for, get_spec, initial_mean_abs, make_agent
+from ehss_gym.train.loop import make_env
 
 SHORT = {"episode_seconds": 0.05}  # 100 agent steps
 
@@ -30,7 +29,7 @@ def test_residual_mean_is_exactly_zero_and_noise_as_specified(residual):
 
 def test_untrained_residual_policy_is_the_base_law(residual):
     """Same episode, deterministic untrained policy vs the zero residual: identical metrics."""
-    from ehss_gym.rl.heldout import heldout_suite, run_episodes, sb3_act_fn
+    from ehss_gym.evaluation.heldout import heldout_suite, run_episodes, sb3_act_fn
 
     spec, venv, model = residual
     kw = env_kwargs_for(spec, "velocity", 2)

@@ -84,8 +84,7 @@ def test_bench_cli_rejects_bad_only():
 
 
 def test_bench_cli_without_checkout(monkeypatch, capsys):
-    from ehss_gym import bench
-    from ehss_gym.cli import main
+    from ehss_gym.cli import bench, main
 
     monkeypatch.setattr(bench, "_benchmarks_module", lambda: None)
     assert main(["bench", "--quick"]) == 2

@@ -13,10 +13,9 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import ehss_gym  # noqa: F401  (registers the env)
-from ehss_gym import layout as L
 from ehss_gym import simulate, sine
-from ehss_gym.env import DEFAULTS, OBS_BOUND, EHSSTrackingEnv, EnvConfig, Lanes, decode_observation
-from ehss_gym.scenarios import (
+from ehss_gym.core import layout as L
+from ehss_gym.core.scenarios import (
     DEFAULT_DISTRIBUTION,
     HELDOUT_SEED_BASE,
     TRAIN_SEED_LIMIT,
@@ -25,8 +24,9 @@ from ehss_gym.scenarios import (
     paper_scenario,
     sample_scenario,
 )
-from ehss_gym.sim import LoopArrays
-from ehss_gym.vector_env import EHSSTrackingVectorEnv
+from ehss_gym.core.sim import LoopArrays
+from ehss_gym.envs.env import DEFAULTS, OBS_BOUND, EHSSTrackingEnv, EnvConfig, Lanes, decode_observation
+from ehss_gym.envs.vector import EHSSTrackingVectorEnv
 
 DT = DEFAULTS.agent_period * DEFAULTS.control_period  # [s], one agent step at the defaults
 SHORT = 200 * DT  # [s]
@@ -419,11 +419,11 @@ def test_default_base_law_is_not_a_relay_on_the_paper_run():
 
 
 def test_env_defaults_are_the_reproduction_studys_recommendation():
-    """ehss_gym.env.DEFAULTS restate reports/paper/recommended_defaults.json (made by `ehss reproduce`)."""
+    """ehss_gym.envs.env.DEFAULTS restate reports/paper/recommended_defaults.json (made by `ehss reproduce`)."""
     import json
     import pathlib
 
-    from ehss_gym.env import DEFAULTS
+    from ehss_gym.envs.env import DEFAULTS
 
     rec = json.loads((pathlib.Path(__file__).parents[1] / "reports/paper/recommended_defaults.json").read_text())
     assert not rec["quick_mode"]

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from ehss_gym import evaluate as ev
 from ehss_gym.cli import main
+from ehss_gym.evaluation import harness as ev
 
 # a small, cheap configuration: held-out episodes of 0.3 s on the velocity task
 TINY = ev.EvalConfig(suites=("heldout",), tasks=("velocity",), heldout_episodes=3, episode_seconds=0.3, n_boot=200)
@@ -113,7 +113,7 @@ def test_shape_mismatch_names_what_fits():
 def _ppo(task="velocity", mode="residual"):
     from stable_baselines3 import PPO
 
-    from ehss_gym.env import EHSSTrackingEnv
+    from ehss_gym.envs.env import EHSSTrackingEnv
 
     env = EHSSTrackingEnv(task=task, mode=mode)
     return PPO("MlpPolicy", env, n_steps=64, batch_size=32, seed=0, device="cpu",
@@ -121,7 +121,7 @@ def _ppo(task="velocity", mode="residual"):
 
 
 def test_sb3_zip_and_safe_weights_are_evaluated(tmp_path, capsys):
-    from ehss_gym.safeweights import export_policy
+    from ehss_gym.agents.safeweights import export_policy
 
     model = _ppo()
     zip_path = str(tmp_path / "res_seed0.zip")
@@ -144,7 +144,7 @@ def test_sb3_zip_and_safe_weights_are_evaluated(tmp_path, capsys):
 
 
 def test_corrupt_or_tampered_model_exit_2(tmp_path, capsys):
-    from ehss_gym.safeweights import export_policy
+    from ehss_gym.agents.safeweights import export_policy
 
     bad_zip = tmp_path / "broken.zip"
     bad_zip.write_bytes(b"not a zip")
@@ -162,7 +162,7 @@ def test_corrupt_or_tampered_model_exit_2(tmp_path, capsys):
 
 
 def test_safe_weights_shape_mismatch_cli(tmp_path, capsys):
-    from ehss_gym.safeweights import export_policy
+    from ehss_gym.agents.safeweights import export_policy
 
     # trained on the position task (17 observations) but labelled velocity (15)
     export_policy(_ppo(task="position"), tmp_path / "mislabelled", env_kwargs={"task": "velocity", "mode": "residual"})
@@ -197,7 +197,7 @@ def test_learned_policy_is_compared_with_clf_at_its_settings():
 
 
 def test_episodes_are_disjoint_from_training_and_fixed():
-    from ehss_gym.scenarios import HELDOUT_SEED_BASE, TRAIN_SEED_LIMIT
+    from ehss_gym.core.scenarios import HELDOUT_SEED_BASE, TRAIN_SEED_LIMIT
 
     cfg = ev.EvalConfig.quick()
     a = ev.build_episodes(cfg)

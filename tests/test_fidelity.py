@@ -1,4 +1,4 @@
-"""`python -m ehss_gym.fidelity --quick`: the report renders, the docs block is replaced, and the numbers hold.
+"""`ehss fidelity --quick`: the report renders, the docs block is replaced, and the numbers hold.
 
 The quick run keeps the open loop at 30, 10 and 3 us and runs the closed loop at 30 and 10 us for 2 s. The
 checks are the ones the fidelity study exists for: the ZOH top derivative's bias is c0 h/2 (fitted), the FOH
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from ehss_gym.fidelity import BEGIN, END, replace_block
+from ehss_gym.study.fidelity import BEGIN, END, replace_block
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -27,7 +27,7 @@ def quick_run(tmp_path_factory):
     shutil.copy(ROOT / "docs" / "MODEL.md", docs)
     original = docs.read_text(encoding="utf-8")
     out = tmp / "out"
-    proc = subprocess.run([sys.executable, "-m", "ehss_gym.fidelity", "--quick", "--no-progress", "--out", str(out),
+    proc = subprocess.run([sys.executable, "-m", "ehss_gym.cli", "fidelity", "--quick", "--no-progress", "--out", str(out),
                            "--docs", str(docs)], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     return out, original, docs.read_text(encoding="utf-8")
@@ -54,7 +54,7 @@ def test_files_exist_and_name_the_command(quick_run):
     for rel in ("FIDELITY.md", "data/open_loop.csv", "data/closed_loop.csv", "figures/order.png"):
         assert (out / rel).is_file() and (out / rel).stat().st_size > 0, rel
     md = (out / "FIDELITY.md").read_text(encoding="utf-8")
-    assert "python -m ehss_gym.fidelity" in md and "--quick" in md and "QUICK MODE" in md
+    assert "ehss fidelity" in md and "--quick" in md and "QUICK MODE" in md
     assert (out / "figures" / "order.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -64,7 +64,7 @@ def test_docs_block_is_replaced_and_the_rest_kept(quick_run):
     head, tail = original.split(BEGIN)[0], original.split(END)[1]
     assert text.startswith(head) and text.endswith(tail)  # only the block changed
     block = text[text.index(BEGIN):text.index(END)]
-    assert "made by `python -m ehss_gym.fidelity" in block.lower()
+    assert "made by `ehss fidelity" in block.lower()
     assert block != original[original.index(BEGIN):original.index(END)]
     rows = _block_table(text)
     assert len(rows) == 2 * 2 * 3  # two tasks, two periods (quick), three schemes
@@ -121,7 +121,7 @@ def test_missing_markers_are_refused(tmp_path):
     assert replace_block(f"a\n{BEGIN}\nold\n{END}\nb\n", "new") == f"a\n{BEGIN}\nnew\n{END}\nb\n"
     bad = tmp_path / "bad.md"
     bad.write_text("no markers\n", encoding="utf-8")
-    proc = subprocess.run([sys.executable, "-m", "ehss_gym.fidelity", "--quick", "--no-progress",
+    proc = subprocess.run([sys.executable, "-m", "ehss_gym.cli", "fidelity", "--quick", "--no-progress",
                            "--out", str(tmp_path / "o"), "--docs", str(bad)], capture_output=True, text=True,
                           timeout=120, cwd=ROOT)
     assert proc.returncode == 2 and "fidelity-table" in proc.stderr

@@ -16,11 +16,11 @@ import scipy.linalg
 
 import ehss_gym  # noqa: F401  (registers the env)
 from ehss_gym import Scenario, simulate
-from ehss_gym import layout as L
-from ehss_gym.control import advance_filter, filter_outputs
-from ehss_gym.filters import butterworth_coefficients, companion, digital_filter, hold_integrals, padded_filter
-from ehss_gym.signals import sine
-from ehss_gym.sim import initial_state
+from ehss_gym.core import layout as L
+from ehss_gym.core.control import advance_filter, filter_outputs
+from ehss_gym.core.filters import butterworth_coefficients, companion, digital_filter, hold_integrals, padded_filter
+from ehss_gym.core.signals import sine
+from ehss_gym.core.sim import initial_state
 
 PERIODS = (3e-5, 1e-5, 3e-6)  # [s]
 

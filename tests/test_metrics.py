@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from ehss_gym.metrics import RECOVERY_SHARE, recovery_times
+from ehss_gym.core.metrics import RECOVERY_SHARE, recovery_times
 
 
 def test_recovery_is_the_settling_time_into_the_larger_band():

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from reference import lie_reference, plant_rhs_np, sontag_reference
 
-from ehss_gym.control import sontag
-from ehss_gym.params import PlantParams
-from ehss_gym.physics import (
+from ehss_gym.core.control import sontag
+from ehss_gym.core.params import PlantParams
+from ehss_gym.core.physics import (
     N_LANE_CONST,
     gaussian,
     integrate_lanes,

@@ -13,8 +13,7 @@ from stable_baselines3.common.monitor import Monitor
 
 import ehss_gym  # noqa: F401  (registers the env)
 from ehss_gym import sine
-from ehss_gym.env import DEFAULTS, EHSSTrackingEnv, EnvConfig
-from ehss_gym.policies import (
+from ehss_gym.controllers.policies import (
     PID_GAINS,
     PID_RELAY,
     CLFPolicy,
@@ -23,6 +22,7 @@ from ehss_gym.policies import (
     relay_experiment,
     tune_pid,
 )
+from ehss_gym.envs.env import DEFAULTS, EHSSTrackingEnv, EnvConfig
 
 SHORT = 0.05
 FRICTION = ((1.8, 1.0, 1.5),)

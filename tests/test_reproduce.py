@@ -9,10 +9,9 @@ import json
 import math
 import os
 import re
+from types import SimpleNamespace
 
 import pytest
-
-from types import SimpleNamespace
 
 from ehss_gym import Scenario, simulate
 from ehss_gym.cli import main

@@ -7,9 +7,8 @@ import pickle
 import numpy as np
 import pytest
 import torch
-
-from ehss_gym import safeweights as sw
-from ehss_gym.safeweights import SafeWeightsError, export_policy, load_policy
+from ehss_gym.agents import safeweights as sw
+from ehss_gym.agents.safeweights import SafeWeightsError, export_policy, load_policy
 
 
 @pytest.fixture(scope="module")

@@ -8,12 +8,12 @@ import scipy.linalg
 from reference import reference_closed_loop
 
 from ehss_gym import Scenario, make_plant_params, simulate, simulate_batch
-from ehss_gym import layout as L
-from ehss_gym.control import sontag
-from ehss_gym.filters import butterworth_coefficients, discretise
-from ehss_gym.params import PlantParams
-from ehss_gym.physics import lie_derivatives, plant_rhs
-from ehss_gym.signals import chirp, multisine, sine, step
+from ehss_gym.core import layout as L
+from ehss_gym.core.control import sontag
+from ehss_gym.core.filters import butterworth_coefficients, discretise
+from ehss_gym.core.params import PlantParams
+from ehss_gym.core.physics import lie_derivatives, plant_rhs
+from ehss_gym.core.signals import chirp, multisine, sine, step
 
 # Settings where each loop is stable and contracting (perturbations decay), so an
 # integrator comparison is meaningful: at the paper's gains with sampling at 1e-4 s the

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from ehss_gym import stats
+from ehss_gym.evaluation import stats
 
 
 def test_iqm_known_values():

@@ -9,10 +9,10 @@ import time
 
 import numpy as np
 import pytest
+from ehss_gym.train import runs
+from ehss_gym.train.loop import Config
 
 from ehss_gym.cli import main as cli_main
-from ehss_gym.rl import runs
-from ehss_gym.rl.train import Config
 
 # A tiny but complete run: 2 envs x 64 steps per rollout, 1 validation episode.
 TINY = ["--n-envs", "2", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", "n_epochs=1", "--eval-episodes", "1",
@@ -109,11 +109,11 @@ def test_training_smoke(tmp_path):
     """A few hundred steps: every output exists and the safe weights reproduce the SB3 model's actions."""
     import pickle
 
+    from ehss_gym.agents.safeweights import load_policy
+    from ehss_gym.agents.specs import resolved_env_kwargs
     from stable_baselines3 import PPO
 
-    from ehss_gym.env import EHSSTrackingEnv
-    from ehss_gym.rl.agents import resolved_env_kwargs
-    from ehss_gym.safeweights import load_policy
+    from ehss_gym.envs.env import EHSSTrackingEnv
 
     out = tmp_path / "run"
     rc = cli_main(["train", "--timesteps", "256", "--eval-freq", "128", "--checkpoint-freq", "128", "--out", str(out),
@@ -150,7 +150,7 @@ def test_training_smoke(tmp_path):
     # a second start in the same folder is refused: it would overwrite the run
     assert cli_main(["train", "--timesteps", "256", "--out", str(out), *TINY]) == 2
     # the report's helpers on this run: grouping, learning curves, shipping as safe weights
-    from ehss_gym.rl import report
+    from ehss_gym.train import analysis as report
 
     groups = report.group_runs(report.load_runs(str(tmp_path)))
     assert [k[:3] for k in groups] == [("residual-ppo", "velocity", 2)]
@@ -177,7 +177,7 @@ def test_training_other_base_law(tmp_path):
 def test_resume_after_sigkill(tmp_path):
     """Kill -9 a training process after its first checkpoint; --resume continues the step count."""
     out = tmp_path / "run"
-    argv = [sys.executable, "-m", "ehss_gym.rl.train", "--timesteps", "1000000", "--eval-freq", "100000",
+    argv = [sys.executable, "-m", "ehss_gym.train.loop", "--timesteps", "1000000", "--eval-freq", "100000",
             "--checkpoint-freq", "128", "--out", str(out), *TINY]
     proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             env={**os.environ, "OMP_NUM_THREADS": "1"})
@@ -211,7 +211,7 @@ def test_resume_after_sigkill(tmp_path):
 
 def test_multi_seed_launches_one_process_per_seed(tmp_path, monkeypatch, capsys):
     """--seeds starts one child per seed, at most --jobs at a time (children faked here; see the slow test)."""
-    import ehss_gym.trainer_cli as tc
+    import ehss_gym.cli.train as tc
 
     started, alive = [], []
 
@@ -259,9 +259,10 @@ def test_period_log_replays_the_agents_loop_at_the_control_rate():
     """The report's TV decomposition logs every control period by re-running a policy at agent_period 1; that
     loop must be the one the policy acts in (same metrics as at its own agent period), and its TV count
     complete (equal to the metrics' TV)."""
-    from ehss_gym.rl.report import has_noise, period_log
-    from ehss_gym.safeweights import load_policy, shipped_models
-    from ehss_gym.scenarios import heldout_scenarios
+    from ehss_gym.agents.safeweights import load_policy, shipped_models
+    from ehss_gym.train.analysis import has_noise, period_log
+
+    from ehss_gym.core.scenarios import heldout_scenarios
 
     pol = load_policy(shipped_models()["residual-ppo-velocity-n4-seed0"])
     tmpl = pol.make_env().unwrapped.scenario_template

@@ -15,11 +15,12 @@ from collections.abc import Sequence
 
 import numba as nb
 
-from ..fmt import fmt_axis, md_table
-from ..fmt import fmt_num as _f
-from ..params import PlantParams
-from ..study.claims import CLAIM_FIG, CLAIMS, VERDICTS, best_verdict, evaluate_claims, sweep_claims
-from ..study.config import (
+from ehss_gym.core.fmt import fmt_axis, md_table
+from ehss_gym.core.fmt import fmt_num as _f
+from ehss_gym.core.params import PlantParams
+from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.study.claims import CLAIM_FIG, CLAIMS, VERDICTS, best_verdict, evaluate_claims, sweep_claims
+from ehss_gym.study.config import (
     C4_TOL,
     CHATTER_STRONG,
     CONFIG_FIGS,
@@ -37,10 +38,10 @@ from ..study.config import (
     SUPPRESS,
     TRACK_TOL,
 )
-from ..study.records import Record
-from ..study.rules import attraction_bounds, lost_table
-from ..study.stages import Study
-from ..util import atomic_write, atomic_write_text
+from ehss_gym.study.records import Record
+from ehss_gym.study.rules import attraction_bounds, lost_table
+from ehss_gym.study.stages import Study
+
 from .paper_figures import (
     plot_divergence,
     plot_lost_track,
@@ -263,7 +264,7 @@ def claims_context(st: Study, data: str) -> dict:
 
 def recommendation_json(st: Study) -> dict:
     """The recommended env defaults, machine-readable, with the rules that chose them."""
-    from .. import __version__
+    from ehss_gym import __version__
 
     rec, cfg = st.rec, st.cfg
     p4 = runs_by_set(st, "P4")
@@ -366,7 +367,8 @@ def paper_tables(st: Study) -> dict:
 
 def report_context(st: Study, data: str, cmd: str, wall_s: float | None) -> dict:
     """Everything templates/paper.md.j2 cites."""
-    from .. import __version__
+    from ehss_gym import __version__
+
     from . import paper_facts as F
 
     cfg, rec = st.cfg, st.rec
@@ -404,7 +406,6 @@ def report_context(st: Study, data: str, cmd: str, wall_s: float | None) -> dict
 
 def write_report(st: Study, out: str, cmd: str, t_start: float | None = None) -> str:
     """Write REPORT.md, figures/, data/ and recommended_defaults.json under ``out``; returns REPORT.md's path."""
-    from .. import plotting  # noqa: F401  (selects the Agg backend)
 
     figs, data = os.path.join(out, "figures"), os.path.join(out, "data")
     os.makedirs(figs, exist_ok=True)

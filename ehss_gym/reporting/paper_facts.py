@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 
-from ..fmt import fmt_axis, md_table
-from ..fmt import fmt_num as _f
-from ..params import PlantParams
-from ..study.config import G_NOMINAL, NS, SAT_MATTERS
-from ..study.rules import attraction_bounds, cells_of, is_lost, lost_table, n_effect, n_matters
-from ..study.stages import Study
+from ehss_gym.core.fmt import fmt_axis, md_table
+from ehss_gym.core.fmt import fmt_num as _f
+from ehss_gym.core.params import PlantParams
+from ehss_gym.study.config import G_NOMINAL, NS, SAT_MATTERS
+from ehss_gym.study.rules import attraction_bounds, cells_of, is_lost, lost_table, n_effect, n_matters
+from ehss_gym.study.stages import Study
 
 
 def _med(vals) -> float:
@@ -203,7 +203,7 @@ def step_peak_derivative(order: int, hz: float, i: int) -> float:
     """Peak |y_d^(i)| of the continuous reference model's response to a unit step [unit / s^i]."""
     import scipy.linalg
 
-    from ..filters import butterworth_coefficients, companion
+    from ehss_gym.core.filters import butterworth_coefficients, companion
 
     A, b = companion(butterworth_coefficients(order, hz))
     dt = 1e-5

@@ -7,14 +7,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..fmt import fmt_axis
-from ..study.config import NS, UNIT
-from ..study.records import Record
-from ..study.rules import MAP_METRICS, cells_of, n_effect
+from ehss_gym.core.fmt import fmt_axis
+from ehss_gym.study.config import NS, UNIT
+from ehss_gym.study.records import Record
+from ehss_gym.study.rules import MAP_METRICS, cells_of, n_effect
 
 
 def _made_by(cmd: str) -> str:
-    from .. import __version__
+    from ehss_gym import __version__
 
     return f"made by: {cmd}  (ehss-gym {__version__})"
 

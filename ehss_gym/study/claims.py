@@ -6,8 +6,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ..fmt import fmt_axis
-from ..fmt import fmt_num as _f
+from ehss_gym.core.fmt import fmt_axis
+from ehss_gym.core.fmt import fmt_num as _f
+
 from .config import (
     C4_CLAIM,
     C4_TOL,

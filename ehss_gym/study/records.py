@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from .. import layout as L
-from ..physics import lie_derivatives
-from ..sim import Scenario, lambdas, simulate_batch
+from ehss_gym.core import layout as L
+from ehss_gym.core.physics import lie_derivatives
+from ehss_gym.core.sim import Scenario, lambdas, simulate_batch
 
 
 @dataclass

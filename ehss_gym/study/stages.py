@@ -9,9 +9,10 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from ..scenarios import DEFAULT_DISTRIBUTION, heldout_scenarios, paper_scenario, sample_scenario
-from ..signals import sine
-from ..sim import Scenario
+from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, heldout_scenarios, paper_scenario, sample_scenario
+from ehss_gym.core.signals import sine
+from ehss_gym.core.sim import Scenario
+
 from .config import CONFIGS, NS, StudyConfig
 from .records import Record, Runner, probe_summary
 from .rules import (

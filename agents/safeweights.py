@@ -1,0 +1,476 @@
+"""Safe weights: a trained SB3 policy as plain tensors plus a JSON config, loaded without unpickling.
+
+An SB3 ``.zip`` (and a ``VecNormalize`` ``.pkl``) is deserialised with pickle, so opening a downloaded
+file can run code. This module writes the parts of a policy that its *deterministic* action needs, as
+a safetensors file (raw little-endian arrays behind a JSON header; reading it cannot run code) and a
+JSON config, and reads them back into a small torch MLP that reproduces SB3's ``predict`` exactly:
+
+    obs (float32) --VecNormalize--> clip((obs - mean) / sqrt(var + eps), -clip_obs, clip_obs) as float32
+        --> [Linear -> activation] x L (SB3's ``mlp_extractor.policy_net``) --> Linear (``action_net``)
+        --> clip to the action space bounds   (SB3 ``predict`` for a Box action, no squashing)
+
+Files of a model with stem ``PATH`` (``PATH`` may end in ``.json`` or ``.safetensors``; either is
+stripped):
+
+- ``PATH.safetensors``: tensors ``pi.{i}.weight`` / ``pi.{i}.bias`` (hidden layers, float32),
+  ``action.weight`` / ``action.bias`` (float32), ``log_std`` (float32, the Gaussian exploration
+  scale, used only by ``predict(..., deterministic=False)``), and, with observation normalisation,
+  ``obs_mean`` / ``obs_var`` (float64, VecNormalize's running statistics).
+- ``PATH.json``: ``format`` (= :data:`FORMAT`), ``name``, ``sha256`` of the safetensors file,
+  ``architecture`` (``obs_dim``, ``hidden`` sizes, ``activation``, ``act_dim``), ``observation_space``
+  and ``action_space`` (Box low/high/shape/dtype), ``obs_normalization`` (null or ``epsilon`` and
+  ``clip_obs``), ``env_id`` and ``env_kwargs`` (what ``gym.make`` needs to rebuild the training env),
+  and ``metadata`` (free-form JSON: training config, scores, ...).
+
+:func:`load_policy` refuses, with a :class:`SafeWeightsError` (a ValueError) naming the problem, a
+file whose SHA-256 differs from the one recorded in the JSON, a missing or extra tensor, a tensor of
+the wrong shape or dtype, a non-finite value, or a JSON config with unknown or missing fields. The
+hash guards integrity (a corrupted or edited file), not authenticity: anyone who edits both files can
+change the weights, but never make the loader run code.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+
+FORMAT = "ehss-gym-safeweights/1"
+ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu", "gelu", "identity")
+JSON_KEYS = ("format", "name", "sha256", "architecture", "observation_space", "action_space", "obs_normalization",
+             "env_id", "env_kwargs", "metadata")
+ARCH_KEYS = ("obs_dim", "hidden", "activation", "act_dim")
+SPACE_KEYS = ("type", "low", "high", "shape", "dtype")
+
+
+# the shipped policies: ehss_gym/models (package data of the top package; this module is ehss_gym.agents)
+MODELS_DIR = os.path.join(os.path.dirname(os.path.abspath(sys.modules["ehss_gym"].__file__)), "models")
+
+
+class SafeWeightsError(ValueError):
+    """A safe-weights file is missing, malformed or does not match its recorded hash."""
+
+
+def model_paths(path) -> tuple[str, str]:
+    """(``stem.safetensors``, ``stem.json``) of a model path given as the stem or either file."""
+    stem = os.fspath(path)
+    for ext in (".safetensors", ".json"):
+        if stem.endswith(ext):
+            stem = stem[: -len(ext)]
+    return stem + ".safetensors", stem + ".json"
+
+
+def _sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _activation_name(module) -> str:
+    import torch.nn as nn
+
+    table = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu", nn.LeakyReLU: "leaky_relu", nn.SiLU: "silu",
+             nn.GELU: "gelu", nn.Identity: "identity"}
+    for cls, name in table.items():
+        if type(module) is cls:
+            if name == "leaky_relu" and module.negative_slope != 0.01:
+                break
+            if name == "gelu" and module.approximate != "none":
+                break
+            if name == "elu" and module.alpha != 1.0:
+                break
+            return name
+    raise SafeWeightsError(f"activation {module!r} is not supported; supported (with default arguments): "
+                           f"{list(ACTIVATIONS)}")
+
+
+def _box_to_json(space) -> dict:
+    from gymnasium import spaces
+
+    if not isinstance(space, spaces.Box):
+        raise SafeWeightsError(f"only Box spaces are supported, got {space!r}")
+    return {"type": "Box", "low": np.asarray(space.low, dtype=np.float64).reshape(-1).tolist(),
+            "high": np.asarray(space.high, dtype=np.float64).reshape(-1).tolist(), "shape": list(space.shape),
+            "dtype": np.dtype(space.dtype).name}
+
+
+def _box_from_json(d, what: str):
+    from gymnasium import spaces
+
+    if not isinstance(d, dict) or sorted(d) != sorted(SPACE_KEYS) or d["type"] != "Box":
+        raise SafeWeightsError(f"{what} must be a dict with keys {list(SPACE_KEYS)} and type 'Box', got {d!r}")
+    shape = d["shape"]
+    if not isinstance(shape, list) or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 1
+                                              for s in shape):
+        raise SafeWeightsError(f"{what}.shape must be a list of positive integers, got {shape!r}")
+    if d["dtype"] not in ("float32", "float64"):
+        raise SafeWeightsError(f"{what}.dtype must be 'float32' or 'float64', got {d['dtype']!r}")
+    size = int(np.prod(shape))
+    try:
+        low = np.asarray(d["low"], dtype=np.float64)
+        high = np.asarray(d["high"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SafeWeightsError(f"{what}.low/high must be lists of numbers") from None
+    if low.shape != (size,) or high.shape != (size,) or np.isnan(low).any() or np.isnan(high).any() \
+            or (low > high).any():
+        raise SafeWeightsError(f"{what}.low/high must be {size} numbers each with low <= high")
+    dtype = np.dtype(d["dtype"])
+    return spaces.Box(low.reshape(shape).astype(dtype), high.reshape(shape).astype(dtype), shape=tuple(shape),
+                      dtype=dtype)
+
+
+def _jsonable(obj):
+    """Plain JSON values (tuples -> lists, numpy scalars -> Python); raises for anything else."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return obj.item()
+    if obj is None or isinstance(obj, (bool, int, float, str)):
+        return obj
+    raise SafeWeightsError(f"value {obj!r} of type {type(obj).__name__} cannot be stored in the JSON config")
+
+
+# ---------------------------------------------------------------------------------------------------
+# Export
+
+
+def policy_tensors(model, vecnormalize=None) -> tuple[dict, dict, dict | None]:
+    """The tensors, architecture and normalisation config of an SB3 on-policy actor-critic policy.
+
+    Args:
+        model: a stable-baselines3 PPO/A2C model (or its ``.policy``) with an MLP policy, a flatten
+            features extractor and a Gaussian (non-state-dependent) Box action.
+        vecnormalize: the ``VecNormalize`` wrapper the model was trained with, or None.
+
+    Returns:
+        (tensors name -> torch tensor, architecture dict, obs-normalisation dict or None).
+    """
+    import torch
+    import torch.nn as nn
+    from gymnasium import spaces
+    from stable_baselines3.common.distributions import DiagGaussianDistribution
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    policy = getattr(model, "policy", model)
+    if not isinstance(policy.observation_space, spaces.Box) or len(policy.observation_space.shape) != 1:
+        raise SafeWeightsError(f"observation space must be a 1-D Box, got {policy.observation_space!r}")
+    if not isinstance(policy.action_space, spaces.Box) or len(policy.action_space.shape) != 1:
+        raise SafeWeightsError(f"action space must be a 1-D Box, got {policy.action_space!r}")
+    if not isinstance(getattr(policy, "action_dist", None), DiagGaussianDistribution):
+        raise SafeWeightsError("only a diagonal-Gaussian action distribution is supported (use_sde=False)")
+    if getattr(policy, "squash_output", False):
+        raise SafeWeightsError("squash_output=True policies are not supported")
+    if not isinstance(policy.pi_features_extractor, FlattenExtractor):
+        raise SafeWeightsError(f"only the flatten features extractor is supported, got "
+                               f"{type(policy.pi_features_extractor).__name__}")
+    tensors: dict[str, torch.Tensor] = {}
+    hidden: list[int] = []
+    act_names: list[str] = []
+    for mod in policy.mlp_extractor.policy_net:
+        if isinstance(mod, nn.Linear):
+            i = len(hidden)
+            tensors[f"pi.{i}.weight"] = mod.weight.detach().cpu().to(torch.float32).contiguous().clone()
+            tensors[f"pi.{i}.bias"] = mod.bias.detach().cpu().to(torch.float32).contiguous().clone()
+            hidden.append(int(mod.out_features))
+        else:
+            act_names.append(_activation_name(mod))
+    if len(act_names) != len(hidden) or len(set(act_names)) > 1:
+        raise SafeWeightsError(f"policy_net must alternate Linear and one kind of activation, got {act_names}")
+    an = policy.action_net
+    tensors["action.weight"] = an.weight.detach().cpu().to(torch.float32).contiguous().clone()
+    tensors["action.bias"] = an.bias.detach().cpu().to(torch.float32).contiguous().clone()
+    tensors["log_std"] = policy.log_std.detach().cpu().to(torch.float32).contiguous().clone()
+    arch = {"obs_dim": int(policy.observation_space.shape[0]), "hidden": hidden,
+            "activation": act_names[0] if act_names else "identity", "act_dim": int(policy.action_space.shape[0])}
+    norm = None
+    if vecnormalize is not None and vecnormalize.norm_obs:
+        rms = vecnormalize.obs_rms
+        if isinstance(rms, dict):
+            raise SafeWeightsError("dict observations are not supported")
+        tensors["obs_mean"] = torch.from_numpy(np.asarray(rms.mean, dtype=np.float64).copy())
+        tensors["obs_var"] = torch.from_numpy(np.asarray(rms.var, dtype=np.float64).copy())
+        norm = {"epsilon": float(vecnormalize.epsilon), "clip_obs": float(vecnormalize.clip_obs)}
+    return tensors, arch, norm
+
+
+def export_policy(model, path, *, vecnormalize=None, name: str | None = None, env_id: str = "EHSSTracking-v0",
+                  env_kwargs: dict | None = None, metadata: dict | None = None) -> tuple[str, str]:
+    """Write ``path.safetensors`` and ``path.json`` for an SB3 policy (see the module docstring).
+
+    Both files are written atomically, the tensors first, so a crash leaves no JSON pointing to a
+    half-written tensor file.
+
+    Args:
+        model: the SB3 model (PPO/A2C with an MLP policy) or its policy.
+        path: output stem (``.json`` / ``.safetensors`` suffixes are stripped); folders are created.
+        vecnormalize: the VecNormalize wrapper whose observation statistics the policy expects, or None.
+        name: model name (default: the stem's file name).
+        env_id: the Gymnasium id of the env the policy acts in.
+        env_kwargs: keyword arguments of ``gym.make(env_id, ...)`` the policy was trained with (JSON values).
+        metadata: free-form JSON-able extras (training config, scores, ...).
+
+    Returns:
+        (safetensors path, json path).
+    """
+    from safetensors.torch import save
+
+    from ehss_gym.core.util import atomic_write, atomic_write_text
+
+    st_path, js_path = model_paths(path)
+    tensors, arch, norm = policy_tensors(model, vecnormalize)
+    policy = getattr(model, "policy", model)
+    blob = save(tensors)
+    config = {
+        "format": FORMAT,
+        "name": name or os.path.basename(st_path[: -len(".safetensors")]),
+        "sha256": _sha256(blob),
+        "architecture": arch,
+        "observation_space": _box_to_json(policy.observation_space),
+        "action_space": _box_to_json(policy.action_space),
+        "obs_normalization": norm,
+        "env_id": env_id,
+        "env_kwargs": _jsonable(env_kwargs or {}),
+        "metadata": _jsonable(metadata or {}),
+    }
+    atomic_write(st_path, lambda f: f.write(blob))
+    atomic_write_text(js_path, json.dumps(config, indent=1, sort_keys=True, allow_nan=False) + "\n")
+    return st_path, js_path
+
+
+# ---------------------------------------------------------------------------------------------------
+# Load
+
+
+def _activation_fn(name: str):
+    import torch.nn.functional as F
+
+    return {"tanh": F.tanh, "relu": F.relu, "elu": F.elu, "leaky_relu": F.leaky_relu, "silu": F.silu,
+            "gelu": F.gelu, "identity": lambda x: x}[name]
+
+
+def _check_config(cfg, js_path: str) -> None:
+    if not isinstance(cfg, dict):
+        raise SafeWeightsError(f"{js_path}: the JSON config must be an object")
+    missing = [k for k in JSON_KEYS if k not in cfg]
+    extra = sorted(set(cfg) - set(JSON_KEYS))
+    if missing or extra:
+        raise SafeWeightsError(f"{js_path}: JSON config keys must be exactly {list(JSON_KEYS)}; missing {missing}, "
+                               f"unexpected {extra}")
+    if cfg["format"] != FORMAT:
+        raise SafeWeightsError(f"{js_path}: format must be {FORMAT!r}, got {cfg['format']!r}")
+    if not isinstance(cfg["name"], str) or not cfg["name"]:
+        raise SafeWeightsError(f"{js_path}: name must be a non-empty string")
+    h = cfg["sha256"]
+    if not isinstance(h, str) or len(h) != 64 or any(c not in "0123456789abcdef" for c in h):
+        raise SafeWeightsError(f"{js_path}: sha256 must be 64 lowercase hex digits, got {h!r}")
+    arch = cfg["architecture"]
+    if not isinstance(arch, dict) or sorted(arch) != sorted(ARCH_KEYS):
+        raise SafeWeightsError(f"{js_path}: architecture must have exactly the keys {list(ARCH_KEYS)}, got {arch!r}")
+
+    def pos_int(v):
+        return isinstance(v, int) and not isinstance(v, bool) and v >= 1
+
+    if not pos_int(arch["obs_dim"]) or not pos_int(arch["act_dim"]) or not isinstance(arch["hidden"], list) \
+            or not all(pos_int(v) for v in arch["hidden"]):
+        raise SafeWeightsError(f"{js_path}: architecture obs_dim, act_dim and hidden sizes must be positive "
+                               f"integers, got {arch!r}")
+    if arch["activation"] not in ACTIVATIONS:
+        raise SafeWeightsError(f"{js_path}: activation must be one of {list(ACTIVATIONS)}, got "
+                               f"{arch['activation']!r}")
+    norm = cfg["obs_normalization"]
+    if norm is not None:
+        if not isinstance(norm, dict) or sorted(norm) != ["clip_obs", "epsilon"] or not all(
+                isinstance(norm[k], (int, float)) and not isinstance(norm[k], bool) and math.isfinite(norm[k])
+                and norm[k] > 0 for k in norm):
+            raise SafeWeightsError(f"{js_path}: obs_normalization must be null or {{'epsilon': >0, 'clip_obs': >0}}, "
+                                   f"got {norm!r}")
+    if not isinstance(cfg["env_id"], str) or not isinstance(cfg["env_kwargs"], dict) \
+            or not isinstance(cfg["metadata"], dict):
+        raise SafeWeightsError(f"{js_path}: env_id must be a string, env_kwargs and metadata objects")
+
+
+def expected_tensors(cfg: dict) -> dict[str, tuple[tuple[int, ...], str]]:
+    """Name -> (shape, dtype) of every tensor a config implies; nothing else may be in the file."""
+    arch = cfg["architecture"]
+    out = {}
+    last = arch["obs_dim"]
+    for i, hdim in enumerate(arch["hidden"]):
+        out[f"pi.{i}.weight"] = ((hdim, last), "float32")
+        out[f"pi.{i}.bias"] = ((hdim,), "float32")
+        last = hdim
+    out["action.weight"] = ((arch["act_dim"], last), "float32")
+    out["action.bias"] = ((arch["act_dim"],), "float32")
+    out["log_std"] = ((arch["act_dim"],), "float32")
+    if cfg["obs_normalization"] is not None:
+        out["obs_mean"] = ((arch["obs_dim"],), "float64")
+        out["obs_var"] = ((arch["obs_dim"],), "float64")
+    return out
+
+
+@dataclass
+class SafePolicy:
+    """A loaded safe-weights policy with SB3's ``predict`` (see the module docstring).
+
+    Attributes:
+        name: model name.
+        observation_space, action_space: gymnasium Box spaces.
+        env_id, env_kwargs: how to rebuild the env (``gym.make(env_id, **env_kwargs)``).
+        metadata: training config and scores stored with the model.
+        obs_normalization: None or {"epsilon", "clip_obs"} of the VecNormalize statistics.
+        path: the JSON file it was loaded from.
+    """
+
+    name: str
+    observation_space: object
+    action_space: object
+    env_id: str
+    env_kwargs: dict
+    metadata: dict
+    obs_normalization: dict | None
+    path: str
+    tensors: dict = field(repr=False)
+    activation: str = "tanh"
+    seed: int | None = None
+
+    def __post_init__(self):
+        n_hidden = sum(1 for k in self.tensors if k.startswith("pi.") and k.endswith(".weight"))
+        self._layers = [(self.tensors[f"pi.{i}.weight"], self.tensors[f"pi.{i}.bias"]) for i in range(n_hidden)]
+        self._act = _activation_fn(self.activation)
+        self._rng = np.random.default_rng(self.seed)
+        if self.obs_normalization is not None:
+            self._mean = self.tensors["obs_mean"].numpy()
+            self._std = np.sqrt(self.tensors["obs_var"].numpy() + self.obs_normalization["epsilon"])
+            self._clip = self.obs_normalization["clip_obs"]
+        self._low = np.asarray(self.action_space.low)
+        self._high = np.asarray(self.action_space.high)
+
+    def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
+        """VecNormalize's observation normalisation (float64 arithmetic, float32 result), or the identity."""
+        if self.obs_normalization is None:
+            return obs
+        return np.clip((obs - self._mean) / self._std, -self._clip, self._clip).astype(np.float32)
+
+    def mean_action(self, obs_norm: np.ndarray) -> np.ndarray:
+        """The Gaussian mean (before clipping) for a batch of normalised observations (B, obs_dim)."""
+        import torch
+        import torch.nn.functional as F
+
+        with torch.no_grad():
+            x = torch.as_tensor(obs_norm).float()
+            for w, b in self._layers:
+                x = self._act(F.linear(x, w, b))
+            return F.linear(x, self.tensors["action.weight"], self.tensors["action.bias"]).numpy()
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        """SB3-style prediction: (action, state). Accepts one observation or a batch (B, obs_dim).
+
+        Args:
+            observation: raw env observation(s) (normalisation is applied here).
+            state, episode_start: ignored (no recurrent state); ``state`` is returned unchanged.
+            deterministic: the mean action (True, default) or a Gaussian sample with the stored log_std.
+        """
+        obs = np.array(observation)
+        shape = self.observation_space.shape
+        if obs.shape == shape:
+            batched = False
+        elif obs.shape[1:] == shape:
+            batched = True
+        else:
+            raise ValueError(f"observation must have shape {shape} or (batch, {', '.join(map(str, shape))}) for "
+                             f"model {self.name!r}, got {obs.shape}")
+        obs = obs.reshape((-1, *shape))
+        act = self.mean_action(self.normalize_obs(obs))
+        if not deterministic:
+            std = np.exp(self.tensors["log_std"].numpy())
+            act = (act + std * self._rng.standard_normal(act.shape)).astype(np.float32)
+        act = np.clip(act.reshape((-1, *self.action_space.shape)), self._low, self._high)
+        if not batched:
+            act = act.squeeze(axis=0)
+        return act, state
+
+    def make_env(self, **overrides):
+        """``gym.make(env_id, **env_kwargs, **overrides)``: the env this policy was trained for."""
+        import gymnasium as gym
+
+        return gym.make(self.env_id, **{**self.env_kwargs, **overrides})
+
+
+def load_policy(path) -> SafePolicy:
+    """Load ``path.safetensors`` + ``path.json`` without unpickling (see the module docstring).
+
+    Args:
+        path: the model stem ``.../<name>`` (or either of its two files).
+
+    Raises:
+        SafeWeightsError (a ValueError): a missing file, a hash mismatch, missing/extra/misshaped tensors,
+            non-finite values or a malformed JSON config; the message names the file and the problem.
+    """
+    import torch
+    from safetensors import SafetensorError
+    from safetensors.torch import load
+
+    st_path, js_path = model_paths(path)
+    for p in (js_path, st_path):
+        if not os.path.isfile(p):
+            raise SafeWeightsError(f"model file {p} not found (a model is PATH.safetensors + PATH.json)")
+    try:
+        with open(js_path, encoding="utf-8") as f:
+            cfg = json.load(f, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(f"non-finite {c}")))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise SafeWeightsError(f"{js_path}: not valid JSON ({exc})") from None
+    _check_config(cfg, js_path)
+    with open(st_path, "rb") as f:
+        blob = f.read()  # hash and parse the same bytes, so the file cannot change in between
+    digest = _sha256(blob)
+    if digest != cfg["sha256"]:
+        raise SafeWeightsError(f"{st_path}: SHA-256 {digest} does not match the {cfg['sha256']} recorded in "
+                               f"{js_path}; the weights were modified or corrupted, refusing to load")
+    try:
+        tensors = load(blob)
+    except (SafetensorError, ValueError, RuntimeError) as exc:
+        raise SafeWeightsError(f"{st_path}: not a valid safetensors file ({exc})") from None
+    want = expected_tensors(cfg)
+    missing = sorted(set(want) - set(tensors))
+    extra = sorted(set(tensors) - set(want))
+    if missing or extra:
+        raise SafeWeightsError(f"{st_path}: tensors must be exactly {sorted(want)}; missing {missing}, "
+                               f"unexpected {extra}")
+    for k, (shape, dtype) in want.items():
+        t = tensors[k]
+        if tuple(t.shape) != shape or str(t.dtype) != f"torch.{dtype}":
+            raise SafeWeightsError(f"{st_path}: tensor {k!r} must have shape {shape} and dtype {dtype}, got "
+                                   f"{tuple(t.shape)} {str(t.dtype).removeprefix('torch.')}")
+        if not bool(torch.isfinite(t).all()):
+            raise SafeWeightsError(f"{st_path}: tensor {k!r} contains non-finite values")
+    if "obs_var" in tensors and bool((tensors["obs_var"] < 0).any()):
+        raise SafeWeightsError(f"{st_path}: obs_var must be >= 0")
+    obs_space = _box_from_json(cfg["observation_space"], "observation_space")
+    act_space = _box_from_json(cfg["action_space"], "action_space")
+    arch = cfg["architecture"]
+    if obs_space.shape != (arch["obs_dim"],) or act_space.shape != (arch["act_dim"],):
+        raise SafeWeightsError(f"{js_path}: spaces {obs_space.shape}/{act_space.shape} do not match the "
+                               f"architecture obs_dim={arch['obs_dim']}, act_dim={arch['act_dim']}")
+    return SafePolicy(name=cfg["name"], observation_space=obs_space, action_space=act_space, env_id=cfg["env_id"],
+                      env_kwargs=cfg["env_kwargs"], metadata=cfg["metadata"],
+                      obs_normalization=cfg["obs_normalization"], path=js_path, tensors=tensors,
+                      activation=arch["activation"])
+
+
+def shipped_models() -> dict[str, str]:
+    """Name -> stem path of every model shipped in ``ehss_gym/models`` (JSON + safetensors pairs)."""
+    folder = MODELS_DIR
+    out = {}
+    if os.path.isdir(folder):
+        for fn in sorted(os.listdir(folder)):
+            if fn.endswith(".json") and os.path.isfile(os.path.join(folder, fn[:-5] + ".safetensors")):
+                out[fn[:-5]] = os.path.join(folder, fn[:-5])
+    return out
+
+
+__all__ = ["FORMAT", "SafeWeightsError", "SafePolicy", "export_policy", "load_policy", "policy_tensors",
+           "expected_tensors", "model_paths", "shipped_models"]

@@ -1,0 +1,31 @@
+"""The ``ehss`` command line. Each sub-command lives in its own module of this package with a ``register``
+function; nothing outside the CLI imports it.
+
+Bad arguments exit with code 2 and a message that names the parameter and the accepted range
+(argparse's convention).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from ehss_gym import __version__
+
+from . import bench, evaluate, fidelity, reproduce, simulate, train
+
+COMMANDS = (simulate, reproduce, evaluate, train, bench, fidelity)  # each exposes register(subparsers)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ehss", description="EHSS servo loop with Sontag/CLF controllers.")
+    parser.add_argument("--version", action="version", version=f"ehss-gym {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for mod in COMMANDS:
+        mod.register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    return int(args.func(args) or 0)

@@ -1,0 +1,119 @@
+"""``ehss evaluate``: the evaluation harness on the command line (:mod:`ehss_gym.evaluation.harness`)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from dataclasses import replace
+
+from ehss_gym.evaluation.harness import (
+    DEFAULT_OUT,
+    SUITES,
+    TASKS,
+    EvalConfig,
+    PolicyError,
+    _valid_forms,
+    default_specs,
+    evaluate,
+    parse_policy,
+    write_report,
+)
+
+from .args import int_at_least
+
+
+def _tasks(text: str) -> tuple:
+    names = tuple(t.strip() for t in text.split(",") if t.strip())
+    if not names or any(t not in TASKS for t in names):
+        raise argparse.ArgumentTypeError(f"--tasks must be a comma-separated subset of {','.join(TASKS)}, got {text!r}")
+    return names
+
+
+def register(sub) -> None:
+    p = sub.add_parser("evaluate", help="compare CLF n=2/4/6, PID and learned policies on the same scenarios",
+                       description="Score scripted and learned policies on the paper scenario, a held-out randomised "
+                                   "suite and robustness sweeps; write REPORT.md, CSVs and figures.")
+    p.add_argument("--policies", nargs="+", default=None, metavar="SPEC",
+                   help="comma- or space-separated: clf-n2, clf-n4, clf-n6, pid, residual-ppo:PATH, ppo-direct:PATH, "
+                        "or a shipped model name (default: every shipped policy)")
+    p.add_argument("--suite", choices=("paper", "heldout", "robustness", "all"), default="all")
+    p.add_argument("--tasks", type=_tasks, default=TASKS, help="comma-separated subset of velocity,position")
+    p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
+                   help="held-out episodes per task (default 48; --quick 8)")
+    p.add_argument("--sweep-episodes", type=int_at_least("--sweep-episodes", 1), default=None,
+                   help="episodes per robustness level (default 5; --quick 1)")
+    p.add_argument("--workers", type=int_at_least("--workers", 1), default=None,
+                   help="worker processes (default: the cores available)")
+    p.add_argument("--n-boot", type=int_at_least("--n-boot", 100), default=None, help="bootstrap replicates")
+    p.add_argument("--seed", type=int_at_least("--seed", 0), default=0, help="bootstrap seed")
+    p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--quick", action="store_true",
+                   help="small CI form: 8 held-out episodes, 3+2 sweep levels of 1 episode, paper run cut at 12 s")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_evaluate)
+
+
+def _command_line(args) -> str:
+    if sys.argv and os.path.basename(sys.argv[0]) == "ehss" and len(sys.argv) > 1 and sys.argv[1] == "evaluate":
+        return "ehss " + " ".join(sys.argv[1:])
+    parts = ["ehss evaluate"]
+    if args.policies:
+        parts.append("--policies " + " ".join(args.policies))
+    if args.suite != "all":
+        parts.append(f"--suite {args.suite}")
+    if tuple(args.tasks) != TASKS:
+        parts.append("--tasks " + ",".join(args.tasks))
+    for flag, v in (("--episodes", args.episodes), ("--sweep-episodes", args.sweep_episodes),
+                    ("--workers", args.workers), ("--n-boot", args.n_boot)):
+        if v is not None:
+            parts.append(f"{flag} {v}")
+    if args.seed:
+        parts.append(f"--seed {args.seed}")
+    if args.out != DEFAULT_OUT:
+        parts.append(f"--out {args.out}")
+    if args.quick:
+        parts.append("--quick")
+    return " ".join(parts)
+
+
+def config_from_args(args) -> EvalConfig:
+    changes = {"suites": SUITES if args.suite == "all" else (args.suite,), "tasks": tuple(args.tasks),
+               "seed": args.seed}
+    for key, v in (("heldout_episodes", args.episodes), ("sweep_episodes", args.sweep_episodes),
+                   ("n_boot", args.n_boot)):
+        if v is not None:
+            changes[key] = v
+    return EvalConfig.quick(**changes) if args.quick else replace(EvalConfig(), **changes)
+
+
+def cmd_evaluate(args) -> int:
+    prog = "ehss evaluate"
+    try:
+        cfg = config_from_args(args)
+        if args.policies is None:
+            specs = default_specs()
+        else:
+            tokens = [t for item in args.policies for t in item.split(",") if t.strip()]
+            if not tokens:
+                raise PolicyError(f"--policies needs at least one policy; valid: {_valid_forms()}")
+            specs = [parse_policy(t) for t in tokens]
+        res = evaluate(specs, cfg, workers=args.workers, progress=not args.no_progress, command=_command_line(args))
+    except ValueError as exc:  # PolicyError, SafeWeightsError, bad settings
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except RuntimeError as exc:  # a policy that misbehaved while running (e.g. a NaN action)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 1
+    path = write_report(res, args.out)
+    print(f"{len(res.rows)} episodes in {res.wall_time:.1f} s ({res.workers} workers; "
+          + ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()) + f"); wrote {path}")
+    for suite in SUITES:
+        for task in TASKS:
+            block = [d for d in res.summary if d["suite"] == suite and d["task"] == task]
+            if block:
+                ranking = ", ".join(f"{d['policy']} {d['score_mean']:.3g}" for d in block)
+                print(f"  {suite}/{task}: {ranking}")
+    return 0
+
+

@@ -1,0 +1,431 @@
+r"""Lyapunov redesign by Sontag's formula on V = (s/sigma)^n / n, and one control period.
+
+Derivation (NOTES items 9, 10, 14). With the combined error s and
+s' = psi + G u, the CLF V = (s/sigma)^n / n has V' = a + b u with::
+
+    a = (s/sigma)^(n-1) psi / sigma,    b = (s/sigma)^(n-1) G / sigma.
+
+Sontag's universal formula u = -(a + sqrt(a^2 + b^4)) / b (u = 0 if b = 0)
+gives V' = -sqrt(a^2 + b^4) < 0. Since a and b share (s/sigma)^(n-1)::
+
+    u = -psi/G - sign(s) sign(G) hypot(psi/G, |s/sigma|^(n-1) |G| / sigma)
+
+which never forms s^(4n-4). |s/sigma|^(n-1) is formed by repeated multiplication
+(cheap, and correctly scaled whenever it is a normal float), falling back to log
+space when it over- or underflows, so nothing overflows unless the current itself
+does. sigma = 1 is the paper's law.
+
+Smoothing (not in the paper; the paper's "future work" on chattering): sign(s)
+is replaced by s / sqrt(s^2 + w^2), the same shape as the paper's Eq. (2)
+sigmoid with delta = w^2. w = 0 is the plain law. The sign of V' is unchanged,
+so V still decreases wherever s != 0, only more gently inside |s| < w; at
+s = 0 the smoothed law is the equivalent control -psi/G.
+
+Combined error, relative degree m (3 velocity, 4 position)::
+
+    s = e^(m-1) + lambda_{m-2} e^(m-2) + ... + lambda_0 e
+    psi = F - y_d^(m) + lambda_{m-2} e^(m-1) + ... + lambda_0 e'
+
+with lambda the Butterworth coefficients of order m-1 at f_r (Table I).
+"""
+
+from __future__ import annotations
+
+import math
+
+from .layout import (
+    C_BASE,
+    C_EST,
+    C_LAM0,
+    C_N,
+    C_NOISE_THETA,
+    C_OMEGA_MAX,
+    C_ORDER,
+    C_P_BOUND,
+    C_SEED,
+    C_SIGMA,
+    C_SMOOTH,
+    C_ULIM,
+    DIV_NONE,
+    DIV_NONFINITE,
+    DIV_OMEGA,
+    DIV_PRESSURE,
+    EST_ANALOG,
+    FB_PHI_EST,
+    FB_PHI_REF,
+    FB_VEC,
+    FB_VEC2,
+    FBV_C_EST,
+    FBV_C_REF,
+    FBV_D_EST,
+    FBV_D_REF,
+    FBV_E_EST,
+    FBV_E_REF,
+    I_E,
+    I_FRIC_ON,
+    I_G,
+    I_PSI,
+    I_QUIET,
+    I_R,
+    I_S,
+    I_SAT,
+    I_T,
+    I_TF,
+    I_UAPP,
+    I_UBASE,
+    I_UCMD,
+    I_URES,
+    I_V,
+    I_XM,
+    I_YD,
+    I_YE,
+    N_PLANT,
+    QUIET_GUARD,
+    QUIET_STARTUP,
+    X_OMEGA,
+    X_PL,
+    X_THETA,
+    Z_EST,
+    Z_REF,
+)
+from .params import P_DF, P_PS
+from .physics import (
+    LC_PS,
+    active_amplitude,
+    friction_torque,
+    gaussian,
+    jit,
+    jit_noalloc,
+    lane_rhs,
+    lie_derivatives,
+    relief,
+)
+from .signals import reference_value
+
+
+@jit
+def sontag(psi, G, s, n, sigma, smoothing):
+    """Sontag current [mA] for s' = psi + G u and V = (s/sigma)^n / n.
+
+    Args:
+        psi: drift of s [unit of s / s].
+        G: input gain of s [unit of s / s per mA].
+        s: combined error.
+        n: even power factor >= 2.
+        sigma: CLF scale (> 0), in the unit of s.
+        smoothing: width w >= 0 of the smooth sign; 0 = plain sign(s).
+    """
+    if G == 0.0 or not math.isfinite(G):
+        return 0.0
+    if smoothing > 0.0:
+        sg = s / math.sqrt(s * s + smoothing * smoothing)
+    elif s > 0.0:
+        sg = 1.0
+    elif s < 0.0:
+        sg = -1.0
+    else:
+        return 0.0  # b = 0: Sontag's formula gives u = 0
+    ratio = psi / G
+    aG = abs(G)
+    if s == 0.0:
+        beta = 0.0
+    else:
+        x = abs(s) / sigma
+        ni = int(n)
+        p = _int_power(x, ni - 1) if ni == n else 0.0  # n is an even integer (check_n); 0.0: log space
+        if 1e-290 < p < math.inf:
+            # p * (|G|/sigma) is correctly rounded and overflows only where the result itself does
+            beta = p * (aG / sigma)
+        else:  # |s/sigma|^(n-1) itself over- or underflows: log space keeps the product
+            beta = math.exp((n - 1.0) * math.log(x) + math.log(aG / sigma))
+    gsign = 1.0 if G > 0.0 else -1.0
+    a = abs(ratio)
+    big = a if a > beta else beta
+    if 1e-150 < big < 1e150:  # the squares neither over- nor underflow: sqrt is cheaper than libm's hypot
+        mag = math.sqrt(ratio * ratio + beta * beta)
+    else:
+        mag = math.hypot(ratio, beta)
+    return -ratio - sg * gsign * mag
+
+
+@jit
+def _int_power(x, k):
+    """x^k for an integer k >= 0 by repeated multiplication (k = n - 1 is small in practice).
+
+    Several times cheaper than exp/log or pow; the result is within k ulp of x^k, and inf/0 only
+    where x^k over-/underflows.
+    """
+    p = 1.0
+    for _ in range(k):
+        p *= x
+    return p
+
+
+@jit
+def clf_value(s, n, sigma):
+    """V = (s/sigma)^n / n."""
+    ni = int(n)
+    if ni == n and 0 < ni <= 16:  # n is an even integer in practice: multiplication, not pow()
+        return _int_power(s / sigma, ni) / n
+    return (s / sigma) ** n / n
+
+
+@jit_noalloc
+def controller_update(z, k, h, plant_p, model_p, ctrl, ref, events, filt, u_res, info, work):
+    """The controller's work at t_k = k h; returns the applied current [mA].
+
+    Measure (with noise), form the estimated output derivatives and the
+    reference-model derivatives, compute the Sontag current, add the residual,
+    apply the current limit, and advance the discrete filters (state z[4:]).
+    The plant part z[:4] is left for the caller to integrate.
+
+    It is :func:`controller_sense`, :func:`controller_apply` and
+    :func:`advance_filters` in turn; only the middle one depends on ``u_res``,
+    so a caller that already sensed sample k (the env's look-ahead) reuses that.
+
+    Args:
+        z: loop state (N_LOOP,), filter part updated in place.
+        k: control step index.
+        h: control period [s].
+        plant_p: true plant parameters (PlantParams.as_array()).
+        model_p: the controller's model parameters (mismatch when != plant_p).
+        ctrl: controller row (layout C_*).
+        ref: reference spec row (layout R_*).
+        events: friction events (E, 3).
+        filt: (N_FB, 4, 4) filter block (layout FB_*): Phi, c, E and D of the reference model
+            and the estimator, zero-padded (:func:`ehss_gym.core.sim.filter_block`).
+        u_res: residual current [mA] added to ctrl[C_BASE] times the Sontag current.
+        info: output (N_INFO,), what the law saw and did at t_k.
+        work: scratch (8, 4).
+    """
+    u_base = controller_sense(z, k, h, plant_p, model_p, ctrl, ref, events, filt, info, work)
+    u_app = controller_apply(info, ctrl, u_base, u_res)
+    advance_filters(z, ctrl, filt, info, work)
+    return u_app
+
+
+@jit_noalloc
+def controller_sense(z, k, h, plant_p, model_p, ctrl, ref, events, filt, info, work):
+    """Everything the controller computes at t_k that does not depend on the residual; returns u_base [mA].
+
+    Fills ``info`` except I_URES, I_UCMD, I_UAPP, I_SAT (see :func:`controller_apply`); ``z`` is only
+    read. Arguments as in :func:`controller_update`.
+    """
+    t = k * h
+    m = int(ctrl[C_ORDER])
+    n = ctrl[C_N]
+    sigma = ctrl[C_SIGMA]
+    seed = int(ctrl[C_SEED])
+    xm = work[5]
+    hd = work[6]
+    for i in range(N_PLANT):
+        sd = ctrl[C_NOISE_THETA + i]
+        xm[i] = z[i] + (sd * gaussian(seed, k, i) if sd > 0.0 else 0.0)
+    y_meas = xm[X_THETA] if m == 4 else xm[X_OMEGA]
+    r = reference_value(t, ref)
+
+    # Reference model: y_d^(0..m-1) at the sample and y_d^(m) from its equation with the same r;
+    # estimator of order m-1 likewise with the measured y (its y_e^(0) is replaced by y itself).
+    ydm = filter_outputs(z, Z_REF, m, filt[FB_VEC, FBV_C_REF], filt[FB_VEC2, FBV_D_REF], r, info, I_YD)
+    info[I_YD + m] = ydm
+    yem = filter_outputs(z, Z_EST, m - 1, filt[FB_VEC, FBV_C_EST], filt[FB_VEC2, FBV_D_EST], y_meas, info, I_YE)
+    info[I_YE] = y_meas
+    info[I_YE + m - 1] = yem
+    # Errors and the combined error; e itself uses the measured output.
+    for i in range(m):
+        info[I_E + i] = info[I_YE + i] - info[I_YD + i]
+    s = info[I_E + m - 1]
+    psi_lin = 0.0
+    for i in range(m - 1):
+        lam = ctrl[C_LAM0 + i]
+        s += lam * info[I_E + i]
+        psi_lin += lam * info[I_E + i + 1]
+    F, G = lie_derivatives(xm, model_p, m, hd)
+    psi = F - ydm + psi_lin
+    u_base = sontag(psi, G, s, n, sigma, ctrl[C_SMOOTH])
+    tf = friction_torque(t, z[X_OMEGA], events, plant_p[P_DF])
+    info[I_T] = t
+    for i in range(N_PLANT):
+        info[I_XM + i] = xm[i]
+    info[I_R] = r
+    info[I_S] = s
+    info[I_V] = clf_value(s, n, sigma)
+    info[I_PSI] = psi
+    info[I_G] = G
+    info[I_UBASE] = u_base
+    info[I_TF] = tf
+    on = 0.0
+    quiet = 1.0 if t >= QUIET_STARTUP else 0.0
+    for i in range(events.shape[0]):
+        if events[i, 0] != 0.0 and events[i, 1] <= t < events[i, 2] + QUIET_GUARD:
+            quiet = 0.0
+            if t < events[i, 2]:
+                on = 1.0
+    info[I_FRIC_ON] = on
+    info[I_QUIET] = quiet
+    return u_base
+
+
+@jit
+def filter_outputs(z, off, order, c, d, v, out, o):
+    """A digital filter's outputs at the sample: out[o + i] = z_i = w_i + d_i v (i < order); returns z^(order).
+
+    ``z[off:off+order]`` is the filter state w (layout FB_*: D = 0 for "zoh" and "analog", where w is the
+    state itself), v the input at the sample; the top derivative comes from the filter's own equation,
+    z^(order) = c_0 v - sum_i c_i z_i, with the same v (NOTES item 12).
+    """
+    top = c[0] * v
+    for i in range(order):
+        zi = z[off + i] + d[i] * v
+        out[o + i] = zi
+        top -= c[i] * zi
+    return top
+
+
+@jit_noalloc
+def controller_apply(info, ctrl, u_base, u_res):
+    """Add the residual u_res [mA] to ctrl[C_BASE] * u_base [mA], apply the current limit; returns u_app [mA].
+
+    Writes I_URES, I_UCMD, I_UAPP and I_SAT of ``info``.
+    """
+    u_cmd = ctrl[C_BASE] * u_base + u_res
+    ulim = ctrl[C_ULIM]
+    sat = 0.0
+    u_app = u_cmd
+    if u_cmd > ulim:
+        u_app = ulim
+        sat = 1.0
+    elif u_cmd < -ulim:
+        u_app = -ulim
+        sat = 1.0
+    info[I_URES] = u_res
+    info[I_UCMD] = u_cmd
+    info[I_UAPP] = u_app
+    info[I_SAT] = sat
+    return u_app
+
+
+@jit_noalloc
+def advance_filters(z, ctrl, filt, info, work):
+    """Advance the reference model and the estimator (z[4:]) over the period: w <- Phi w + E v.
+
+    The inputs v are the ones :func:`controller_sense` recorded in ``info`` (I_R, I_YE). With the
+    "analog" scheme nothing happens here: the plant's integrator advances the continuous filters.
+    """
+    if ctrl[C_EST] == EST_ANALOG:
+        return
+    m = int(ctrl[C_ORDER])
+    hd = work[6]
+    advance_filter(z, Z_REF, m, filt[FB_PHI_REF], filt[FB_VEC, FBV_E_REF], info[I_R], hd)
+    advance_filter(z, Z_EST, m - 1, filt[FB_PHI_EST], filt[FB_VEC, FBV_E_EST], info[I_YE], hd)
+
+
+@jit
+def advance_filter(z, off, order, phi, gam, v, tmp):
+    """z[off:off+order] <- Phi z + E v: one step of a digital filter; ``tmp`` is scratch."""
+    for i in range(order):
+        acc = gam[i] * v
+        for j in range(order):
+            acc += phi[i, j] * z[off + j]
+        tmp[i] = acc
+    for i in range(order):
+        z[off + i] = tmp[i]
+
+
+@jit
+def check_state(z, ctrl, plant_p):
+    """DIV_* code of a loop state: non-finite, or outside the velocity/pressure bounds."""
+    for i in range(z.shape[0]):
+        if not math.isfinite(z[i]):
+            return DIV_NONFINITE
+    if abs(z[X_OMEGA]) > ctrl[C_OMEGA_MAX]:
+        return DIV_OMEGA
+    if abs(z[X_PL]) > ctrl[C_P_BOUND] * plant_p[P_PS]:
+        return DIV_PRESSURE
+    return DIV_NONE
+
+
+@jit
+def _lane_filter_rhs(X, ts, ctrl, ref, filt, ynoise, D, B):
+    """D[4:, b] = the continuous reference model's and estimator's derivatives for the "analog" lanes.
+
+    The reference model is driven by r(ts), the estimator by the plant output in X plus the sensor noise
+    of the last sample (held: a sampled sensor). Other lanes get zeros (their filters are digital).
+    """
+    for b in range(B):
+        for i in range(N_PLANT, D.shape[0]):
+            D[i, b] = 0.0
+        if ctrl[b, C_EST] != EST_ANALOG:
+            continue
+        m = int(ctrl[b, C_ORDER])
+        cr = filt[b, FB_VEC, FBV_C_REF]
+        acc = cr[0] * reference_value(ts, ref[b])
+        for i in range(m):
+            acc -= cr[i] * X[Z_REF + i, b]
+        for i in range(m - 1):
+            D[Z_REF + i, b] = X[Z_REF + i + 1, b]
+        D[Z_REF + m - 1, b] = acc
+        ce = filt[b, FB_VEC, FBV_C_EST]
+        me = m - 1
+        y = (X[X_THETA, b] if m == 4 else X[X_OMEGA, b]) + ynoise[b]
+        acc = ce[0] * y
+        for i in range(me):
+            acc -= ce[i] * X[Z_EST + i, b]
+        for i in range(me - 1):
+            D[Z_EST + i, b] = X[Z_EST + i + 1, b]
+        D[Z_EST + me - 1, b] = acc
+
+
+@jit_noalloc
+def integrate_lanes_analog(X, U, t0, h, substeps, c, events, work, ctrl, ref, filt, ynoise):
+    """RK4 for B loops whose filters (for lanes with the "analog" scheme) are continuous: plant and filters together.
+
+    The plant part is the arithmetic of :func:`ehss_gym.core.physics.integrate_lanes`, bit for bit; the
+    reference model (input r(t)) and the estimator (input y(t) + the held noise) are integrated in the
+    same RK4 stages, so they see the plant's intra-period motion as an analog filter would.
+
+    Args:
+        X: loop states (N_LOOP, B) (rows as the loop state z), updated in place.
+        U: held currents (B,) [mA].
+        t0, h, substeps: as in integrate_lanes.
+        c: lane constants (N_LANE_CONST, B).
+        events: friction events (B, E, 3).
+        work: scratch (6, N_LOOP, B).
+        ctrl, ref, filt: controller rows, reference specs and filter blocks (B, ...).
+        ynoise: the sensor noise on the output at the last sample (B,) [output unit].
+    """
+    B = X.shape[1]
+    n = X.shape[0]
+    dt = h / substeps
+    k1 = work[0]
+    k2 = work[1]
+    k3 = work[2]
+    k4 = work[3]
+    xt = work[4]
+    amp = work[5, 0]
+    for j in range(substeps):
+        ts = t0 + j * dt
+        for b in range(B):
+            amp[b] = active_amplitude(t0 + (j + 0.5) * dt, events[b])
+        lane_rhs(X, amp, U, c, k1, B)
+        _lane_filter_rhs(X, ts, ctrl, ref, filt, ynoise, k1, B)
+        for i in range(n):
+            for b in range(B):
+                xt[i, b] = X[i, b] + 0.5 * dt * k1[i, b]
+        lane_rhs(xt, amp, U, c, k2, B)
+        _lane_filter_rhs(xt, ts + 0.5 * dt, ctrl, ref, filt, ynoise, k2, B)
+        for i in range(n):
+            for b in range(B):
+                xt[i, b] = X[i, b] + 0.5 * dt * k2[i, b]
+        lane_rhs(xt, amp, U, c, k3, B)
+        _lane_filter_rhs(xt, ts + 0.5 * dt, ctrl, ref, filt, ynoise, k3, B)
+        for i in range(n):
+            for b in range(B):
+                xt[i, b] = X[i, b] + dt * k3[i, b]
+        lane_rhs(xt, amp, U, c, k4, B)
+        _lane_filter_rhs(xt, ts + dt, ctrl, ref, filt, ynoise, k4, B)
+        for i in range(n):
+            for b in range(B):
+                X[i, b] += dt / 6.0 * (k1[i, b] + 2.0 * k2[i, b] + 2.0 * k3[i, b] + k4[i, b])
+        for b in range(B):
+            X[X_PL, b] = relief(X[X_PL, b], c[LC_PS, b])

@@ -1,0 +1,124 @@
+"""Tracking and control metrics of a closed-loop run.
+
+Most metrics are accumulated at the full control rate inside the compiled loop
+(layout ``M_*``), so logging decimation does not bias them. Recovery times need
+the time history and use the logged trajectory.
+
+Definitions (e = y - y_d in the output unit, u the applied current in mA, h the
+control period, T the simulated time):
+
+- ``rmse``: sqrt(mean e^2) over all control steps; ``rmse_nominal`` over the
+  steps with no friction event active; ``rmse_quiet`` over the steps past the
+  start-up (t >= 0.2 s) and neither in a friction event nor within 0.2 s after
+  one ends (the tracking error itself, without the friction transients that
+  dominate ``rmse_nominal`` once the loop tracks to ~1e-5; NaN if no such step).
+- ``iae``: sum |e| h;  ``itae``: sum t |e| h.
+- ``max_abs_e``: max |e|; ``max_abs_e_friction``: max |e| while friction is on.
+- ``recovery_on`` / ``recovery_off``: settling time after the first friction
+  edge (on / off): the time until |e| enters, and then stays in, a band of
+  ``max(2 * max|e| of the second before friction first switches on,
+  RECOVERY_SHARE * the peak |e| after the edge)`` (floor 1e-9), measured up to
+  the next edge. ``inf`` = never. The share of the edge's own peak makes the band
+  meaningful for a loop that tracks far better than the friction offset it is
+  left with while the friction is on: such a loop has no integral action, so its
+  error cannot return to its pre-friction level until the friction switches off.
+- ``tv_u``: control total variation sum |u_k - u_{k-1}| [mA];
+  ``tv_u_rate`` = tv_u / T [mA/s], the chattering index.
+- ``peak_u``: max |commanded u|; ``peak_u_applied``; ``rms_u`` [mA].
+- ``saturation``: share of steps on which the current limit was active.
+- ``v_decrease``: share of steps on which V fell from the previous step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import layout as L
+
+RECOVERY_SHARE = 0.1  # the settling band includes this share of the edge's peak |e| (a 90 % recovery)
+
+
+def recovery_times(t: np.ndarray, e: np.ndarray, friction) -> tuple[float, float]:
+    """Settling time after the first friction switch-on and switch-off [s]; inf if never (module docstring)."""
+    active = [ev for ev in friction if ev[0] > 0.0]
+    if not active or len(t) < 3:
+        return math.nan, math.nan
+    t_on = min(ev[1] for ev in active)
+    t_off = min(ev[2] for ev in active if ev[1] == t_on)
+    pre = (t >= t_on - 1.0) & (t < t_on)
+    pre_band = 2.0 * float(np.max(np.abs(e[pre]))) if pre.any() else 0.0
+
+    def settle(t_edge: float, t_stop: float) -> float:
+        sel = (t >= t_edge) & (t < t_stop)
+        if not sel.any():
+            return math.nan
+        ae = np.abs(e[sel])
+        band = max(pre_band, RECOVERY_SHARE * float(np.max(ae)), 1e-9)
+        outside = ae > band
+        if not outside.any():
+            return 0.0
+        last = np.nonzero(outside)[0][-1]
+        if last == sel.sum() - 1:
+            return math.inf
+        return float(t[sel][last + 1] - t_edge)
+
+    later_edges = [ev[1] for ev in active if ev[1] > t_on] + [math.inf]
+    return settle(t_on, t_off), settle(t_off, min(later_edges))
+
+
+def summarize(traj) -> dict:
+    """The metrics dict of a :class:`~ehss_gym.core.sim.Trajectory` (see module docstring)."""
+    return summarize_acc(traj.acc, traj.scenario, traj.t, traj.e)
+
+
+def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray | None = None) -> dict:
+    """Metrics from an accumulator row (layout M_*) of scenario ``sc``.
+
+    ``t`` and ``e`` (a sampled error history) are needed only for the recovery
+    times; without them those are NaN.
+    """
+    steps = max(a[L.M_STEPS], 1.0)
+    T = steps * sc.control_period
+    out = {
+        "diverged": bool(a[L.M_DIVERGED] != L.DIV_NONE),
+        "divergence_reason": L.DIV_NAMES[int(a[L.M_DIVERGED])],
+        "t_diverged": float(a[L.M_T_DIVERGED]) if a[L.M_DIVERGED] else None,
+        "rmse": float(math.sqrt(a[L.M_SUM_E2] / steps)),
+        "rmse_nominal": math.sqrt(a[L.M_SUM_E2_NOFRIC] / max(a[L.M_STEPS_NOFRIC], 1.0)),
+        "rmse_quiet": math.sqrt(a[L.M_SUM_E2_QUIET] / a[L.M_STEPS_QUIET]) if a[L.M_STEPS_QUIET] else math.nan,
+        "iae": float(a[L.M_SUM_ABS_E]),
+        "itae": float(a[L.M_SUM_T_ABS_E]),
+        "max_abs_e": float(a[L.M_MAX_E]),
+        "max_abs_e_friction": float(a[L.M_MAX_E_FRIC]) if a[L.M_STEPS_FRIC] else math.nan,
+        "tv_u": float(a[L.M_TV_U]),
+        "tv_u_rate": float(a[L.M_TV_U] / T),
+        "peak_u": float(a[L.M_PEAK_UCMD]),
+        "peak_u_applied": float(a[L.M_PEAK_UAPP]),
+        "rms_u": math.sqrt(a[L.M_SUM_U2] / steps),
+        "saturation": float(a[L.M_N_SAT] / steps),
+        "v_decrease": float(a[L.M_N_VDEC] / max(steps - 1.0, 1.0)),
+        "steps": int(steps),
+    }
+    on, off = (math.nan, math.nan) if t is None or e is None else recovery_times(t, e, sc.friction)
+    out["recovery_on"] = on
+    out["recovery_off"] = off
+    return out
+
+
+def format_summary(m: dict, unit: str) -> str:
+    """A short human-readable summary block."""
+    lines = []
+    if m["diverged"]:
+        lines.append(f"DIVERGED at t = {m['t_diverged']:.6g} s ({m['divergence_reason']}); metrics up to then:")
+    lines += [
+        f"  RMSE                  {m['rmse']:.4g} {unit}",
+        f"  max |e|               {m['max_abs_e']:.4g} {unit}",
+        f"  max |e| in friction   {m['max_abs_e_friction']:.4g} {unit}",
+        f"  IAE                   {m['iae']:.4g} {unit}*s",
+        f"  control TV            {m['tv_u']:.4g} mA  ({m['tv_u_rate']:.4g} mA/s)",
+        f"  peak |u| commanded    {m['peak_u']:.4g} mA",
+        f"  saturation fraction   {m['saturation']:.4f}",
+    ]
+    return "\n".join(lines)

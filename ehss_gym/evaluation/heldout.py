@@ -1,0 +1,119 @@
+"""Held-out evaluation used during training: the policy and the base law on the same fixed scenarios.
+
+Scenarios come from :func:`ehss_gym.core.scenarios.heldout_scenarios`, whose seeds are disjoint from every
+training seed. Model selection during training uses the *validation* block (held-out seeds from
+:data:`VALIDATION_START` on), so the scenarios a run is selected on are not the ones it is finally
+reported on (:data:`TEST_START`, the block the evaluation harness draws from as well).
+
+Scores (lower is better), per scenario i:
+
+- ``score``: the evaluation harness's primary score (:func:`ehss_gym.evaluation.harness.primary_score`),
+  ``0.5 RMSE_i / RMSE_ref,i + 0.5 TV_i / TV_ref,i`` against the reference law (the CLF law with n = 2,
+  zero residual, same scenario; 1 for the reference itself, 10 for a diverged episode); the mean over
+  the scenarios picks the checkpoint to keep.
+- ``rel_rmse``, ``rel_fric``, ``rel_tv``: RMSE, max |e| in the friction windows (scenarios with
+  friction only) and control TV rate over those of the agent's own base law (the CLF law with the
+  agent's n, zero residual), averaged over the scenarios.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+VALIDATION_START = 5_000_000  # offset of the validation block among held-out seeds (the harness uses 0.. and 1e6..)
+TEST_START = 0  # offset of the test block (the evaluation harness's held-out suite)
+
+
+def heldout_suite(env_kwargs: dict, count: int, start: int, episode_seconds: float | None = None) -> list:
+    """``count`` held-out Scenarios for the controller settings of ``env_kwargs`` (seeds from ``start``)."""
+    from ehss_gym.core.scenarios import heldout_scenarios
+    from ehss_gym.envs.env import EHSSTrackingEnv
+
+    env = EHSSTrackingEnv(**env_kwargs)
+    return heldout_scenarios(count, env.scenario_template, episode_seconds, start=start)
+
+
+def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
+    """Run one episode per scenario, all in lock-step so the policy sees a batch per agent step.
+
+    Args:
+        env_kwargs: ``EHSSTracking-v0`` keyword arguments (scenario pinned per episode).
+        scenarios: Scenarios built from the env's ``scenario_template``.
+        act_fn: raw observations (B, D) float32 -> actions (B, 1); None = zero action (the base law in
+            residual mode).
+
+    Returns:
+        The env's end-of-episode metrics dict per scenario (``info["metrics"]``), with the scenario's
+        friction events and the episode return added.
+    """
+    from ehss_gym.envs.env import EHSSTrackingEnv
+
+    envs = [EHSSTrackingEnv(**env_kwargs) for _ in scenarios]
+    obs = np.stack([env.reset(seed=0, options={"scenario": sc})[0] for env, sc in zip(envs, scenarios)])
+    live = np.ones(len(envs), dtype=bool)
+    results: list[dict | None] = [None] * len(envs)
+    ret = np.zeros(len(envs))
+    zero = np.zeros((len(envs), 1), dtype=np.float32)
+    while live.any():
+        acts = zero if act_fn is None else np.asarray(act_fn(obs), dtype=np.float32).reshape(len(envs), 1)
+        for i in np.nonzero(live)[0]:
+            o, r, term, trunc, info = envs[i].step(acts[i])
+            obs[i] = o
+            ret[i] += r
+            if term or trunc:
+                live[i] = False
+                m = dict(info["metrics"])
+                m["return"] = float(ret[i])
+                m["has_friction"] = any(ev[0] > 0 for ev in scenarios[i].friction)
+                results[i] = m
+    return results
+
+
+def relative_scores(results: list[dict], base: list[dict], reference: list[dict] | None = None) -> dict:
+    """Mean primary score against ``reference`` (default ``base``) and ratios to ``base`` (module docstring)."""
+    from .harness import SCORE_CAP, primary_score
+
+    reference = base if reference is None else reference
+    sc, rr, rf, rt, div = [], [], [], [], 0
+    for m, b, ref in zip(results, base, reference):
+        sc.append(primary_score(m["rmse"], m["tv_u_rate"], ref["rmse"], ref["tv_u_rate"], m["diverged"]))
+        if m["diverged"]:
+            div += 1
+            rr.append(SCORE_CAP)
+            rt.append(SCORE_CAP)
+            if b["has_friction"]:
+                rf.append(SCORE_CAP)
+            continue
+        rr.append(m["rmse"] / max(b["rmse"], 1e-12))
+        rt.append(m["tv_u_rate"] / max(b["tv_u_rate"], 1e-9))
+        if b["has_friction"] and math.isfinite(b["max_abs_e_friction"]) and math.isfinite(m["max_abs_e_friction"]):
+            rf.append(m["max_abs_e_friction"] / max(b["max_abs_e_friction"], 1e-12))
+    out = {"score": float(np.mean(sc)), "rel_rmse": float(np.mean(rr)), "rel_fric": float(np.mean(rf)) if rf else 1.0,
+           "rel_tv": float(np.mean(rt)), "diverged": div, "episodes": len(results)}
+    out["rmse"] = float(np.mean([m["rmse"] for m in results]))
+    fr = [m["max_abs_e_friction"] for m in results if m["has_friction"]]
+    out["max_abs_e_friction"] = float(np.nanmean(fr)) if fr else math.nan
+    out["tv_u_rate"] = float(np.mean([m["tv_u_rate"] for m in results]))
+    out["return"] = float(np.mean([m["return"] for m in results]))
+    return out
+
+
+def sb3_act_fn(model, vecnormalize=None):
+    """Deterministic actions of an SB3 model on raw observations, normalised as during training."""
+
+    def act(obs):
+        o = vecnormalize.normalize_obs(obs) if vecnormalize is not None else obs
+        return model.predict(o, deterministic=True)[0]
+
+    return act
+
+
+def policy_act_fn(policy):
+    """Deterministic actions of any object with SB3's ``predict`` (e.g. a SafePolicy) on raw observations."""
+    return lambda obs: policy.predict(obs, deterministic=True)[0]
+
+
+__all__ = ["VALIDATION_START", "TEST_START", "heldout_suite", "run_episodes", "relative_scores", "sb3_act_fn",
+           "policy_act_fn"]

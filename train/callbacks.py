@@ -1,0 +1,213 @@
+"""SB3 callbacks of the training script: progress bar, held-out evaluation with best-model keeping,
+checkpoints at rollout boundaries, and the wall-time clock.
+
+All custom behaviour of training lives here, so :mod:`ehss_gym.train.loop` stays a plain script.
+Callbacks that carry state across an interruption expose ``state_dict()`` / ``load_state_dict()``;
+:class:`Checkpoint` stores those in the checkpoint and the resume path restores them.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import pickle
+import shutil
+import time
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from ehss_gym.core.util import atomic_write, atomic_write_text
+
+from . import runs
+
+
+class WallClock(BaseCallback):
+    """Training wall time [s], accumulated across resumed segments and logged to TensorBoard."""
+
+    def __init__(self):
+        super().__init__()
+        self.previous = 0.0  # seconds of earlier segments (restored on resume)
+        self._t0 = time.perf_counter()
+
+    @property
+    def seconds(self) -> float:
+        return self.previous + time.perf_counter() - self._t0
+
+    def _on_training_start(self) -> None:
+        self._t0 = time.perf_counter()
+
+    def _on_rollout_end(self) -> None:
+        self.logger.record("time/wall_s", self.seconds)
+
+    def _on_step(self) -> bool:
+        return True
+
+    def state_dict(self) -> dict:
+        return {"seconds": self.seconds}
+
+    def load_state_dict(self, d: dict) -> None:
+        self.previous = float(d["seconds"])
+        self._t0 = time.perf_counter()
+
+
+class ProgressBar(BaseCallback):
+    """A tqdm bar over agent steps, starting at the resumed step count."""
+
+    def __init__(self, total: int, desc: str = "train", disable: bool = False):
+        super().__init__()
+        self.total = int(total)
+        self.desc = desc
+        self.disable = disable
+        self.bar = None
+
+    def _on_training_start(self) -> None:
+        from tqdm.auto import tqdm
+
+        self.bar = tqdm(total=self.total, initial=self.num_timesteps, desc=self.desc, unit="step",
+                        disable=self.disable, dynamic_ncols=True, smoothing=0.05)
+
+    def _on_step(self) -> bool:
+        self.bar.update(self.num_timesteps - self.bar.n)
+        return True
+
+    def _on_training_end(self) -> None:
+        self.bar.update(self.num_timesteps - self.bar.n)
+        self.bar.close()
+
+
+class HeldoutEval(BaseCallback):
+    """Every ``eval_freq`` steps (at a rollout boundary), score the deterministic policy on the validation
+    scenarios against the base law, log it, and keep a copy of every new best model.
+
+    Best candidates are kept as ``<run>/evals/best_step_<S>/`` (model.zip, vecnormalize.pkl); the
+    history is ``<run>/evaluations.csv`` and ``.json``. At the end, :meth:`best_dir` names the best.
+    """
+
+    def __init__(self, run_dir: str, env_kwargs: dict, scenarios: list, base: list[dict], reference: list[dict],
+                 eval_freq: int, wall: WallClock):
+        super().__init__()
+        self.run_dir = run_dir
+        self.env_kwargs = env_kwargs
+        self.scenarios = scenarios
+        self.base = base
+        self.reference = reference
+        self.eval_freq = int(eval_freq)
+        self.wall = wall
+        self.history: list[dict] = []
+        self.best_score = float("inf")
+        self.best_step: int | None = None
+        self.last_eval = -1
+
+    # evaluation happens after the PPO update (rollout start), so the step count is honest
+    def _on_training_start(self) -> None:
+        if self.last_eval < 0:
+            self.evaluate()
+
+    def _on_rollout_start(self) -> None:
+        if self.num_timesteps - self.last_eval >= self.eval_freq:
+            self.evaluate()
+
+    def _on_training_end(self) -> None:
+        if self.num_timesteps != self.last_eval:
+            self.evaluate()
+
+    def _on_step(self) -> bool:
+        return True
+
+    def evaluate(self) -> dict:
+        from ehss_gym.evaluation.heldout import relative_scores, run_episodes, sb3_act_fn
+
+        vn = self.model.get_vec_normalize_env()
+        t0 = time.perf_counter()
+        results = run_episodes(self.env_kwargs, self.scenarios, sb3_act_fn(self.model, vn))
+        row = relative_scores(results, self.base, self.reference)
+        row.update(step=int(self.num_timesteps), wall_s=round(self.wall.seconds, 3),
+                   eval_s=round(time.perf_counter() - t0, 3))
+        self.last_eval = self.num_timesteps
+        self.history.append(row)
+        for k in ("score", "rel_rmse", "rel_fric", "rel_tv", "rmse", "max_abs_e_friction", "return", "diverged"):
+            self.logger.record(f"heldout/{k}", row[k])
+        if row["score"] < self.best_score:
+            self.best_score = row["score"]
+            self.best_step = row["step"]
+            self._save_best(row["step"])
+        self.write_history()
+        return row
+
+    def _save_best(self, step: int) -> None:
+        d = os.path.join(self.run_dir, "evals", f"best_step_{step}")
+        os.makedirs(d, exist_ok=True)
+        atomic_write(os.path.join(d, "model.zip"), lambda f: self.model.save(f))
+        vn = self.model.get_vec_normalize_env()
+        atomic_write(os.path.join(d, "vecnormalize.pkl"), lambda f: pickle.dump(vn, f))
+
+    def best_dir(self) -> str | None:
+        return None if self.best_step is None else os.path.join(self.run_dir, "evals", f"best_step_{self.best_step}")
+
+    def write_history(self) -> None:
+        if not self.history:
+            return
+        keys = list(self.history[0])
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=keys)
+        w.writeheader()
+        w.writerows(self.history)
+        atomic_write_text(os.path.join(self.run_dir, "evaluations.csv"), buf.getvalue())
+        atomic_write_text(os.path.join(self.run_dir, "evaluations.json"), json.dumps(self.history, indent=1))
+
+    def state_dict(self) -> dict:
+        return {"history": self.history, "best_score": self.best_score, "best_step": self.best_step,
+                "last_eval": self.last_eval}
+
+    def load_state_dict(self, d: dict, checkpoint_step: int) -> None:
+        """Restore the state saved at ``checkpoint_step``; best candidates saved after it are dropped."""
+        self.history = list(d["history"])
+        self.best_score = float(d["best_score"])
+        self.best_step = d["best_step"]
+        self.last_eval = int(d["last_eval"])
+        evals = os.path.join(self.run_dir, "evals")
+        if os.path.isdir(evals):
+            for fn in os.listdir(evals):
+                if fn.startswith("best_step_") and int(fn.rsplit("_", 1)[1]) > checkpoint_step:
+                    shutil.rmtree(os.path.join(evals, fn))
+        self.write_history()
+
+
+class Checkpoint(BaseCallback):
+    """Save a checkpoint (see :mod:`ehss_gym.train.runs`) every ``freq`` steps, at a rollout boundary.
+
+    The save happens at the start of a rollout, i.e. after the PPO update of the previous one, so the
+    saved parameters have learned from all ``num_timesteps`` counted steps and a resume loses at most
+    the steps collected since this checkpoint.
+    """
+
+    def __init__(self, run_dir: str, freq: int, stateful: dict, env_rngs):
+        super().__init__()
+        self.run_dir = run_dir
+        self.freq = int(freq)
+        self.stateful = stateful  # name -> callback with state_dict()
+        self.env_rngs = env_rngs  # callable returning the sub-envs' Generators
+        self.last = 0
+
+    def _on_training_start(self) -> None:
+        self.last = self.num_timesteps
+
+    def _on_rollout_start(self) -> None:
+        if self.num_timesteps - self.last >= self.freq:
+            self.save()
+
+    def _on_step(self) -> bool:
+        return True
+
+    def save(self) -> dict:
+        state = {"num_timesteps": int(self.num_timesteps), "rng": runs.capture_rng(self.env_rngs()),
+                 "callbacks": {k: cb.state_dict() for k, cb in self.stateful.items()}}
+        man = runs.save_checkpoint(self.run_dir, self.num_timesteps, self.model, self.model.get_vec_normalize_env(),
+                                   state)
+        self.last = self.num_timesteps
+        return man
+
+
+__all__ = ["WallClock", "ProgressBar", "HeldoutEval", "Checkpoint"]
