@@ -197,7 +197,7 @@ def env_kwargs_for(spec: AgentSpec, task: str, n: int) -> dict:
 def resolved_env_kwargs(env_kwargs: dict) -> dict:
     """``env_kwargs`` with every setting of :data:`PINNED_ENV_KEYS` made explicit (the env's current defaults
     filled in), as JSON values: what an exported policy records."""
-    from ehss_gym.envs.env import EnvConfig
+    from ehss_gym.envs import EnvConfig
 
     cfg = EnvConfig.from_kwargs(env_kwargs)
     out = {k: getattr(cfg, k) for k in PINNED_ENV_KEYS}

@@ -192,7 +192,7 @@ def _step_breakdown(quick: bool) -> dict | None:
            "loopB": kernel_profile.loop_us_per_lane(sc, 128)}
     out["floor1"] = ap * (out["ctrl"] + out["plant1"])
     try:
-        from ehss_gym.envs.env import advance
+        from ehss_gym.envs.kernels import advance
 
         args = u._lanes._args
     except (ImportError, AttributeError):

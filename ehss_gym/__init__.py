@@ -31,4 +31,4 @@ __all__ = [
     "TASKS",
     "__version__",
 ]
-from .envs.env import EHSSTrackingEnv
+from . import envs  # noqa: E402,F401  (registers EHSSTracking-v0 with Gymnasium)

@@ -25,8 +25,8 @@ from ehss_gym.core.scenarios import (
     sample_scenario,
 )
 from ehss_gym.core.sim import LoopArrays
-from ehss_gym.envs.env import DEFAULTS, OBS_BOUND, EHSSTrackingEnv, EnvConfig, Lanes, decode_observation
-from ehss_gym.envs.vector import EHSSTrackingVectorEnv
+from ehss_gym.envs import DEFAULTS, OBS_BOUND, EHSSTrackingEnv, EHSSTrackingVectorEnv, EnvConfig, decode_observation
+from ehss_gym.envs.lanes import Lanes
 
 DT = DEFAULTS.agent_period * DEFAULTS.control_period  # [s], one agent step at the defaults
 SHORT = 200 * DT  # [s]
@@ -423,7 +423,7 @@ def test_env_defaults_are_the_reproduction_studys_recommendation():
     import json
     import pathlib
 
-    from ehss_gym.envs.env import DEFAULTS
+    from ehss_gym.envs import DEFAULTS
 
     rec = json.loads((pathlib.Path(__file__).parents[1] / "reports/paper/recommended_defaults.json").read_text())
     assert not rec["quick_mode"]

@@ -113,7 +113,7 @@ def test_shape_mismatch_names_what_fits():
 def _ppo(task="velocity", mode="residual"):
     from stable_baselines3 import PPO
 
-    from ehss_gym.envs.env import EHSSTrackingEnv
+    from ehss_gym.envs import EHSSTrackingEnv
 
     env = EHSSTrackingEnv(task=task, mode=mode)
     return PPO("MlpPolicy", env, n_steps=64, batch_size=32, seed=0, device="cpu",

@@ -22,7 +22,7 @@ from ehss_gym.controllers.policies import (
     relay_experiment,
     tune_pid,
 )
-from ehss_gym.envs.env import DEFAULTS, EHSSTrackingEnv, EnvConfig
+from ehss_gym.envs import DEFAULTS, EHSSTrackingEnv, EnvConfig
 
 SHORT = 0.05
 FRICTION = ((1.8, 1.0, 1.5),)

@@ -113,7 +113,7 @@ def test_training_smoke(tmp_path):
     from ehss_gym.agents.specs import resolved_env_kwargs
     from stable_baselines3 import PPO
 
-    from ehss_gym.envs.env import EHSSTrackingEnv
+    from ehss_gym.envs import EHSSTrackingEnv
 
     out = tmp_path / "run"
     rc = cli_main(["train", "--timesteps", "256", "--eval-freq", "128", "--checkpoint-freq", "128", "--out", str(out),

@@ -193,7 +193,7 @@ def friction_authority(task: str, episodes: int) -> dict:
     """
     from ehss_gym.core.scenarios import heldout_scenarios
     from ehss_gym.core.sim import simulate_batch
-    from ehss_gym.envs.env import EHSSTrackingEnv
+    from ehss_gym.envs import EHSSTrackingEnv
 
     tmpl = EHSSTrackingEnv(**{k: v for k, v in agent_env_kwargs(task).items() if k != "mode"}).scenario_template
     scs = [sc.replace(log_interval=sc.control_period, noise_std=(0.0, 0.0, 0.0, 0.0))
@@ -228,7 +228,7 @@ def error_budget(task: str, episodes: int) -> dict:
     """
     from ehss_gym.core.scenarios import heldout_scenarios
     from ehss_gym.core.sim import simulate_batch
-    from ehss_gym.envs.env import EHSSTrackingEnv
+    from ehss_gym.envs import EHSSTrackingEnv
 
     tmpl = EHSSTrackingEnv(**{k: v for k, v in agent_env_kwargs(task).items() if k != "mode"}).scenario_template
     scs = [sc.replace(log_interval=sc.control_period) for sc in heldout_scenarios(episodes, tmpl)]

@@ -94,7 +94,7 @@ class Config:
         if self.n_envs is not None and (isinstance(self.n_envs, bool) or not isinstance(self.n_envs, int)
                                         or self.n_envs < 1):
             raise runs.RunError(f"--n-envs must be an integer >= 1, got {self.n_envs!r}")
-        from ehss_gym.envs.env import EnvConfig
+        from ehss_gym.envs import EnvConfig
 
         spec = self.spec()
         try:  # the env's own validation of the kwargs the agent will train with

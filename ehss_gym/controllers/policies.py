@@ -3,7 +3,7 @@ r"""Scripted policies for EHSSTracking-v0 with stable-baselines3's ``predict`` i
 Every policy here has ``predict(observation, state=None, episode_start=None, deterministic=True) ->
 (actions, state)`` and works on one observation (D,) or a batch (n_envs, D), so SB3's
 ``evaluate_policy`` accepts them. They read the physical values from the observation with
-:func:`ehss_gym.envs.env.decode_observation`.
+:func:`ehss_gym.envs.observation.decode_observation`.
 
 - :class:`CLFPolicy`: the Sontag/CLF law for the env's n. Residual mode: a zero residual (the base law
   alone). Direct mode: the Sontag current the env reports in the observation (``u_base``), over
@@ -45,7 +45,7 @@ import numpy as np
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import lie_derivatives
 from ehss_gym.core.signals import sine
-from ehss_gym.envs.env import EnvConfig, decode_observation, observation_layout
+from ehss_gym.envs import EnvConfig, decode_observation, observation_layout
 
 
 def _config_of(env) -> EnvConfig:
@@ -103,7 +103,7 @@ class ScriptedPolicy:
         return (actions[0] if single else actions), state
 
     def decode(self, obs: np.ndarray) -> dict:
-        """All physical values of observations (n, D); see :func:`ehss_gym.envs.env.decode_observation`."""
+        """All physical values of observations (n, D); see :func:`ehss_gym.envs.observation.decode_observation`."""
         return decode_observation(obs, self.layout)
 
     def value(self, obs: np.ndarray, name: str) -> np.ndarray:
@@ -252,7 +252,7 @@ class _RelayPolicy(ScriptedPolicy):
 
 
 def _tuning_env(env_or_config):
-    from ehss_gym.envs.env import EHSSTrackingEnv
+    from ehss_gym.envs import EHSSTrackingEnv
 
     cfg = _config_of(env_or_config) if env_or_config is not None else EnvConfig.from_kwargs({})
     return EHSSTrackingEnv(**{k: getattr(cfg, k) for k in EnvConfig.KEYS if k not in ("scenario", "episode_seconds")})

@@ -2,40 +2,12 @@
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
 
-
-def check_finite(name: str, value, *, low=None, high=None, low_open=False, high_open=False):
-    """Return ``float(value)`` or raise a ValueError naming ``name`` and its accepted range.
-
-    Args:
-        name: parameter name shown in the error.
-        value: the value to check.
-        low, high: bounds (None = unbounded).
-        low_open, high_open: whether the bound itself is excluded.
-    """
-    lo = "-inf" if low is None else f"{low:g}"
-    hi = "inf" if high is None else f"{high:g}"
-    rng = f"{'(' if low is None or low_open else '['}{lo}, {hi}{')' if high is None or high_open else ']'}"
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a finite number in {rng}, got {value!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be a finite number in {rng}, got {value!r}")
-    if low is not None and (v < low or (low_open and v == low)):
-        raise ValueError(f"{name} must be in {rng}, got {v:g}")
-    if high is not None and (v > high or (high_open and v == high)):
-        raise ValueError(f"{name} must be in {rng}, got {v:g}")
-    return v
-
-
-def check_positive(name: str, value) -> float:
-    """A finite, strictly positive float, or a ValueError naming ``name``."""
-    return check_finite(name, value, low=0.0, low_open=True)
+from .layout import N_PARAM
+from .validate import check_positive
 
 
 class PlantParams(NamedTuple):
@@ -111,3 +83,4 @@ def make_plant_params(base: PlantParams | None = None, **values: float) -> Plant
 # Named indices into PlantParams.as_array(), for the compiled kernels.
 P_J, P_B, P_DM, P_BETA, P_VM, P_CD, P_RHO, P_CSM, P_PS, P_K, P_TAU, P_DV, P_DF, P_DPT = range(len(PlantParams._fields))
 assert PlantParams._fields[P_DPT] == "dp_transition"
+assert len(PlantParams._fields) == N_PARAM  # the envs' buffer layout sizes its parameter blocks by N_PARAM

@@ -28,8 +28,8 @@ from .layout import (
     REF_SINE,
     REF_STEP,
 )
-from .params import check_finite
 from .physics import jit
+from .validate import check_finite
 
 FAMILIES = ("sine", "step", "chirp", "multisine")
 

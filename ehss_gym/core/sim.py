@@ -26,21 +26,14 @@ import numpy as np
 from . import layout as L
 from .control import check_state, controller_apply, controller_update, integrate_lanes_analog
 from .filters import butterworth_coefficients, padded_filter
-from .params import PlantParams, check_finite, check_positive
+from .params import PlantParams
 from .physics import N_LANE_CONST, integrate_lanes, jit, jit_noalloc, lane_constants
 from .signals import Reference, paper_reference
+from .validate import check_even_n, check_finite, check_positive
 
 TASKS = {"velocity": 3, "position": 4}
 PAPER_FRICTION = ((1.8, 8.0, 10.0),)
 MAX_LANES = 128  # scenarios integrated in lock-step by one thread
-
-
-def check_n(n) -> int:
-    """An even integer power factor >= 2, or a ValueError."""
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer, float)) or not float(n).is_integer() \
-            or n < 2 or int(n) % 2:
-        raise ValueError(f"n must be an even integer >= 2 (2, 4, 6, ...), got {n!r}")
-    return int(n)
 
 
 def check_friction(events) -> tuple[tuple[float, float, float], ...]:
@@ -117,7 +110,7 @@ class Scenario:
             raise ValueError(f"task must be one of {sorted(TASKS)}, got {self.task!r}")
         if self.estimator not in L.ESTIMATORS:
             raise ValueError(f"estimator must be one of {list(L.ESTIMATORS)}, got {self.estimator!r}")
-        object.__setattr__(self, "n", check_n(self.n))
+        object.__setattr__(self, "n", check_even_n(self.n))
         for name in ("fr", "sigma", "control_period", "t_end", "log_interval", "ref_model_hz", "estimator_hz",
                      "omega_max", "pressure_bound"):
             object.__setattr__(self, name, check_positive(name, getattr(self, name)))

@@ -2,7 +2,7 @@
 
 ``EHSSTrackingVectorEnv(num_envs, **kwargs)`` (or ``gymnasium.make_vec("EHSSTracking-v0", num_envs=N,
 vectorization_mode="vector_entry_point", **kwargs)``) takes the same keyword arguments as
-:class:`ehss_gym.envs.env.EHSSTrackingEnv` and runs the same kernel (:func:`ehss_gym.envs.env.advance`) on all lanes
+:class:`ehss_gym.envs.env.EHSSTrackingEnv` and runs the same kernel (:func:`ehss_gym.envs.kernels.advance`) on all lanes
 in one compiled call, so sub-env i gives exactly what a single env gives with the same seed. With
 ``threads > 1`` the lanes are split into chunks advanced in parallel numba threads (worth it on idle
 cores only: measured on a 2-core machine at load ~10, OpenMP barriers made 2 threads 9x slower than 1).
@@ -10,9 +10,13 @@ cores only: measured on a 2-core machine at load ~10, OpenMP barriers made 2 thr
 Conventions (Gymnasium 1.x):
 
 - ``reset(seed=s)`` seeds sub-env i with ``s + i`` (a list gives one seed per sub-env), as a single env
-  reset with that seed; ``options={"scenario": ...}`` applies to every sub-env.
-- Autoreset mode ``NEXT_STEP``: the step after a sub-env ends returns its reset observation, reward 0,
-  ``terminated = truncated = False``, and ignores its action; its ``info["scenario"]`` is set.
+  reset with that seed; ``options={"scenario": ...}`` applies to every sub-env, or gives one scenario per
+  sub-env as a list of length N; ``options={"reset_mask": mask}`` resets only the masked sub-envs.
+- Autoreset mode ``NEXT_STEP`` (default): the step after a sub-env ends returns its reset observation,
+  reward 0, ``terminated = truncated = False``, and ignores its action; its ``info["scenario"]`` is set.
+  ``autoreset_mode=AutoresetMode.DISABLED``: an ended sub-env is not advanced again (its observation and
+  info stay those of its last step, its actions are ignored) until ``reset`` (e.g. with a ``reset_mask``);
+  this is what :func:`ehss_gym.envs.rollout.rollout` uses to run a fixed set of episodes.
 - ``infos`` is a dict of arrays (with ``_key`` masks): t, e, s, V, u_base, u_residual, u_applied,
   saturated, sat_fraction, friction_torque, clipped, n_clipped, diverged every step; ``metrics``
   (and ``divergence_reason``) for sub-envs whose episode ended this step.
@@ -28,8 +32,11 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ehss_gym.core import layout as L
+from ehss_gym.core.layout import S_N, S_SAT
 
-from .env import OBS_BOUND, S_N, S_SAT, EnvConfig, Lanes
+from .config import EnvConfig
+from .lanes import Lanes
+from .observation import OBS_BOUND
 
 MAX_CHUNK = 128  # lanes integrated in lock-step by one thread
 
@@ -39,6 +46,8 @@ class EHSSTrackingVectorEnv(VectorEnv):
 
     Args:
         num_envs: number of sub-envs (>= 1).
+        autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default) or ``AutoresetMode.DISABLED`` (see the module
+            docstring).
         threads: parallel chunks (>= 1; default 1 = one sequential call). Numba runs them on up to
             ``numba.get_num_threads()`` threads.
         chunk: lanes per chunk (default: ceil(num_envs / threads), at most 128 when threads > 1).
@@ -49,13 +58,21 @@ class EHSSTrackingVectorEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
     def __init__(self, num_envs: int = 1, threads: int = 1, chunk: int | None = None, render_mode: str | None = None,
-                 **kwargs):
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **kwargs):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an integer >= 1, got {num_envs!r}")
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
             raise ValueError(f"threads must be an integer >= 1, got {threads!r}")
         if render_mode is not None:
             raise ValueError(f"render_mode must be None for the vector env (render a single env), got {render_mode!r}")
+        modes = (AutoresetMode.NEXT_STEP, AutoresetMode.DISABLED)
+        try:
+            autoreset_mode = AutoresetMode(autoreset_mode)
+        except ValueError:
+            autoreset_mode = None
+        if autoreset_mode not in modes:
+            raise ValueError(f"autoreset_mode must be one of {[m.value for m in modes]}, got {autoreset_mode!r}")
+        self.metadata = {**self.metadata, "autoreset_mode": autoreset_mode}
         if chunk is None:
             chunk = -(-int(num_envs) // int(threads))
             if threads > 1:
@@ -76,6 +93,7 @@ class EHSSTrackingVectorEnv(VectorEnv):
         self._steps = np.zeros(N, dtype=np.int64)
         self._n_clipped = np.zeros(N, dtype=np.int64)
         self._autoreset = np.zeros(N, dtype=np.bool_)
+        self._ended = np.zeros(N, dtype=np.bool_)  # DISABLED mode: ended and not reset since
         self._ready = False
 
     @property
@@ -102,11 +120,26 @@ class EHSSTrackingVectorEnv(VectorEnv):
             seeds = list(seed)
             if len(seeds) != N:
                 raise ValueError(f"seed must be None, an int, or a list of {N} ints; got a list of {len(seeds)}")
+        options = dict(options or {})
+        mask = options.pop("reset_mask", None)
+        if mask is None:
+            mask = np.ones(N, dtype=np.bool_)
+        elif not (isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == (N,) and mask.any()):
+            raise ValueError(f"options['reset_mask'] must be a boolean numpy array of shape ({N},) with at least one "
+                             f"True, got {mask!r}")
+        per_lane = options.get("scenario")
+        if isinstance(per_lane, (list, tuple)):
+            if len(per_lane) != N:
+                raise ValueError(f"options['scenario'] as a list must give one scenario per sub-env ({N}), got "
+                                 f"{len(per_lane)}")
         infos: dict = {}
-        for b in range(N):
-            infos = self._add_info(infos, self._reset_lane(b, seeds[b], options), b)
-        self._lanes.observe(np.arange(N))
-        self._autoreset[:] = False
+        lanes = np.flatnonzero(mask)
+        for b in lanes:
+            opts = {**options, "scenario": per_lane[b]} if isinstance(per_lane, (list, tuple)) else (options or None)
+            infos = self._add_info(infos, self._reset_lane(int(b), seeds[b], opts), int(b))
+        self._lanes.observe(lanes)
+        self._autoreset[lanes] = False
+        self._ended[lanes] = False
         self._ready = True
         return self._lanes.obs[:N].copy(), infos
 
@@ -131,16 +164,20 @@ class EHSSTrackingVectorEnv(VectorEnv):
         if len(resetting):
             lanes.observe(resetting)
             clipped[resetting] = False
+        idle = np.flatnonzero(self._ended)  # DISABLED mode: ended lanes are not advanced
+        clipped[idle] = False
         self._n_clipped += clipped
         lanes.u_res[:N] = a * self.config.residual_scale
         lanes.u_res[resetting] = 0.0
         lanes.run[resetting] = False  # not advanced on their reset step
+        lanes.run[idle] = False
         if lanes.n_chunks == 1:
             lanes.advance_single()
         else:
             lanes.advance_parallel()
         stepped = np.ones(N, dtype=np.bool_)
         stepped[resetting] = False
+        stepped[idle] = False
         run = lanes.run[:N]
         terminated = stepped & ~run
         self._steps[stepped] += 1
@@ -167,7 +204,11 @@ class EHSSTrackingVectorEnv(VectorEnv):
             if terminated[b]:
                 extra["divergence_reason"] = m["divergence_reason"]
             infos = self._add_info(infos, extra, int(b))
-        self._autoreset = terminated | truncated
+        if self.metadata["autoreset_mode"] == AutoresetMode.DISABLED:
+            self._ended |= terminated | truncated
+        else:
+            self._autoreset = terminated | truncated
+        rewards[idle] = 0.0
         return lanes.obs[:N].copy(), rewards, terminated, truncated, infos
 
     def close_extras(self, **kwargs):

@@ -479,7 +479,7 @@ def load_run(run, task: str, env_kwargs: dict):
     """The object with ``predict`` for one run of a spec (scripted descriptions are built for ``task``)."""
     if isinstance(run, dict):
         from ehss_gym.controllers.policies import CLFPolicy, PIDPolicy
-        from ehss_gym.envs.env import EnvConfig
+        from ehss_gym.envs import EnvConfig
 
         cfg = EnvConfig.from_kwargs({**env_kwargs, "task": task})
         if run["kind"] == "clf":
@@ -499,7 +499,7 @@ CONTROLLER_KEYS = ("fr", "sigma", "smoothing", "current_limit", "control_period"
 
 def controller_settings(env_kwargs: dict, task: str) -> dict:
     """The settings that shape the base law's closed loop (defaults resolved), for "same settings" checks."""
-    from ehss_gym.envs.env import EnvConfig
+    from ehss_gym.envs import EnvConfig
 
     cfg = EnvConfig.from_kwargs({k: v for k, v in env_kwargs.items() if k != "mode"} | {"task": task})
     return {k: getattr(cfg, k) for k in CONTROLLER_KEYS}
@@ -539,7 +539,7 @@ def matched_clf_specs(specs: Sequence[PolicySpec], tasks: Sequence[str]) -> list
 
 def make_env(env_kwargs: dict):
     """The env a policy acts in (the class behind ``gym.make("EHSSTracking-v0")``, without wrappers)."""
-    from ehss_gym.envs.env import EHSSTrackingEnv
+    from ehss_gym.envs import EHSSTrackingEnv
 
     return EHSSTrackingEnv(**env_kwargs)
 
@@ -608,7 +608,7 @@ def _physical(sc) -> dict:
 
 
 def _template(task: str):
-    from ehss_gym.envs.env import EnvConfig
+    from ehss_gym.envs import EnvConfig
 
     return EnvConfig.from_kwargs({"task": task}).template()
 
@@ -715,7 +715,7 @@ def rollout(policy, env_kwargs: dict, episodes: Sequence[Episode], trace: bool =
         list of trace dicts or None). A trace holds, per agent step, t [s], y_ref and y [output unit],
         e [output unit], u [mA] (applied) and friction [N*m].
     """
-    from ehss_gym.envs.env import decode_observation
+    from ehss_gym.envs import decode_observation
 
     envs = _envs(env_kwargs, len(episodes))
     N = len(envs)
@@ -1365,7 +1365,7 @@ def make_figures(res: Results, folder: str) -> dict:
 
 
 def _env_settings_lines(res: Results) -> list[str]:
-    from ehss_gym.envs.env import EnvConfig
+    from ehss_gym.envs import EnvConfig
 
     out = ["| policy | kind | runs (training seeds) | tasks | env settings | source |", "|---|---|---|---|---|---|"]
     for s in res.specs:

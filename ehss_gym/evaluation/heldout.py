@@ -29,7 +29,7 @@ TEST_START = 0  # offset of the test block (the evaluation harness's held-out su
 def heldout_suite(env_kwargs: dict, count: int, start: int, episode_seconds: float | None = None) -> list:
     """``count`` held-out Scenarios for the controller settings of ``env_kwargs`` (seeds from ``start``)."""
     from ehss_gym.core.scenarios import heldout_scenarios
-    from ehss_gym.envs.env import EHSSTrackingEnv
+    from ehss_gym.envs import EHSSTrackingEnv
 
     env = EHSSTrackingEnv(**env_kwargs)
     return heldout_scenarios(count, env.scenario_template, episode_seconds, start=start)
@@ -48,7 +48,7 @@ def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
         The env's end-of-episode metrics dict per scenario (``info["metrics"]``), with the scenario's
         friction events and the episode return added.
     """
-    from ehss_gym.envs.env import EHSSTrackingEnv
+    from ehss_gym.envs import EHSSTrackingEnv
 
     envs = [EHSSTrackingEnv(**env_kwargs) for _ in scenarios]
     obs = np.stack([env.reset(seed=0, options={"scenario": sc})[0] for env, sc in zip(envs, scenarios)])

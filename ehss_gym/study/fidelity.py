@@ -38,7 +38,7 @@ from ehss_gym.core.layout import L_E, L_UBASE, L_X, L_YD
 from ehss_gym.core.physics import jit, lie_derivatives
 from ehss_gym.core.sim import Scenario, lambdas, simulate_batch
 from ehss_gym.core.util import atomic_write, atomic_write_text
-from ehss_gym.envs.env import DEFAULTS
+from ehss_gym.envs import DEFAULTS
 
 PROG = "ehss fidelity"
 PERIODS = (3e-5, 1e-5, 3e-6)  # control periods h [s] of the order fits

@@ -1,0 +1,221 @@
+"""The env's compiled step: B lanes advanced ``agent_period`` control periods in one call, reward and observation.
+
+Every buffer index is named in :mod:`ehss_gym.core.layout` (F_*, IB_*, BB_*, S_*, W_*, LAY_*).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+
+from ehss_gym.core import layout as L
+from ehss_gym.core.control import controller_update
+from ehss_gym.core.layout import (
+    BB_ACT,
+    BB_PRE,
+    BB_RUN,
+    F_ACC,
+    F_APREV,
+    F_CTRL,
+    F_INFO,
+    F_INFO_OK,
+    F_MODEL,
+    F_PEEK,
+    F_PEEKZ,
+    F_PLANT,
+    F_REF,
+    F_REW,
+    F_STATS,
+    F_URES,
+    F_Z,
+    F_ZPREV,
+    FLAG_LAST,
+    FLAG_SQUASH,
+    IB_GID,
+    IB_K,
+    IB_NSTEP,
+    LAY_FLAGS,
+    LAY_SCALE,
+    LAY_SRC,
+    N_PARAM,
+    N_STATS,
+    S_N,
+    S_SAT,
+    S_SUM_E2,
+    S_TV0,
+    W_DIV,
+    W_EFFORT,
+    W_INV_E2,
+    W_INV_SCALE,
+    W_RATE,
+    W_TRACK,
+    W_TV,
+    W_TVU,
+)
+from ehss_gym.core.physics import jit, jit_noalloc
+from ehss_gym.core.sim import lanes_period
+
+from .observation import OBS_BOUND
+
+
+@jit
+def _write_obs(obs_row, peek_row, last_row, lay):
+    """Observation of one lane: symlog(x / scale), clipped, finite.
+
+    x is read from ``peek_row`` (what the controller sees at the next sample) or, for entries flagged
+    FLAG_LAST, from ``last_row`` (the last control period actually run: applied current, residual).
+    """
+    for i in range(lay.shape[1]):
+        j = int(lay[LAY_SRC, i])
+        fl = int(lay[LAY_FLAGS, i])
+        v = (last_row[j] if fl & FLAG_LAST else peek_row[j]) / lay[LAY_SCALE, i]
+        if not math.isfinite(v):
+            v = OBS_BOUND if v > 0.0 else (-OBS_BOUND if v < 0.0 else 0.0)
+        if fl & FLAG_SQUASH:
+            v = math.copysign(math.log1p(abs(v)), v)
+        if v > OBS_BOUND:
+            v = OBS_BOUND
+        elif v < -OBS_BOUND:
+            v = -OBS_BOUND
+        obs_row[i] = v
+
+
+@jit_noalloc
+def _peek(F, BB, b, k, h, events, filt, work):
+    """Fill lane b's F_PEEK block with what its controller sees at sample k, without advancing it.
+
+    The filters are advanced on a copy of the loop state, kept in F_PEEKZ, and BB_PRE is set: the lane's
+    next control period (at this k, from this state) reuses all of it and only applies its residual
+    (see :func:`ehss_gym.core.sim.lanes_period`), so look-ahead and step share one controller evaluation.
+    """
+    zt = F[b, F_PEEKZ:F_PEEKZ + L.N_LOOP]
+    for i in range(L.N_LOOP):
+        zt[i] = F[b, F_Z + i]
+    controller_update(zt, k, h, F[b, F_PLANT:F_PLANT + N_PARAM], F[b, F_MODEL:F_MODEL + N_PARAM],
+                      F[b, F_CTRL:F_CTRL + L.N_CTRL], F[b, F_REF:F_REF + L.N_REF], events[b], filt[b], F[b, F_URES],
+                      F[b, F_PEEK:F_PEEK + L.N_INFO], work)
+    BB[b, BB_PRE] = True
+
+
+@jit
+def observe(h, F, IB, BB, events, filt, work, obs, lay):
+    """Observations of the lanes flagged in BB[:, BB_ACT] at their current step, without advancing them.
+
+    Used at reset: the last-period block (applied current, residual) is zeroed, nothing was applied yet.
+    """
+    for b in range(F.shape[0]):
+        if not BB[b, BB_ACT]:
+            continue
+        F[b, F_INFO_OK:F_INFO_OK + L.N_INFO] = 0.0
+        _peek(F, BB, b, IB[b, IB_K], h, events, filt, work)
+        _write_obs(obs[b], F[b, F_PEEK:F_PEEK + L.N_INFO], F[b, F_INFO_OK:F_INFO_OK + L.N_INFO], lay)
+
+
+@jit_noalloc
+def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
+    """Advance ``n_per`` control periods for every running lane; the env's one compiled step.
+
+    Lanes are grouped by their step index k (lanes reset at different times are out of phase) and each
+    group is stepped by :func:`ehss_gym.core.sim.lanes_period`, so a lane's arithmetic does not depend on
+    the others. Per lane this then writes the observation (from the controller's view at the next
+    sample, so the agent acts on the freshest measurement), the reward, the agent-rate error log, and
+    clears the run flag if the lane diverged (the F_INFO_OK block keeps the last finite sample).
+
+    Args:
+        n_per: control periods per agent step.
+        h, substeps: control period [s] and RK4 substeps.
+        F: per-lane float64 buffer (B, N_F), blocks F_* (state, rows, info, metrics, residual [mA], ...).
+        IB: per-lane int64 buffer (B, N_IB): step index, agent steps taken, scratch.
+        BB: per-lane bool buffer (B, N_BB): run flag (cleared on divergence), scratch.
+        events: friction events (B, E, 3); filt: filter blocks (B, 3, 4, 4).
+        c, X, U, work, lwork: lane scratch (see :class:`ehss_gym.core.sim.LaneScratch`).
+        obs: (B, D) float32 observations (output); lay: observation layout (3, D).
+        elog: (B, T) float32 error at the last sample of each agent step.
+        wts: reward weights (N_WEIGHTS,).
+    """
+    B = F.shape[0]
+    z = F[:, F_Z:F_Z + L.N_LOOP]
+    plant = F[:, F_PLANT:F_PLANT + N_PARAM]
+    model = F[:, F_MODEL:F_MODEL + N_PARAM]
+    ctrl = F[:, F_CTRL:F_CTRL + L.N_CTRL]
+    ref = F[:, F_REF:F_REF + L.N_REF]
+    info = F[:, F_INFO:F_INFO + L.N_INFO]
+    info_ok = F[:, F_INFO_OK:F_INFO_OK + L.N_INFO]
+    acc = F[:, F_ACC:F_ACC + L.N_METRICS]
+    zprev = F[:, F_ZPREV:F_ZPREV + L.N_LOOP]
+    u_res = F[:, F_URES]
+    run = BB[:, BB_RUN]
+    act = BB[:, BB_ACT]
+    pre = BB[:, BB_PRE]
+    peek = F[:, F_PEEK:F_PEEK + L.N_INFO + L.N_LOOP]
+    for b in range(B):
+        IB[b, IB_GID] = -1
+        for j in range(N_STATS):
+            F[b, F_STATS + j] = 0.0
+    g = 0
+    for b0 in range(B):
+        if not run[b0] or IB[b0, IB_GID] >= 0:
+            continue
+        kk = IB[b0, IB_K]
+        for b in range(B):
+            member = run[b] and IB[b, IB_GID] < 0 and IB[b, IB_K] == kk
+            act[b] = member
+            if member:
+                IB[b, IB_GID] = g
+                F[b, F_STATS + S_TV0] = acc[b, L.M_TV_U]
+        for j in range(n_per):
+            # Periods alternate between the F_INFO and F_INFO_OK blocks, so the last finite period's info
+            # survives a divergence in the next one without a per-period copy (lanes only ever stop).
+            inf = info if j % 2 == 0 else info_ok
+            n_act = lanes_period(z, kk + j, h, substeps, plant, model, ctrl, ref, events, filt, u_res, act, inf, acc,
+                                 c, X, U, zprev, work, lwork, pre, peek)
+            for b in range(B):
+                if act[b]:
+                    e = inf[b, L.I_E]
+                    F[b, F_STATS + S_SUM_E2] += e * e
+                    F[b, F_STATS + S_N] += 1.0
+                    F[b, F_STATS + S_SAT] += inf[b, L.I_SAT]
+            if n_act == 0:
+                break
+        for b in range(B):
+            if IB[b, IB_GID] != g:
+                continue
+            # S_N finite periods ran: the last one (index S_N - 1) wrote F_INFO if its index is even
+            n_ok = int(F[b, F_STATS + S_N])
+            if n_ok > 0 and (n_ok - 1) % 2 == 0:
+                for i in range(L.N_INFO):
+                    info_ok[b, i] = info[b, i]
+            diverged = not act[b]
+            run[b] = act[b]
+            IB[b, IB_K] = kk + n_per
+            a = u_res[b] * wts[W_INV_SCALE]
+            da = 0.5 * (a - F[b, F_APREV])
+            r = -wts[W_EFFORT] * a * a - wts[W_RATE] * da * da - wts[W_TV] * abs(da)
+            n = F[b, F_STATS + S_N]
+            if n > 0.0:
+                r -= wts[W_TVU] * (acc[b, L.M_TV_U] - F[b, F_STATS + S_TV0]) / n * wts[W_INV_SCALE]
+            if diverged:
+                r -= wts[W_DIV]
+            elif n > 0.0:
+                r += wts[W_TRACK] / (1.0 + F[b, F_STATS + S_SUM_E2] / n * wts[W_INV_E2])
+            F[b, F_REW] = r
+            F[b, F_APREV] = a
+            j = IB[b, IB_NSTEP]
+            if j < elog.shape[1]:
+                elog[b, j] = info_ok[b, L.I_E]
+            IB[b, IB_NSTEP] = j + 1
+            _peek(F, BB, b, kk + n_per, h, events, filt, work)
+            _write_obs(obs[b], F[b, F_PEEK:F_PEEK + L.N_INFO], info_ok[b], lay)
+        g += 1
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def advance_chunks(chunk, n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
+    """:func:`advance` on chunks of ``chunk`` lanes in parallel; per-chunk scratch c, X, U, work, lwork."""
+    n_chunks = c.shape[0]
+    for i in nb.prange(n_chunks):
+        s = i * chunk
+        e = s + chunk
+        advance(n_per, h, substeps, F[s:e], IB[s:e], BB[s:e], events[s:e], filt[s:e], c[i], X[i], U[i], work[i],
+                lwork[i], obs[s:e], elog[s:e], lay, wts)

@@ -1,0 +1,256 @@
+"""The arrays of B closed loops, shared by the single and the vector env, and the calls into the kernels."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ehss_gym.core import layout as L
+from ehss_gym.core.layout import (
+    BB_ACT,
+    BB_PRE,
+    BB_RUN,
+    F_ACC,
+    F_CTRL,
+    F_INFO_OK,
+    F_MODEL,
+    F_PLANT,
+    F_REF,
+    F_REW,
+    F_STATS,
+    F_URES,
+    F_Z,
+    FLAG_LAST,
+    FLAG_SQUASH,
+    IB_K,
+    IB_NSTEP,
+    LAY_FLAGS,
+    LAY_SCALE,
+    LAY_SRC,
+    N_BB,
+    N_F,
+    N_IB,
+    N_PARAM,
+    N_STATS,
+    N_WEIGHTS,
+    W_DIV,
+    W_EFFORT,
+    W_INV_E2,
+    W_INV_SCALE,
+    W_RATE,
+    W_TRACK,
+    W_TV,
+    W_TVU,
+)
+from ehss_gym.core.metrics import summarize_acc
+from ehss_gym.core.params import PlantParams
+from ehss_gym.core.physics import N_LANE_CONST, lane_constants
+from ehss_gym.core.scenarios import (
+    DEFAULT_DISTRIBUTION,
+    PHYSICAL_FIELDS,
+    TRAIN_SEED_LIMIT,
+    describe,
+    paper_scenario,
+    sample_scenario,
+)
+from ehss_gym.core.signals import reference_value
+from ehss_gym.core.sim import Scenario, ctrl_row, filter_block, init_filters
+
+from .config import SCENARIOS, EnvConfig
+from .kernels import advance, advance_chunks, observe
+from .observation import observation_layout
+
+MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
+
+
+class Lanes:
+    """State and scratch arrays of B closed loops (padded to whole chunks) and the calls into the kernels."""
+
+    def __init__(self, cfg: EnvConfig, n_lanes: int, chunk: int | None = None):
+        self.cfg = cfg
+        self.chunk = n_lanes if chunk is None else chunk
+        self.n_chunks = -(-n_lanes // self.chunk)
+        B = self.B = self.n_chunks * self.chunk
+        self.n_lanes = n_lanes
+        tmpl = cfg.template()
+        base = ctrl_row(tmpl)
+        base[L.C_BASE] = 1.0 if cfg.mode == "residual" else 0.0
+        self.ctrl_base = base
+        nominal = PlantParams().as_array()
+        self.F = np.zeros((B, N_F))
+        self.IB = np.zeros((B, N_IB), dtype=np.int64)
+        self.BB = np.zeros((B, N_BB), dtype=np.bool_)
+        # named views into the buffers (writes go to F, IB, BB)
+        self.z = self.F[:, F_Z:F_Z + L.N_LOOP]
+        self.plant = self.F[:, F_PLANT:F_PLANT + N_PARAM]
+        self.model = self.F[:, F_MODEL:F_MODEL + N_PARAM]
+        self.ctrl = self.F[:, F_CTRL:F_CTRL + L.N_CTRL]
+        self.ref = self.F[:, F_REF:F_REF + L.N_REF]
+        self.info_ok = self.F[:, F_INFO_OK:F_INFO_OK + L.N_INFO]
+        self.acc = self.F[:, F_ACC:F_ACC + L.N_METRICS]
+        self.stats = self.F[:, F_STATS:F_STATS + N_STATS]
+        self.u_res = self.F[:, F_URES]
+        self.rew = self.F[:, F_REW]
+        # lane 0's rows, pre-made for the single env's step: stats (N_STATS), residual and reward in one view
+        self.info_ok0 = self.info_ok[0]
+        self.tail0 = self.F[0, F_STATS:F_REW + 1]
+        self.k = self.IB[:, IB_K]
+        self.nstep = self.IB[:, IB_NSTEP]
+        self.run = self.BB[:, BB_RUN]
+        self.plant[:] = nominal
+        self.model[:] = nominal
+        self.ctrl[:] = base
+        self.events = self._empty_events(B, MAX_EVENTS)
+        self.filt = np.tile(filter_block(cfg.order, tmpl.ref_model_hz, cfg.estimator_hz, cfg.control_period,
+                                         cfg.estimator), (B, 1, 1, 1))
+        self.c = np.zeros((self.n_chunks, N_LANE_CONST, self.chunk))
+        for i in range(self.n_chunks):
+            lane_constants(np.ascontiguousarray(self.plant[i * self.chunk:(i + 1) * self.chunk]), self.c[i])
+        self.X = np.zeros((self.n_chunks, L.N_LOOP, self.chunk))
+        self.U = np.zeros((self.n_chunks, self.chunk))
+        self.work = np.zeros((self.n_chunks, 8, 4))
+        self.lwork = np.zeros((self.n_chunks, 6, L.N_LOOP, self.chunk))
+        self.layout = observation_layout(cfg)
+        self.lay = np.zeros((3, len(self.layout)))
+        for i, (_, src, scale, squash, _) in enumerate(self.layout):
+            self.lay[LAY_SRC, i] = src
+            self.lay[LAY_SCALE, i] = scale
+            self.lay[LAY_FLAGS, i] = (FLAG_SQUASH if squash else 0) + (FLAG_LAST if src in (L.I_UAPP, L.I_URES) else 0)
+        self.obs = np.zeros((B, len(self.layout)), dtype=np.float32)
+        self.obs0 = self.obs[0]
+        rw = cfg.reward_weights
+        self.wts = np.zeros(N_WEIGHTS)
+        self.wts[W_TRACK] = rw["track"]
+        self.wts[W_EFFORT] = rw["effort"]
+        self.wts[W_RATE] = rw["rate"]
+        self.wts[W_TV] = rw["tv"]
+        self.wts[W_TVU] = rw["tv_u"]
+        self.wts[W_DIV] = rw["divergence"]
+        self.wts[W_INV_E2] = 1.0 / cfg.error_scale**2
+        self.wts[W_INV_SCALE] = 1.0 / cfg.residual_scale
+        self.elog = np.zeros((B, 1), dtype=np.float32)
+        self.T = np.zeros(B, dtype=np.int64)  # agent steps in each lane's episode
+        self.scenarios: list[Scenario | None] = [None] * B
+        self.tmp_c = np.zeros((N_LANE_CONST, 1))
+        self._bind()
+
+    @staticmethod
+    def _empty_events(B: int, E: int) -> np.ndarray:
+        ev = np.zeros((B, E, 3))
+        ev[:, :, L.F_START] = ev[:, :, L.F_END] = math.inf  # padding never fires
+        return ev
+
+    def load(self, b: int, sc: Scenario) -> None:
+        """Put lane b at the start of scenario ``sc`` (rows as :meth:`ehss_gym.core.sim.LoopArrays.build` makes them)."""
+        cfg = self.cfg
+        if len(sc.friction) > self.events.shape[1]:
+            ev = self._empty_events(self.B, len(sc.friction))
+            ev[:, :self.events.shape[1]] = self.events
+            self.events = ev
+            self._bind()
+        self.F[b] = 0.0
+        self.plant[b] = sc.plant.as_array()
+        self.model[b] = (sc.model or sc.plant).as_array()
+        row = self.ctrl[b]
+        row[:] = self.ctrl_base
+        row[L.C_SEED] = sc.seed
+        row[L.C_NOISE_THETA:L.C_NOISE_THETA + 4] = sc.noise_std
+        row[L.C_OMEGA_MAX] = sc.omega_max
+        row[L.C_P_BOUND] = sc.pressure_bound
+        self.ref[b] = sc.reference.spec
+        self.events[b, :, :] = 0.0
+        self.events[b, :, L.F_START] = self.events[b, :, L.F_END] = math.inf
+        if sc.friction:
+            self.events[b, :len(sc.friction)] = sc.friction
+        init_filters(self.z[b], self.filt[b], reference_value(0.0, self.ref[b]))
+        lane_constants(self.plant[b:b + 1].copy(), self.tmp_c)
+        self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
+        self.acc[b, L.M_T_DIVERGED] = -1.0
+        self.IB[b] = 0
+        self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
+        self.run[b] = True
+        T = sc.n_steps // cfg.agent_period
+        self.T[b] = T
+        if T > self.elog.shape[1]:
+            el = np.zeros((self.B, T), dtype=np.float32)
+            el[:, :self.elog.shape[1]] = self.elog
+            self.elog = el
+            self._bind()
+        self.scenarios[b] = sc
+
+    def observe(self, lanes) -> None:
+        """Fill the observations of the given lanes from their current state (no time passes)."""
+        self.BB[:, BB_ACT] = False
+        self.BB[lanes, BB_ACT] = True
+        observe(self.cfg.control_period, self.F, self.IB, self.BB, self.events, self.filt, self.work[0], self.obs,
+                self.lay)
+
+    def _bind(self) -> None:
+        # Pre-bound kernel arguments: a step then costs one call, not a dozen attribute look-ups.
+        cfg = self.cfg
+        self._args = (cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.IB, self.BB, self.events,
+                      self.filt, self.c[0], self.X[0], self.U[0], self.work[0], self.lwork[0], self.obs, self.elog,
+                      self.lay, self.wts)
+        self._pargs = (self.chunk, cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.IB, self.BB,
+                       self.events, self.filt, self.c, self.X, self.U, self.work, self.lwork, self.obs, self.elog,
+                       self.lay, self.wts)
+
+    def advance_single(self) -> None:
+        """One agent step of all lanes in one sequential call (needs a single chunk)."""
+        advance(*self._args)
+
+    def advance_parallel(self) -> None:
+        """One agent step of all lanes, chunks in parallel threads."""
+        advance_chunks(*self._pargs)
+
+    def metrics(self, b: int) -> dict:
+        """The core metrics summary of lane b's episode so far (with recovery times from the agent-rate log)."""
+        sc = self.scenarios[b]
+        n = int(min(self.IB[b, IB_NSTEP], self.elog.shape[1]))
+        per = self.cfg.agent_period
+        t = ((np.arange(n) + 1) * per - 1) * self.cfg.control_period
+        return summarize_acc(self.acc[b], sc, t, self.elog[b, :n].astype(np.float64))
+
+    def draw(self, b: int, cfg: EnvConfig, rng: np.random.Generator, options) -> tuple[Scenario, dict]:
+        """Choose lane b's next scenario from the env setting and reset options; returns it and its info."""
+        choice = cfg.scenario
+        if options:
+            bad = sorted(set(options) - {"scenario"})
+            if bad:
+                raise ValueError(f"unknown reset option(s) {bad}; valid: ['scenario']")
+            choice = options.get("scenario", choice)
+        tmpl = self.template
+        info: dict = {}
+        if isinstance(choice, Scenario):
+            cfg.check_pinned(choice)
+            sc = choice
+            info["scenario_name"] = "pinned"
+        elif isinstance(choice, dict):
+            bad = sorted(set(choice) - set(PHYSICAL_FIELDS))
+            if bad:
+                raise ValueError(f"scenario dict has unknown field(s) {bad}; valid: {list(PHYSICAL_FIELDS)}")
+            sc = paper_scenario(tmpl, cfg.episode_seconds).replace(**choice)
+            info["scenario_name"] = "custom"
+        elif choice == "paper":
+            sc = paper_scenario(tmpl, cfg.episode_seconds)
+            info["scenario_name"] = "paper"
+        elif choice == "random":
+            seed = int(rng.integers(0, TRAIN_SEED_LIMIT))
+            sc = sample_scenario(seed, tmpl, cfg.episode_seconds, DEFAULT_DISTRIBUTION)
+            info["scenario_name"] = "random"
+            info["scenario_seed"] = seed
+        else:
+            raise ValueError(f"options['scenario'] must be one of {list(SCENARIOS)}, a dict of "
+                             f"{list(PHYSICAL_FIELDS)} or a Scenario, got {choice!r}")
+        if sc.n_steps < cfg.agent_period:
+            raise ValueError(f"scenario t_end ({sc.t_end:g} s) is shorter than one agent step ({cfg.agent_dt:g} s)")
+        info["scenario"] = describe(sc)
+        return sc, info
+
+    @property
+    def template(self) -> Scenario:
+        t = getattr(self, "_template", None)
+        if t is None:
+            t = self._template = self.cfg.template()
+        return t

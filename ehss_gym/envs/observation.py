@@ -1,0 +1,56 @@
+"""The observation: which controller quantities it holds, their scales, and how to decode it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ehss_gym.core import layout as L
+from ehss_gym.core.params import PlantParams
+
+from .config import EnvConfig
+
+# Observation normalisation (see the class docstring).
+OBS_BOUND = 10.0  # observations are clipped to [-OBS_BOUND, OBS_BOUND] after the symlog squash
+U_SCALE = 0.1  # [mA], order of the nominal tracking current
+Y_SCALE = 1.0  # [output unit]
+W_Y = 10.0  # [rad/s], time scale of the reference derivatives
+
+
+def observation_layout(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]]:
+    """(name, info index, scale, squashed, unit) of each observation entry; see the class docstring."""
+    m = cfg.order
+    unit = "rad/s" if cfg.task == "velocity" else "rad"
+    wr = 2.0 * math.pi * cfg.fr
+    p = PlantParams()
+    out = []
+    for i in range(m):
+        out.append((f"e_d{i}" if i else "e", L.I_E + i, cfg.error_scale * wr**i, True, f"{unit}/s^{i}"))
+    out.append(("s", L.I_S, cfg.error_scale * wr ** (m - 1), True, f"{unit}/s^{m - 1}"))
+    for i in range(m + 1):
+        out.append((f"y_ref_d{i}" if i else "y_ref", L.I_YD + i, Y_SCALE * W_Y**i, True, f"{unit}/s^{i}"))
+    out.append(("x1", L.I_XM + 0, 1.0, True, "rad"))
+    out.append(("x2", L.I_XM + 1, 1.0, True, "rad/s"))
+    out.append(("x3", L.I_XM + 2, p.P_s, True, "Pa"))
+    out.append(("x4", L.I_XM + 3, p.K * U_SCALE, True, "m^2"))
+    out.append(("u_applied", L.I_UAPP, U_SCALE, True, "mA"))
+    out.append(("u_base", L.I_UBASE, U_SCALE, True, "mA"))
+    out.append(("last_action", L.I_URES, cfg.residual_scale, False, "-"))
+    return out
+
+
+def symlog_inverse(v):
+    """Inverse of the observation squash sign(x) log(1 + |x|)."""
+    v = np.asarray(v, dtype=np.float64)
+    return np.sign(v) * np.expm1(np.abs(v))
+
+
+def decode_observation(obs, layout) -> dict[str, np.ndarray]:
+    """Physical values (in the units of :func:`observation_layout`) from observations (..., D)."""
+    obs = np.asarray(obs, dtype=np.float64)
+    out = {}
+    for i, (name, _, scale, squash, _) in enumerate(layout):
+        v = obs[..., i]
+        out[name] = (symlog_inverse(v) if squash else v) * scale
+    return out
