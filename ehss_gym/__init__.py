@@ -8,11 +8,10 @@ Quick start::
     print(traj.metrics()["rmse"])
 """
 
+from ._version import __version__
 from .core.params import PlantParams, make_plant_params
 from .core.signals import Reference, chirp, multisine, paper_reference, sine, step
 from .core.sim import PAPER_FRICTION, TASKS, Scenario, Trajectory, simulate, simulate_batch
-
-__version__ = "0.1.0"
 
 __all__ = [
     "PlantParams",

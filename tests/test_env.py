@@ -434,3 +434,27 @@ def test_env_defaults_are_the_reproduction_studys_recommendation():
         td = getattr(DEFAULTS, task)
         assert (td.fr, td.sigma, td.smoothing, td.estimator_hz) == (
             rec["fr_hz"][task], rec["sigma"][task], rec["smoothing"][task], rec["estimator_hz"][task]), task
+
+
+def test_constructor_signature_is_the_config_record():
+    """help(EHSSTrackingEnv) lists every setting, keyword-only, with the defaults of DEFAULTS (None: per task)."""
+    import inspect
+
+    from ehss_gym.envs.config import TASK_DEPENDENT
+
+    params = inspect.signature(EHSSTrackingEnv.__init__).parameters
+    named = {k: p for k, p in params.items() if k not in ("self", "unknown")}
+    assert set(named) == set(EnvConfig.KEYS) | {"render_mode"}
+    assert all(p.kind is inspect.Parameter.KEYWORD_ONLY for p in named.values())
+    for key in ("mode", "n", "current_limit", "control_period", "substeps", "estimator", "agent_period", "scenario"):
+        assert named[key].default == getattr(DEFAULTS, key), key
+    for key in TASK_DEPENDENT:
+        assert named[key].default is None, key
+    assert named["task"].default == "velocity"
+    doc = inspect.getdoc(EHSSTrackingEnv)
+    assert all(f"{k}:" in doc for k in EnvConfig.KEYS)  # each argument is documented in the class docstring
+    # the typed arguments reach the config, None picks the task's default, unknown names are still refused
+    env = EHSSTrackingEnv(task="position", fr=None, sigma=3e5)
+    assert env.config.fr == DEFAULTS.position.fr and env.config.sigma == 3e5
+    with pytest.raises(ValueError, match=r"unknown keyword argument\(s\) \['bogus'\]"):
+        EHSSTrackingEnv(bogus=1)

@@ -27,8 +27,8 @@ def quick_run(tmp_path_factory):
     shutil.copy(ROOT / "docs" / "MODEL.md", docs)
     original = docs.read_text(encoding="utf-8")
     out = tmp / "out"
-    proc = subprocess.run([sys.executable, "-m", "ehss_gym.cli", "fidelity", "--quick", "--no-progress", "--out", str(out),
-                           "--docs", str(docs)], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    proc = subprocess.run([sys.executable, "-m", "ehss_gym.cli", "fidelity", "--quick", "--no-progress", "--out",
+                           str(out), "--docs", str(docs)], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     return out, original, docs.read_text(encoding="utf-8")
 

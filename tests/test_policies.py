@@ -13,7 +13,7 @@ from stable_baselines3.common.monitor import Monitor
 
 import ehss_gym  # noqa: F401  (registers the env)
 from ehss_gym import sine
-from ehss_gym.controllers.policies import (
+from ehss_gym.controllers import (
     PID_GAINS,
     PID_RELAY,
     CLFPolicy,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from ehss_gym import __version__
+from ehss_gym._version import __version__
 
 from . import bench, evaluate, fidelity, reproduce, simulate, train
 

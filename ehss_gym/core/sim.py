@@ -130,7 +130,8 @@ class Scenario:
         if isinstance(self.seed, bool) or not float(self.seed).is_integer() or not 0 <= self.seed < 2**52:
             raise ValueError(f"seed must be an integer in [0, 2^52), got {self.seed!r}")
         if not isinstance(self.reference, Reference):
-            raise ValueError(f"reference must be an ehss_gym.core.signals.Reference, got {type(self.reference).__name__}")
+            raise ValueError(f"reference must be an ehss_gym.core.signals.Reference (sine, step, chirp, multisine), "
+                             f"got {type(self.reference).__name__}")
         for name in ("plant", "model"):
             v = getattr(self, name)
             if v is not None and not isinstance(v, PlantParams):

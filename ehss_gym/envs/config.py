@@ -72,7 +72,8 @@ DEFAULTS = EnvDefaults()
 MODES = ("residual", "direct")
 SCENARIOS = ("random", "paper")
 REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence")
-MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
+# settings whose default depends on the task (residual_scale: on the current limit); None selects that default
+TASK_DEPENDENT = ("fr", "sigma", "smoothing", "estimator_hz", "error_scale", "residual_scale")
 
 
 @dataclass(frozen=True)

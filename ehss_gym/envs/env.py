@@ -18,7 +18,7 @@ from ehss_gym.core import layout as L
 from ehss_gym.core.layout import F_REW, F_STATS, S_N, S_SAT
 from ehss_gym.core.sim import Scenario
 
-from .config import EnvConfig
+from .config import DEFAULTS, TASK_DEPENDENT, EnvConfig
 from .kernels import advance
 from .lanes import Lanes
 from .observation import OBS_BOUND
@@ -163,12 +163,22 @@ class EHSSTrackingEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
-    def __init__(self, render_mode: str | None = None, **kwargs):
+    def __init__(self, *, task: str = "velocity", mode: str = DEFAULTS.mode, n: int = DEFAULTS.n,
+                 fr: float | None = None, sigma: float | None = None, smoothing: float | None = None,
+                 current_limit: float | None = DEFAULTS.current_limit, control_period: float = DEFAULTS.control_period,
+                 substeps: int = DEFAULTS.substeps, estimator: str = DEFAULTS.estimator,
+                 estimator_hz: float | None = None, agent_period: int = DEFAULTS.agent_period,
+                 residual_scale: float | None = None, scenario: str | Scenario = DEFAULTS.scenario,
+                 reward_weights: dict | None = None, error_scale: float | None = None,
+                 episode_seconds: float | None = None, render_mode: str | None = None, **unknown):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got "
                              f"{render_mode!r}")
         self.render_mode = render_mode
-        self.config = cfg = EnvConfig.from_kwargs(kwargs)
+        given = {k: v for k, v in locals().items() if k in EnvConfig.KEYS}  # the arguments above, by name
+        # None selects the task's default for the per-task settings (current_limit=None means unlimited)
+        given = {k: v for k, v in given.items() if v is not None or k not in TASK_DEPENDENT}
+        self.config = cfg = EnvConfig.from_kwargs({**given, **unknown})
         self._lanes = Lanes(cfg, 1)
         self.observation_layout = self._lanes.layout
         D = len(self.observation_layout)

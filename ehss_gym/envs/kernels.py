@@ -112,6 +112,29 @@ def observe(h, F, IB, BB, events, filt, work, obs, lay):
         _write_obs(obs[b], F[b, F_PEEK:F_PEEK + L.N_INFO], F[b, F_INFO_OK:F_INFO_OK + L.N_INFO], lay)
 
 
+@jit
+def agent_reward(a, a_prev, n, sum_e2, tv_added, diverged, wts):
+    """The reward of one agent step (the env's docstring states it); a pure function of its arguments.
+
+    Args:
+        a, a_prev: the clipped action of this and of the previous step [-].
+        n: control periods run in the step; sum_e2: sum of their squared errors [output unit^2].
+        tv_added: the applied current's total variation over the step [mA].
+        diverged: the loop diverged during the step (the tracking term is then dropped).
+        wts: reward weights (layout W_*: track, effort, rate, tv, tv_u, divergence, 1/error_scale^2,
+            1/residual_scale).
+    """
+    da = 0.5 * (a - a_prev)
+    r = -wts[W_EFFORT] * a * a - wts[W_RATE] * da * da - wts[W_TV] * abs(da)
+    if n > 0.0:
+        r -= wts[W_TVU] * tv_added / n * wts[W_INV_SCALE]
+    if diverged:
+        r -= wts[W_DIV]
+    elif n > 0.0:
+        r += wts[W_TRACK] / (1.0 + sum_e2 / n * wts[W_INV_E2])
+    return r
+
+
 @jit_noalloc
 def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
     """Advance ``n_per`` control periods for every running lane; the env's one compiled step.
@@ -190,16 +213,8 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             run[b] = act[b]
             IB[b, IB_K] = kk + n_per
             a = u_res[b] * wts[W_INV_SCALE]
-            da = 0.5 * (a - F[b, F_APREV])
-            r = -wts[W_EFFORT] * a * a - wts[W_RATE] * da * da - wts[W_TV] * abs(da)
-            n = F[b, F_STATS + S_N]
-            if n > 0.0:
-                r -= wts[W_TVU] * (acc[b, L.M_TV_U] - F[b, F_STATS + S_TV0]) / n * wts[W_INV_SCALE]
-            if diverged:
-                r -= wts[W_DIV]
-            elif n > 0.0:
-                r += wts[W_TRACK] / (1.0 + F[b, F_STATS + S_SUM_E2] / n * wts[W_INV_E2])
-            F[b, F_REW] = r
+            F[b, F_REW] = agent_reward(a, F[b, F_APREV], F[b, F_STATS + S_N], F[b, F_STATS + S_SUM_E2],
+                                       acc[b, L.M_TV_U] - F[b, F_STATS + S_TV0], diverged, wts)
             F[b, F_APREV] = a
             j = IB[b, IB_NSTEP]
             if j < elog.shape[1]:

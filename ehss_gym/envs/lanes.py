@@ -142,7 +142,7 @@ class Lanes:
         return ev
 
     def load(self, b: int, sc: Scenario) -> None:
-        """Put lane b at the start of scenario ``sc`` (rows as :meth:`ehss_gym.core.sim.LoopArrays.build` makes them)."""
+        """Put lane b at the start of scenario ``sc`` (rows as :meth:`ehss_gym.core.sim.LoopArrays.build` has them)."""
         cfg = self.cfg
         if len(sc.friction) > self.events.shape[1]:
             ev = self._empty_events(self.B, len(sc.friction))

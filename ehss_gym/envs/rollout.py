@@ -28,10 +28,23 @@ class EpisodeResult:
             (out-of-range actions) and ``agent_steps``.
         trace: per agent step (if asked for): t [s], e, y_ref, y [output unit], u (applied) [mA] and
             friction [N*m]; None otherwise.
+        ret: the episode's return (sum of the env's rewards) [-].
     """
 
     metrics: dict
     trace: dict | None = field(default=None, repr=False)
+    ret: float = 0.0
+
+
+def _lane_dict(stacked: dict, i: int) -> dict:
+    """Sub-env i's entry of a dict that the vector env stacked per key (Gymnasium's info convention)."""
+    out = {}
+    for k, v in stacked.items():
+        if k.startswith("_"):
+            continue
+        x = _lane_dict(v, i) if isinstance(v, dict) else v[i]
+        out[k] = x.item() if isinstance(x, np.generic) else x
+    return out
 
 
 def _vector_env(env_kwargs: dict, count: int, venv: EHSSTrackingVectorEnv | None) -> EHSSTrackingVectorEnv:
@@ -69,6 +82,7 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
     results: list = [None] * N
     traces = [{"t": [], "e": [], "u": [], "friction": [], "obs": []} for _ in range(N)] if trace else None
     episode_start = np.ones(N, dtype=bool)
+    returns = np.zeros(N)
     state = None
     steps = 0
     while not done.all():
@@ -76,10 +90,11 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
         episode_start[:] = False
         steps += 1
         try:
-            obs, _, term, trunc, info = env.step(np.asarray(action, dtype=np.float32).reshape(N, -1))
+            obs, reward, term, trunc, info = env.step(np.asarray(action, dtype=np.float32).reshape(N, -1))
         except ValueError as exc:
             raise RuntimeError(f"policy {name!r} gave an invalid action ({exc})") from None
         live = np.flatnonzero(~done)
+        returns[live] += reward[live]
         if trace:
             for i in live:
                 tr = traces[i]
@@ -88,7 +103,7 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
                 tr["obs"].append(obs[i].copy())
         for i in live[(term | trunc)[live]]:
             done[i] = True
-            m = dict(info["metrics"][i])
+            m = _lane_dict(info["metrics"], i)
             m["n_clipped"] = int(info["n_clipped"][i])
             m["agent_steps"] = steps
             results[i] = m
@@ -101,5 +116,5 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
             tr = {k: np.asarray(v, dtype=np.float64) for k, v in tr.items()}
             tr["y_ref"] = np.asarray(decode_observation(o, env.observation_layout)["y_ref"], dtype=np.float64)
             tr["y"] = tr["y_ref"] + tr["e"]
-        out.append(EpisodeResult(results[i], tr))
+        out.append(EpisodeResult(results[i], tr, float(returns[i])))
     return out

@@ -44,6 +44,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ehss_gym._version import __version__
+from ehss_gym.envs.rollout import rollout as run_rollout
+
 from . import stats as st
 
 ENV_ID = "EHSSTracking-v0"
@@ -231,7 +234,8 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
         run = {"kind": "pid"}
         if gains:
             run["gains"] = {t: tuple(float(g) for g in v) for t, v in gains.items()}
-        src = "scripted PID (ehss_gym.controllers.policies)" + (f", {over}" if over else "") + (f", gains {gains}" if gains else "")
+        src = ("scripted PID (ehss_gym.controllers)" + (f", {over}" if over else "")
+               + (f", gains {gains}" if gains else ""))
         return PolicySpec(name=label or "pid", kind="pid", runs=[run], env_kwargs={"mode": "direct", **over},
                           source=src)
     raise PolicyError(f"unknown policy {name!r}; valid: {_valid_forms()}")
@@ -478,7 +482,7 @@ def _load_zip(path: str):
 def load_run(run, task: str, env_kwargs: dict):
     """The object with ``predict`` for one run of a spec (scripted descriptions are built for ``task``)."""
     if isinstance(run, dict):
-        from ehss_gym.controllers.policies import CLFPolicy, PIDPolicy
+        from ehss_gym.controllers import CLFPolicy, PIDPolicy
         from ehss_gym.envs import EnvConfig
 
         cfg = EnvConfig.from_kwargs({**env_kwargs, "task": task})
@@ -692,74 +696,16 @@ def _get_policy(spec: PolicySpec, run_index: int, task: str):
     return _WORKER_CACHE[key]
 
 
-_ENV_CACHE: dict = {}
-
-
-def _envs(env_kwargs: dict, count: int) -> list:
-    """``count`` envs with these settings, reused between jobs of a worker (reset re-initialises them)."""
-    key = json.dumps(env_kwargs, sort_keys=True, default=repr)
-    pool = _ENV_CACHE.setdefault(key, [])
-    while len(pool) < count:
-        pool.append(make_env(env_kwargs))
-    return pool[:count]
-
-
 def rollout(policy, env_kwargs: dict, episodes: Sequence[Episode], trace: bool = False, name: str = "policy"):
-    """Run ``policy`` on pinned episodes side by side (one env each, one batched ``predict`` per step).
-
-    Every episode gets ``episode_start=True`` on its first step; the recurrent ``state`` of the policy
-    (a PID's integrator) is passed along for the whole batch, as SB3's ``evaluate_policy`` does.
+    """Run ``policy`` on pinned episodes side by side: :func:`ehss_gym.envs.rollout.rollout`, the one loop.
 
     Returns:
         (list of per-episode dicts: the core metrics plus ``n_clipped`` and ``agent_steps``,
         list of trace dicts or None). A trace holds, per agent step, t [s], y_ref and y [output unit],
         e [output unit], u [mA] (applied) and friction [N*m].
     """
-    from ehss_gym.envs import decode_observation
-
-    envs = _envs(env_kwargs, len(episodes))
-    N = len(envs)
-    obs = np.stack([env.reset(options={"scenario": ep.physical})[0] for env, ep in zip(envs, episodes)])
-    layout = envs[0].observation_layout
-    done = np.zeros(N, dtype=bool)
-    results: list = [None] * N
-    traces = [{"t": [], "e": [], "u": [], "friction": [], "obs": []} for _ in range(N)] if trace else None
-    episode_start = np.ones(N, dtype=bool)
-    state = None
-    steps = 0
-    while not done.all():
-        action, state = policy.predict(obs, state=state, episode_start=episode_start, deterministic=True)
-        episode_start[:] = False
-        action = np.asarray(action, dtype=np.float32).reshape(N, -1)
-        steps += 1
-        for i in np.flatnonzero(~done):
-            try:
-                o, _, term, trunc, info = envs[i].step(action[i])
-            except ValueError as exc:
-                raise RuntimeError(f"policy {name!r} gave an invalid action on episode {episodes[i].episode_id} "
-                                   f"({exc})") from None
-            obs[i] = o
-            if trace:
-                tr = traces[i]
-                tr["t"].append(info["t"])
-                tr["e"].append(info["e"])
-                tr["u"].append(info["u_applied"])
-                tr["friction"].append(info["friction_torque"])
-                tr["obs"].append(o)
-            if term or trunc:
-                done[i] = True
-                m = dict(info["metrics"])
-                m["n_clipped"] = int(info["n_clipped"])
-                m["agent_steps"] = steps
-                results[i] = m
-    if trace:
-        for tr in traces:
-            o = np.asarray(tr.pop("obs"))
-            for k in tr:
-                tr[k] = np.asarray(tr[k], dtype=np.float64)
-            tr["y_ref"] = np.asarray(decode_observation(o, layout)["y_ref"], dtype=np.float64)
-            tr["y"] = tr["y_ref"] + tr["e"]
-    return results, traces
+    res = run_rollout(policy, env_kwargs, [ep.physical for ep in episodes], trace=trace, name=name)
+    return [r.metrics for r in res], ([r.trace for r in res] if trace else None)
 
 
 def _run_job(job: Job):
@@ -1203,8 +1149,6 @@ def _finish(fig, res: Results, folder: str, name: str, bottom: float) -> str:
 
 
 def _version() -> str:
-    from ehss_gym import __version__
-
     return __version__
 
 

@@ -22,21 +22,32 @@ import math
 
 import numpy as np
 
+from ehss_gym.core.scenarios import heldout_scenarios
+from ehss_gym.envs import EnvConfig, rollout
+
 VALIDATION_START = 5_000_000  # offset of the validation block among held-out seeds (the harness uses 0.. and 1e6..)
 TEST_START = 0  # offset of the test block (the evaluation harness's held-out suite)
 
 
 def heldout_suite(env_kwargs: dict, count: int, start: int, episode_seconds: float | None = None) -> list:
     """``count`` held-out Scenarios for the controller settings of ``env_kwargs`` (seeds from ``start``)."""
-    from ehss_gym.core.scenarios import heldout_scenarios
-    from ehss_gym.envs import EHSSTrackingEnv
+    return heldout_scenarios(count, EnvConfig.from_kwargs(env_kwargs).template(), episode_seconds, start=start)
 
-    env = EHSSTrackingEnv(**env_kwargs)
-    return heldout_scenarios(count, env.scenario_template, episode_seconds, start=start)
+
+class _ActFn:
+    """An ``act_fn`` (raw observations (B, D) -> actions (B, 1)) as a policy with SB3's ``predict``."""
+
+    def __init__(self, act_fn):
+        self.act_fn = act_fn
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        if self.act_fn is None:  # the base law in residual mode
+            return np.zeros((len(observation), 1), dtype=np.float32), state
+        return np.asarray(self.act_fn(observation), dtype=np.float32).reshape(len(observation), 1), state
 
 
 def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
-    """Run one episode per scenario, all in lock-step so the policy sees a batch per agent step.
+    """One episode per scenario through the rollout loop (:func:`ehss_gym.envs.rollout.rollout`).
 
     Args:
         env_kwargs: ``EHSSTracking-v0`` keyword arguments (scenario pinned per episode).
@@ -48,27 +59,13 @@ def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
         The env's end-of-episode metrics dict per scenario (``info["metrics"]``), with the scenario's
         friction events and the episode return added.
     """
-    from ehss_gym.envs import EHSSTrackingEnv
-
-    envs = [EHSSTrackingEnv(**env_kwargs) for _ in scenarios]
-    obs = np.stack([env.reset(seed=0, options={"scenario": sc})[0] for env, sc in zip(envs, scenarios)])
-    live = np.ones(len(envs), dtype=bool)
-    results: list[dict | None] = [None] * len(envs)
-    ret = np.zeros(len(envs))
-    zero = np.zeros((len(envs), 1), dtype=np.float32)
-    while live.any():
-        acts = zero if act_fn is None else np.asarray(act_fn(obs), dtype=np.float32).reshape(len(envs), 1)
-        for i in np.nonzero(live)[0]:
-            o, r, term, trunc, info = envs[i].step(acts[i])
-            obs[i] = o
-            ret[i] += r
-            if term or trunc:
-                live[i] = False
-                m = dict(info["metrics"])
-                m["return"] = float(ret[i])
-                m["has_friction"] = any(ev[0] > 0 for ev in scenarios[i].friction)
-                results[i] = m
-    return results
+    out = []
+    for sc, r in zip(scenarios, rollout(_ActFn(act_fn), env_kwargs, scenarios)):
+        m = dict(r.metrics)
+        m["return"] = r.ret
+        m["has_friction"] = any(ev[0] > 0 for ev in sc.friction)
+        out.append(m)
+    return out
 
 
 def relative_scores(results: list[dict], base: list[dict], reference: list[dict] | None = None) -> dict:

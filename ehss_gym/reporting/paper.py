@@ -15,6 +15,7 @@ from collections.abc import Sequence
 
 import numba as nb
 
+from ehss_gym._version import __version__
 from ehss_gym.core.fmt import fmt_axis, md_table
 from ehss_gym.core.fmt import fmt_num as _f
 from ehss_gym.core.params import PlantParams
@@ -264,8 +265,6 @@ def claims_context(st: Study, data: str) -> dict:
 
 def recommendation_json(st: Study) -> dict:
     """The recommended env defaults, machine-readable, with the rules that chose them."""
-    from ehss_gym import __version__
-
     rec, cfg = st.rec, st.cfg
     p4 = runs_by_set(st, "P4")
     return {
@@ -367,8 +366,6 @@ def paper_tables(st: Study) -> dict:
 
 def report_context(st: Study, data: str, cmd: str, wall_s: float | None) -> dict:
     """Everything templates/paper.md.j2 cites."""
-    from ehss_gym import __version__
-
     from . import paper_facts as F
 
     cfg, rec = st.cfg, st.rec

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ehss_gym._version import __version__
 from ehss_gym.core.fmt import fmt_axis
 from ehss_gym.study.config import NS, UNIT
 from ehss_gym.study.records import Record
@@ -14,8 +15,6 @@ from ehss_gym.study.rules import MAP_METRICS, cells_of, n_effect
 
 
 def _made_by(cmd: str) -> str:
-    from ehss_gym import __version__
-
     return f"made by: {cmd}  (ehss-gym {__version__})"
 
 

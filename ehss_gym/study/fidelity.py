@@ -32,6 +32,7 @@ import time
 
 import numpy as np
 
+from ehss_gym._version import __version__
 from ehss_gym.core.control import advance_filter, filter_outputs
 from ehss_gym.core.filters import butterworth_coefficients, padded_filter
 from ehss_gym.core.layout import L_E, L_UBASE, L_X, L_YD
@@ -445,9 +446,6 @@ def plot_order(ol: list[dict], cl: list[dict], path: str, cmd: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.ticker import NullFormatter, ScalarFormatter
-
-    from ehss_gym import __version__
-
     fig, ax = plt.subplots(1, 2, figsize=(12, 6.8))
     colors = {"velocity": "tab:blue", "position": "tab:red"}
     marks = {"zoh": "s", "foh": "o"}
@@ -567,8 +565,6 @@ def replace_block(text: str, block: str) -> str:
 
 def docs_block(ol, cl, cmd: str, report_link: str) -> str:
     """The generated block for docs/MODEL.md."""
-    from ehss_gym import __version__
-
     return (f"<!-- generated: edit ehss_gym/study/fidelity.py, not this block -->\n"
             f"Made by `{cmd}` (ehss-gym {__version__}); every derivative, the reference model, the fits and "
             f"the figure: [{report_link}]({report_link}).\n\n{main_table(ol, cl)}\n\n{MAIN_LEGEND}\n")
@@ -577,8 +573,6 @@ def docs_block(ol, cl, cmd: str, report_link: str) -> str:
 def write_report(ol, cl, out: str, cmd: str, periods, cl_periods, t_end: float, wall: float, quick: bool,
                  docs: str | None = None) -> str:
     """Write FIDELITY.md, the CSVs and the figure under ``out``; returns FIDELITY.md's path."""
-    from ehss_gym import __version__
-
     data = os.path.join(out, "data")
     figs = os.path.join(out, "figures")
     os.makedirs(data, exist_ok=True)
