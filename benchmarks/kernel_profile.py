@@ -24,15 +24,15 @@ import numba as nb
 import numpy as np
 
 from ehss_gym.core import layout as L
-from ehss_gym.core.control import controller_update
-from ehss_gym.core.physics import N_LANE_CONST, integrate_lanes, integrate_plant, lane_constants, lane_rhs
+from ehss_gym.core.control import controller_update, integrate_lanes, plant_only_arrays
+from ehss_gym.core.physics import N_LANE_CONST, integrate_plant, lane_constants, lane_rhs
 from ehss_gym.core.sim import MAX_LANES, LoopArrays, run_lanes
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _drive_plant(X, U, h, substeps, c, events, work, n_periods):
+def _drive_plant(X, U, h, substeps, c, events, work, n_periods, ctrl, ref, filt, ynoise):
     for k in range(n_periods):
-        integrate_lanes(X, U, k * h, h, substeps, c, events, work)
+        integrate_lanes(X, U, k * h, h, substeps, c, events, work, False, ctrl, ref, filt, ynoise)
     return X[1, 0]
 
 
@@ -95,8 +95,10 @@ def plant_us_per_lane(sc, lanes: int, n_periods: int, repeats: int = 3) -> float
     U = np.full(lanes, 0.05)  # a small held current keeps the open-loop plant bounded [mA]
     work = np.zeros((6, 4, lanes))
     h = sc.control_period
-    _drive_plant(np.zeros((4, lanes)), U, h, sc.substeps, c, ev, work, 2)
-    t = _best_of(lambda: _drive_plant(np.zeros((4, lanes)), U, h, sc.substeps, c, ev, work, n_periods), repeats)
+    none = plant_only_arrays(lanes)
+    _drive_plant(np.zeros((4, lanes)), U, h, sc.substeps, c, ev, work, 2, *none)
+    t = _best_of(lambda: _drive_plant(np.zeros((4, lanes)), U, h, sc.substeps, c, ev, work, n_periods, *none),
+                 repeats)
     return t / n_periods / lanes * 1e6
 
 

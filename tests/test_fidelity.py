@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from ehss_gym.study.fidelity import BEGIN, END, replace_block
+from ehss_gym.reporting.fidelity import BEGIN, END, replace_block
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -9,10 +9,10 @@ from reference import lie_reference, plant_rhs_np, sontag_reference
 
 from ehss_gym.core.control import sontag
 from ehss_gym.core.params import PlantParams
+from ehss_gym.core.control import integrate_lanes, plant_only_arrays
 from ehss_gym.core.physics import (
     N_LANE_CONST,
     gaussian,
-    integrate_lanes,
     integrate_plant,
     lane_constants,
     lie_derivatives,
@@ -136,7 +136,7 @@ def test_lane_integrator_is_bit_identical_to_scalar():
     c = np.zeros((N_LANE_CONST, B))
     lane_constants(np.tile(PA, (B, 1)), c)
     for k in range(10):
-        integrate_lanes(X, U, k * 1e-4, 1e-4, 7, c, events, np.zeros((6, 4, B)))
+        integrate_lanes(X, U, k * 1e-4, 1e-4, 7, c, events, np.zeros((6, 4, B)), False, *plant_only_arrays(B))
         for b in range(B):
             integrate_plant(x_scalar[b], U[b], k * 1e-4, 1e-4, 7, PA, events[b], np.zeros((8, 4)))
     assert np.array_equal(X.T, x_scalar)

@@ -6,7 +6,30 @@ import argparse
 import os
 import sys
 
-from ehss_gym.study.fidelity import PROG, replace_block, run
+from ehss_gym.core.util import atomic_write_text
+from ehss_gym.reporting.fidelity import docs_block, replace_block, write_report
+from ehss_gym.study.fidelity import PROG, run_all
+
+
+def run(out: str = "reports/fidelity", docs: str | None = "docs/MODEL.md", quick: bool = False,
+        progress: bool = True, cmd: str = PROG) -> str:
+    """Measure everything, write the report and (unless ``docs`` is None) the docs block; FIDELITY.md's path.
+
+    Raises:
+        ValueError: if ``docs`` has no marker block (checked before any work).
+    """
+    doc_text = None
+    if docs is not None:
+        with open(docs, encoding="utf-8") as f:
+            doc_text = f.read()
+        replace_block(doc_text, "")  # fail early on missing markers
+    res = run_all(quick=quick, progress=progress)
+    path = write_report(res["ol"], res["cl"], out, cmd, res["periods"], res["cl_periods"], res["t_end"],
+                        res["wall_s"], quick, docs)
+    if doc_text is not None:
+        link = os.path.relpath(path, os.path.dirname(os.path.abspath(docs)) or ".").replace(os.sep, "/")
+        atomic_write_text(docs, replace_block(doc_text, docs_block(res["ol"], res["cl"], cmd, link)))
+    return path
 
 
 def _cmdline(prog: str, args) -> str:

@@ -7,9 +7,9 @@ import sys
 import numpy as np
 
 from ehss_gym.core.metrics import format_summary
-from ehss_gym.core.sim import simulate
+from ehss_gym.core.sim import UNITS, simulate
 from ehss_gym.core.util import atomic_write, out_paths
-from ehss_gym.reporting.plotting import UNITS, plot_trajectory
+from ehss_gym.reporting.plotting import plot_trajectory
 
 from .args import add_loop_arguments, scenario_from_args
 

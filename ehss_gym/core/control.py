@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .layout import (
     C_BASE,
     C_EST,
@@ -79,7 +81,11 @@ from .layout import (
     I_XM,
     I_YD,
     I_YE,
+    MAX_ORDER,
+    N_CTRL,
+    N_FB,
     N_PLANT,
+    N_REF,
     QUIET_GUARD,
     QUIET_STARTUP,
     X_OMEGA,
@@ -377,25 +383,29 @@ def _lane_filter_rhs(X, ts, ctrl, ref, filt, ynoise, D, B):
 
 
 @jit_noalloc
-def integrate_lanes_analog(X, U, t0, h, substeps, c, events, work, ctrl, ref, filt, ynoise):
-    """RK4 for B loops whose filters (for lanes with the "analog" scheme) are continuous: plant and filters together.
+def integrate_lanes(X, U, t0, h, substeps, c, events, work, analog, ctrl, ref, filt, ynoise):
+    """Advance B loops over [t0, t0+h] with their currents held (ZOH): classic RK4, ``substeps`` equal steps.
 
-    The plant part is the arithmetic of :func:`ehss_gym.core.physics.integrate_lanes`, bit for bit; the
-    reference model (input r(t)) and the estimator (input y(t) + the held noise) are integrated in the
-    same RK4 stages, so they see the plant's intra-period motion as an analog filter would.
+    The plant rows X[:4] of every lane are integrated (the arithmetic of :func:`ehss_gym.core.physics.
+    integrate_plant`, bit for bit); with ``analog`` also the filter rows X[4:] of the lanes whose scheme is
+    "analog": the reference model (input r(t)) and the estimator (input y(t) + the held noise) in the same
+    RK4 stages, so they see the plant's intra-period motion as a continuous filter would. Friction events
+    switch on the substep grid (the amplitude at each substep's midpoint, held over it).
 
     Args:
-        X: loop states (N_LOOP, B) (rows as the loop state z), updated in place.
+        X: loop states (N_LOOP, B) (rows as the loop state z; only 4 rows are read without ``analog``),
+            updated in place.
         U: held currents (B,) [mA].
-        t0, h, substeps: as in integrate_lanes.
+        t0: start time [s]; h: control period [s]; substeps: RK4 steps per period.
         c: lane constants (N_LANE_CONST, B).
         events: friction events (B, E, 3).
         work: scratch (6, N_LOOP, B).
-        ctrl, ref, filt: controller rows, reference specs and filter blocks (B, ...).
-        ynoise: the sensor noise on the output at the last sample (B,) [output unit].
+        analog: integrate the analog lanes' filters too (some lane has the "analog" scheme).
+        ctrl, ref, filt: controller rows, reference specs and filter blocks (B, ...); read with ``analog``.
+        ynoise: the sensor noise on the output at the last sample (B,) [output unit]; read with ``analog``.
     """
     B = X.shape[1]
-    n = X.shape[0]
+    n = X.shape[0] if analog else N_PLANT
     dt = h / substeps
     k1 = work[0]
     k2 = work[1]
@@ -407,25 +417,23 @@ def integrate_lanes_analog(X, U, t0, h, substeps, c, events, work, ctrl, ref, fi
         ts = t0 + j * dt
         for b in range(B):
             amp[b] = active_amplitude(t0 + (j + 0.5) * dt, events[b])
-        lane_rhs(X, amp, U, c, k1, B)
-        _lane_filter_rhs(X, ts, ctrl, ref, filt, ynoise, k1, B)
-        for i in range(n):
-            for b in range(B):
-                xt[i, b] = X[i, b] + 0.5 * dt * k1[i, b]
-        lane_rhs(xt, amp, U, c, k2, B)
-        _lane_filter_rhs(xt, ts + 0.5 * dt, ctrl, ref, filt, ynoise, k2, B)
-        for i in range(n):
-            for b in range(B):
-                xt[i, b] = X[i, b] + 0.5 * dt * k2[i, b]
-        lane_rhs(xt, amp, U, c, k3, B)
-        _lane_filter_rhs(xt, ts + 0.5 * dt, ctrl, ref, filt, ynoise, k3, B)
-        for i in range(n):
-            for b in range(B):
-                xt[i, b] = X[i, b] + dt * k3[i, b]
+        for xs, kk, tstage, half in ((X, k1, ts, 0.5), (xt, k2, ts + 0.5 * dt, 0.5), (xt, k3, ts + 0.5 * dt, 1.0)):
+            lane_rhs(xs, amp, U, c, kk, B)
+            if analog:
+                _lane_filter_rhs(xs, tstage, ctrl, ref, filt, ynoise, kk, B)
+            for i in range(n):
+                for b in range(B):
+                    xt[i, b] = X[i, b] + half * dt * kk[i, b]
         lane_rhs(xt, amp, U, c, k4, B)
-        _lane_filter_rhs(xt, ts + dt, ctrl, ref, filt, ynoise, k4, B)
+        if analog:
+            _lane_filter_rhs(xt, ts + dt, ctrl, ref, filt, ynoise, k4, B)
         for i in range(n):
             for b in range(B):
                 X[i, b] += dt / 6.0 * (k1[i, b] + 2.0 * k2[i, b] + 2.0 * k3[i, b] + k4[i, b])
         for b in range(B):
             X[X_PL, b] = relief(X[X_PL, b], c[LC_PS, b])
+
+
+def plant_only_arrays(B: int):
+    """(ctrl, ref, filt, ynoise) placeholders for :func:`integrate_lanes` without analog filters (never read)."""
+    return np.zeros((B, N_CTRL)), np.zeros((B, N_REF)), np.zeros((B, N_FB, MAX_ORDER, MAX_ORDER)), np.zeros(B)

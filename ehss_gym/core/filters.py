@@ -21,7 +21,7 @@ A digital controller runs them at the control period h, in one of three schemes
   takes the *current* sample: the state lags the analog filter by ~h/2 and the top derivative is
   biased by ~c_0 (h/2) v' (O(h)). Wave 1's scheme, kept to show the effect.
 - ``"analog"``: the continuous filters integrated together with the plant by its RK4
-  (:func:`ehss_gym.core.physics.integrate_lanes_analog`); Phi, E, D are unused (identity, 0, 0).
+  (:func:`ehss_gym.core.control.integrate_lanes`); Phi, E, D are unused (identity, 0, 0).
 """
 
 from __future__ import annotations

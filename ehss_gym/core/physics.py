@@ -73,13 +73,6 @@ def orifice_root_prime(dp, rho, dp_t):
 
 
 @jit
-def flow(x3, x4, p):
-    """Valve flow Q into the motor [m^3/s]."""
-    dp = p[P_PS] - sigm(x4, p[P_DV]) * x3
-    return p[P_CD] * x4 * orifice_root(dp, p[P_RHO], p[P_DPT])
-
-
-@jit
 def relief(x3, ps):
     """Ideal cross-port relief valves at +-P_s: project the load pressure back into [-P_s, P_s].
 
@@ -209,50 +202,6 @@ def lane_rhs(X, A, U, c, D, B):
         D[1, b] = c[LC_DMJ, b] * x3 - c[LC_BJ, b] * x2 - c[LC_IJ, b] * tf
         D[2, b] = c[LC_C, b] * (q - c[LC_DM, b] * x2 - c[LC_CSM, b] * x3)
         D[3, b] = c[LC_KT, b] * U[b] - c[LC_IT, b] * x4
-
-
-@jit_noalloc
-def integrate_lanes(X, U, t0, h, substeps, c, events, work):
-    """RK4 for B scenarios in lock-step; same arithmetic as :func:`integrate_plant`.
-
-    Args:
-        X: plant states (4, B), updated in place.
-        U: held currents (B,) [mA].
-        t0, h, substeps: as in integrate_plant (shared by all lanes).
-        c: lane constants (N_LANE_CONST, B) from :func:`lane_constants`.
-        events: friction events (B, E, 3).
-        work: scratch (6, 4, B).
-    """
-    B = X.shape[1]
-    dt = h / substeps
-    k1 = work[0]
-    k2 = work[1]
-    k3 = work[2]
-    k4 = work[3]
-    xt = work[4]
-    amp = work[5, 0]
-    for j in range(substeps):
-        # friction switched on the substep grid, as in integrate_plant
-        for b in range(B):
-            amp[b] = active_amplitude(t0 + (j + 0.5) * dt, events[b])
-        lane_rhs(X, amp, U, c, k1, B)
-        for i in range(4):
-            for b in range(B):
-                xt[i, b] = X[i, b] + 0.5 * dt * k1[i, b]
-        lane_rhs(xt, amp, U, c, k2, B)
-        for i in range(4):
-            for b in range(B):
-                xt[i, b] = X[i, b] + 0.5 * dt * k2[i, b]
-        lane_rhs(xt, amp, U, c, k3, B)
-        for i in range(4):
-            for b in range(B):
-                xt[i, b] = X[i, b] + dt * k3[i, b]
-        lane_rhs(xt, amp, U, c, k4, B)
-        for i in range(4):
-            for b in range(B):
-                X[i, b] += dt / 6.0 * (k1[i, b] + 2.0 * k2[i, b] + 2.0 * k3[i, b] + k4[i, b])
-        for b in range(B):
-            X[X_PL, b] = relief(X[X_PL, b], c[LC_PS, b])
 
 
 @jit

@@ -24,14 +24,15 @@ import numba as nb
 import numpy as np
 
 from . import layout as L
-from .control import check_state, controller_apply, controller_update, integrate_lanes_analog
+from .control import check_state, controller_apply, controller_update, integrate_lanes
 from .filters import butterworth_coefficients, padded_filter
 from .params import PlantParams
-from .physics import N_LANE_CONST, integrate_lanes, jit, jit_noalloc, lane_constants
+from .physics import N_LANE_CONST, jit, jit_noalloc, lane_constants
 from .signals import Reference, paper_reference
 from .validate import check_even_n, check_finite, check_positive
 
-TASKS = {"velocity": 3, "position": 4}
+TASKS = {"velocity": 3, "position": 4}  # task -> relative degree m of its output
+UNITS = {"velocity": "rad/s", "position": "rad"}  # task -> unit of its output y (and of e, y_d)
 PAPER_FRICTION = ((1.8, 8.0, 10.0),)
 MAX_LANES = 128  # scenarios integrated in lock-step by one thread
 
@@ -385,10 +386,7 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
         n_active += 1
     if n_active == 0:
         return 0
-    if analog:
-        integrate_lanes_analog(X, U, k * h, h, substeps, c, events, lwork, ctrl, ref, filt, ynoise)
-    else:
-        integrate_lanes(X, U, k * h, h, substeps, c, events, lwork)
+    integrate_lanes(X, U, k * h, h, substeps, c, events, lwork, analog, ctrl, ref, filt, ynoise)
     for b in range(B):
         if not active[b]:
             continue

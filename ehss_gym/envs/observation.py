@@ -8,6 +8,7 @@ import numpy as np
 
 from ehss_gym.core import layout as L
 from ehss_gym.core.params import PlantParams
+from ehss_gym.core.sim import UNITS
 
 from .config import EnvConfig
 
@@ -21,7 +22,7 @@ W_Y = 10.0  # [rad/s], time scale of the reference derivatives
 def observation_layout(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]]:
     """(name, info index, scale, squashed, unit) of each observation entry; see the class docstring."""
     m = cfg.order
-    unit = "rad/s" if cfg.task == "velocity" else "rad"
+    unit = UNITS[cfg.task]
     wr = 2.0 * math.pi * cfg.fr
     p = PlantParams()
     out = []

@@ -6,14 +6,14 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ehss_gym.core.sim import Scenario
+from ehss_gym.core.sim import UNITS, Scenario
 
 from .config import EnvConfig
 
 
 def render_dashboard(h: np.ndarray, cfg: EnvConfig, sc: Scenario | None, size=(6.4, 6.4), dpi=80) -> np.ndarray:
     """Draw (t, y, y_d, e, u_applied, u_base, u_res, friction) rows as a four-panel RGB image."""
-    unit = "rad/s" if cfg.task == "velocity" else "rad"
+    unit = UNITS[cfg.task]
     fig = Figure(figsize=size, dpi=dpi)
     canvas = FigureCanvasAgg(fig)
     ax = fig.subplots(4, 1, sharex=True)

@@ -9,7 +9,8 @@ import numpy as np
 
 from ehss_gym._version import __version__
 from ehss_gym.core.fmt import fmt_axis
-from ehss_gym.study.config import NS, UNIT
+from ehss_gym.core.sim import UNITS
+from ehss_gym.study.config import NS
 from ehss_gym.study.records import Record
 from ehss_gym.study.rules import MAP_METRICS, cells_of, n_effect
 
@@ -41,7 +42,7 @@ def plot_paper_set(recs: Sequence[Record], task: str, fr: float, path: str, titl
 
     by_n = {r.params["n"]: r for r in recs if r.params["task"] == task and r.params["fr"] == fr}
     fig, ax = plt.subplots(4, 3, figsize=(14, 10), sharex="col")
-    unit = UNIT[task]
+    unit = UNITS[task]
     for j, n in enumerate(NS):
         r = by_n.get(n)
         if r is None:

@@ -8,7 +8,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-UNITS = {"velocity": "rad/s", "position": "rad"}
+from ehss_gym.core.sim import UNITS
 
 
 def plot_trajectory(traj, path, title: str | None = None, made_by: str | None = None):

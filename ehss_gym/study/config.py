@@ -12,7 +12,6 @@ NS = (2, 4, 6)
 CONFIGS = (("velocity", 100.0), ("velocity", 60.0), ("position", 60.0))
 CONFIG_FIGS = {("velocity", 100.0): "Figs. 5-7", ("velocity", 60.0): "Figs. 8-10",
                ("position", 60.0): "Figs. 11-13"}
-UNIT = {"velocity": "rad/s", "position": "rad"}
 G_NOMINAL = 3.1e6  # input gain of s near rest [unit of s / s per mA] (core notes; re-measured in the report)
 
 # --- claim thresholds (documented in the report; the unit tests exercise both sides of each) ---
