@@ -8,6 +8,7 @@ code 2 and says so.
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import os
 import sys
@@ -46,8 +47,6 @@ def register(sub):
 
 
 def _only(text: str) -> list[str]:
-    import argparse
-
     known = ("sim", "env", "train", "memory", "compile")
     names = [s.strip() for s in text.split(",") if s.strip()]
     if not names or any(n not in known for n in names):

@@ -1,4 +1,5 @@
-"""``ehss evaluate``: the evaluation harness on the command line (:mod:`ehss_gym.evaluation.harness`)."""
+"""``ehss evaluate``: the evaluation harness (:mod:`ehss_gym.evaluation`) on the command line, then its report
+(:mod:`ehss_gym.reporting.comparison`)."""
 
 from __future__ import annotations
 
@@ -7,23 +8,14 @@ import os
 import sys
 from dataclasses import replace
 
-from ehss_gym.evaluation.harness import (
-    DEFAULT_OUT,
-    SUITES,
-    TASKS,
-    EvalConfig,
-    PolicyError,
-    _valid_forms,
-    default_specs,
-    evaluate,
-    parse_policy,
-    write_report,
-)
+from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, default_specs, evaluate, parse_policies
+from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
 
 from .args import int_at_least
 
 
 def _tasks(text: str) -> tuple:
+    """``--tasks``: a comma-separated subset of the tasks."""
     names = tuple(t.strip() for t in text.split(",") if t.strip())
     if not names or any(t not in TASKS for t in names):
         raise argparse.ArgumentTypeError(f"--tasks must be a comma-separated subset of {','.join(TASKS)}, got {text!r}")
@@ -31,6 +23,7 @@ def _tasks(text: str) -> tuple:
 
 
 def register(sub) -> None:
+    """Add ``evaluate`` to the ``ehss`` sub-commands."""
     p = sub.add_parser("evaluate", help="compare CLF n=2/4/6, PID and learned policies on the same scenarios",
                        description="Score scripted and learned policies on the paper scenario, a held-out randomised "
                                    "suite and robustness sweeps; write REPORT.md, CSVs and figures.")
@@ -55,6 +48,7 @@ def register(sub) -> None:
 
 
 def _command_line(args) -> str:
+    """The command line as the report records it (the real one when run as ``ehss evaluate``)."""
     if sys.argv and os.path.basename(sys.argv[0]) == "ehss" and len(sys.argv) > 1 and sys.argv[1] == "evaluate":
         return "ehss " + " ".join(sys.argv[1:])
     parts = ["ehss evaluate"]
@@ -78,6 +72,7 @@ def _command_line(args) -> str:
 
 
 def config_from_args(args) -> EvalConfig:
+    """The evaluation's sizes from the options (``--quick`` first, the explicit sizes on top)."""
     changes = {"suites": SUITES if args.suite == "all" else (args.suite,), "tasks": tuple(args.tasks),
                "seed": args.seed}
     for key, v in (("heldout_episodes", args.episodes), ("sweep_episodes", args.sweep_episodes),
@@ -88,16 +83,15 @@ def config_from_args(args) -> EvalConfig:
 
 
 def cmd_evaluate(args) -> int:
+    """Evaluate, write the report, print the rankings.
+
+    Returns:
+        0 on success, 2 for a policy or setting that cannot be evaluated, 1 for a policy that failed while running.
+    """
     prog = "ehss evaluate"
     try:
         cfg = config_from_args(args)
-        if args.policies is None:
-            specs = default_specs()
-        else:
-            tokens = [t for item in args.policies for t in item.split(",") if t.strip()]
-            if not tokens:
-                raise PolicyError(f"--policies needs at least one policy; valid: {_valid_forms()}")
-            specs = [parse_policy(t) for t in tokens]
+        specs = default_specs() if args.policies is None else parse_policies(args.policies)
         res = evaluate(specs, cfg, workers=args.workers, progress=not args.no_progress, command=_command_line(args))
     except ValueError as exc:  # PolicyError, SafeWeightsError, bad settings
         print(f"{prog}: error: {exc}", file=sys.stderr)

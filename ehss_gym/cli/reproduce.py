@@ -15,13 +15,13 @@ import os
 import sys
 import time
 
+from ehss_gym.reporting.paper import write_report
+from ehss_gym.study.config import StudyConfig
+from ehss_gym.study.stages import run_study
+
 
 def main_reproduce(out: str, quick: bool = False, progress: bool = True, cmd: str | None = None) -> str:
     """Run the study and write the report; returns REPORT.md's path."""
-    from ehss_gym.reporting.paper import write_report
-    from ehss_gym.study.config import StudyConfig
-    from ehss_gym.study.stages import run_study
-
     t0 = time.perf_counter()
     cfg = StudyConfig.quick_config() if quick else StudyConfig.full()
     cmd = cmd or ("ehss reproduce" + (" --quick" if quick else "") + f" --out {out}")

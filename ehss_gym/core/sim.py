@@ -26,6 +26,7 @@ import numpy as np
 from . import layout as L
 from .control import check_state, controller_apply, controller_update, integrate_lanes
 from .filters import butterworth_coefficients, padded_filter
+from .metrics import summarize
 from .params import PlantParams
 from .physics import N_LANE_CONST, jit, jit_noalloc, lane_constants
 from .signals import Reference, paper_reference
@@ -506,8 +507,6 @@ class Trajectory:
 
     def metrics(self) -> dict:
         """Summary metrics; see :func:`ehss_gym.core.metrics.summarize`."""
-        from .metrics import summarize
-
         return summarize(self)
 
     def arrays(self) -> dict[str, np.ndarray]:

@@ -11,8 +11,8 @@ import io
 import math
 import os
 
-import matplotlib
 import numpy as np
+from matplotlib.ticker import NullFormatter, ScalarFormatter
 
 from ehss_gym._version import __version__
 from ehss_gym.core.sim import UNITS
@@ -28,10 +28,8 @@ from ehss_gym.study.fidelity import (
     observed_order,
 )
 
+from .plotting import plt
 from .render import render
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
 
 BEGIN = "<!-- fidelity-table:begin -->"
 END = "<!-- fidelity-table:end -->"
@@ -166,7 +164,6 @@ def closed_order_table(cl: list[dict], periods) -> str:
 
 def plotobserved_order(ol: list[dict], cl: list[dict], path: str, cmd: str) -> None:
     """Log-log error against h with reference slopes 1 and 2: open loop (top derivatives) and closed loop."""
-    from matplotlib.ticker import NullFormatter, ScalarFormatter
     fig, ax = plt.subplots(1, 2, figsize=(12, 6.8))
     colors = {"velocity": "tab:blue", "position": "tab:red"}
     marks = {"zoh": "s", "foh": "o"}

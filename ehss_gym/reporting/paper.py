@@ -10,6 +10,7 @@ import io
 import json
 import math
 import os
+import resource
 import time
 from collections.abc import Sequence
 
@@ -43,6 +44,7 @@ from ehss_gym.study.records import Record
 from ehss_gym.study.rules import attraction_bounds, lost_table
 from ehss_gym.study.stages import Study
 
+from . import paper_facts as F
 from .paper_figures import (
     plot_divergence,
     plot_lost_track,
@@ -318,8 +320,6 @@ def recommendation_json(st: Study) -> dict:
 
 def _cpu_seconds() -> float:
     """CPU time of this process and its finished children (the plot workers) [s]."""
-    import resource
-
     a = resource.getrusage(resource.RUSAGE_SELF)
     b = resource.getrusage(resource.RUSAGE_CHILDREN)
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
@@ -366,8 +366,6 @@ def paper_tables(st: Study) -> dict:
 
 def report_context(st: Study, data: str, cmd: str, wall_s: float | None) -> dict:
     """Everything templates/paper.md.j2 cites."""
-    from . import paper_facts as F
-
     cfg, rec = st.cfg, st.rec
     ctx = dict(cfg=cfg, rec=rec, cmd=cmd, version=__version__, timings=st.timings, wall_s=wall_s,
                cpu_s=_cpu_seconds(), cpus=os.cpu_count(), threads=nb.get_num_threads(), NS=NS,

@@ -5,7 +5,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import scipy.linalg
 
+from ehss_gym.core.filters import butterworth_coefficients, companion
 from ehss_gym.core.fmt import fmt_axis, md_table
 from ehss_gym.core.fmt import fmt_num as _f
 from ehss_gym.core.params import PlantParams
@@ -201,10 +203,6 @@ def _by_family(st: Study, group: str) -> list:
 
 def step_peak_derivative(order: int, hz: float, i: int) -> float:
     """Peak |y_d^(i)| of the continuous reference model's response to a unit step [unit / s^i]."""
-    import scipy.linalg
-
-    from ehss_gym.core.filters import butterworth_coefficients, companion
-
     A, b = companion(butterworth_coefficients(order, hz))
     dt = 1e-5
     E = scipy.linalg.expm(np.block([[A * dt, b[:, None] * dt], [np.zeros((1, order + 1))]]))

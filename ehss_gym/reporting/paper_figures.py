@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
 from collections.abc import Sequence
 
 import numpy as np
+from matplotlib import colors
+from matplotlib.ticker import LogLocator, NullLocator
 
 from ehss_gym._version import __version__
 from ehss_gym.core.fmt import fmt_axis
@@ -13,6 +16,8 @@ from ehss_gym.core.sim import UNITS
 from ehss_gym.study.config import NS
 from ehss_gym.study.records import Record
 from ehss_gym.study.rules import MAP_METRICS, cells_of, n_effect
+
+from .plotting import plt
 
 
 def _made_by(cmd: str) -> str:
@@ -37,8 +42,6 @@ def _env(t: np.ndarray, y: np.ndarray, bins: int = 1500) -> tuple[np.ndarray, np
 
 def plot_paper_set(recs: Sequence[Record], task: str, fr: float, path: str, title: str, cmd: str):
     """Figs. 5-13 in one: columns n = 2, 4, 6; rows friction, response vs reference, error, control."""
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import LogLocator, NullLocator
 
     by_n = {r.params["n"]: r for r in recs if r.params["task"] == task and r.params["fr"] == fr}
     fig, ax = plt.subplots(4, 3, figsize=(14, 10), sharex="col")
@@ -97,8 +100,6 @@ def plot_paper_set(recs: Sequence[Record], task: str, fr: float, path: str, titl
 
 def plot_divergence(recs: Sequence[Record], path: str, cmd: str):
     """The unlimited paper law (P0): |u| and |e| up to divergence, every run."""
-    import matplotlib.pyplot as plt
-
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.2))
     for i, r in enumerate(recs):
         tr = r.traj
@@ -131,8 +132,6 @@ def plot_sweep_maps(records: Sequence[Record], row: str, col: str, path: str, ti
 
     Diverged cells are black with 'D'; cells not run are light grey.
     """
-    import matplotlib.pyplot as plt
-    from matplotlib import colors
 
     cells = cells_of(records, row, col)
     rows = sorted({k[0] for k in cells}, key=lambda v: (v is not None, v if v is not None else 0))
@@ -224,8 +223,6 @@ def _ticks(axx, rows, cols, row_label, col_label, starred=()):
 
 def plot_relay(records: Sequence[Record], path: str, cmd: str):
     """Saturation fraction against the relay index beta/limit (all limited sweep runs), per n."""
-    import matplotlib.pyplot as plt
-
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.2))
     for n, mk in zip(NS, "os^"):
         rs = [r for r in records if r.params["n"] == n and not r.get("diverged", False)]
@@ -270,8 +267,6 @@ def _busiest_window(tr, width: float) -> float:
 def plot_smoothing(recs: Sequence[Record], coarse: Sequence[Record], snippets: Sequence[Record], path: str,
                    cmd: str):
     """Control TV, nominal RMSE and friction peak against the smoothing width, and a current snippet."""
-    import matplotlib.pyplot as plt
-
     fig, ax = plt.subplots(1, 4, figsize=(17, 4))
     groups = [(recs, "-")] + [([r for r in coarse if r.params["h"] == h], ls)
                               for h, ls in zip(sorted({r.params["h"] for r in coarse}), ("--", ":", "-."))]
@@ -345,8 +340,6 @@ def plot_lost_track(new_table: dict, h_new: float, old_table: dict, h_old: float
         w_table, lim_table: (f_r, w) and (f_r, limit) -> lost-track row.
         roa: (f_r, sigma, estimator) -> (largest recovered initial error, smallest lost one).
     """
-    import matplotlib.pyplot as plt
-
     fig, axs = plt.subplots(2, 3, figsize=(15, 8.5), layout="constrained")
     ax = [axs[0, 0], axs[0, 1], axs[1, 0], axs[1, 1], axs[0, 2]]
     axs[1, 2].axis("off")
@@ -388,8 +381,6 @@ def _run_plot_job(i: int) -> None:
 
 def run_plot_jobs(jobs: list, workers: int = 2) -> None:
     """Draw figures; with workers > 1 and fork available, in forked processes that inherit the jobs."""
-    import multiprocessing as mp
-
     global _PLOT_JOBS
     if workers > 1 and "fork" in mp.get_all_start_methods() and len(jobs) > 1:
         _PLOT_JOBS = jobs

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numba as nb
 import numpy as np
+from tqdm import tqdm
 
 from ehss_gym.core import layout as L
 from ehss_gym.core.physics import lie_derivatives
@@ -164,8 +165,6 @@ class Runner:
     """Batches scenarios by time grid into ``simulate_batch`` calls, with one tqdm bar over batches."""
 
     def __init__(self, max_batch: int = 64, progress: bool = True):
-        from tqdm import tqdm
-
         self.max_batch = max_batch
         self.bar = tqdm(total=0, desc="ehss reproduce", unit="batch", disable=not progress, file=sys.stderr)
         self.n_runs = 0
