@@ -1,16 +1,29 @@
-"""The evaluation harness: policy specs and their errors, scores, ranking, determinism and the CLI."""
+"""The evaluation harness: policy specs and their errors, scores, ranking, determinism, loading and the CLI."""
 
+import ast
 import csv
 import json
 import math
 import os
+import pathlib
 
 import numpy as np
 import pytest
 from gymnasium import spaces
+from stable_baselines3 import PPO
 
+from ehss_gym import __version__
+from ehss_gym import evaluation as ev
 from ehss_gym.cli import main
-from ehss_gym.evaluation import harness as ev
+from ehss_gym.core.scenarios import HELDOUT_SEED_BASE, TRAIN_SEED_LIMIT
+from ehss_gym.envs import EHSSTrackingEnv
+from ehss_gym.evaluation import harness, loading
+from ehss_gym.reporting import comparison
+
+try:  # the agents restructuring moves the exporter out of safeweights (which then needs no torch)
+    from ehss_gym.agents.export import export_policy
+except ImportError:
+    from ehss_gym.agents.safeweights import export_policy
 
 # a small, cheap configuration: held-out episodes of 0.3 s on the velocity task
 TINY = ev.EvalConfig(suites=("heldout",), tasks=("velocity",), heldout_episodes=3, episode_seconds=0.3, n_boot=200)
@@ -111,18 +124,12 @@ def test_shape_mismatch_names_what_fits():
 
 
 def _ppo(task="velocity", mode="residual"):
-    from stable_baselines3 import PPO
-
-    from ehss_gym.envs import EHSSTrackingEnv
-
     env = EHSSTrackingEnv(task=task, mode=mode)
     return PPO("MlpPolicy", env, n_steps=64, batch_size=32, seed=0, device="cpu",
                policy_kwargs={"net_arch": [16, 16]})
 
 
 def test_sb3_zip_and_safe_weights_are_evaluated(tmp_path, capsys):
-    from ehss_gym.agents.safeweights import export_policy
-
     model = _ppo()
     zip_path = str(tmp_path / "res_seed0.zip")
     model.save(zip_path)
@@ -144,8 +151,6 @@ def test_sb3_zip_and_safe_weights_are_evaluated(tmp_path, capsys):
 
 
 def test_corrupt_or_tampered_model_exit_2(tmp_path, capsys):
-    from ehss_gym.agents.safeweights import export_policy
-
     bad_zip = tmp_path / "broken.zip"
     bad_zip.write_bytes(b"not a zip")
     argv = ["--suite", "heldout", "--tasks", "velocity", "--episodes", "1", "--out", str(tmp_path / "o"),
@@ -162,8 +167,6 @@ def test_corrupt_or_tampered_model_exit_2(tmp_path, capsys):
 
 
 def test_safe_weights_shape_mismatch_cli(tmp_path, capsys):
-    from ehss_gym.agents.safeweights import export_policy
-
     # trained on the position task (17 observations) but labelled velocity (15)
     export_policy(_ppo(task="position"), tmp_path / "mislabelled", env_kwargs={"task": "velocity", "mode": "residual"})
     rc = main(["evaluate", "--policies", f"residual-ppo:{tmp_path}/mislabelled", "--suite", "heldout", "--tasks",
@@ -197,8 +200,6 @@ def test_learned_policy_is_compared_with_clf_at_its_settings():
 
 
 def test_episodes_are_disjoint_from_training_and_fixed():
-    from ehss_gym.core.scenarios import HELDOUT_SEED_BASE, TRAIN_SEED_LIMIT
-
     cfg = ev.EvalConfig.quick()
     a = ev.build_episodes(cfg)
     b = ev.build_episodes(cfg)
@@ -258,8 +259,6 @@ def test_cli_quick_writes_the_report(tmp_path, capsys):
               "figures/robustness_velocity.png", "figures/metrics_heldout_velocity.png"):
         assert (out / f).is_file(), f
     text = (out / "REPORT.md").read_text()
-    from ehss_gym import __version__
-
     assert "`ehss evaluate" in text and "--quick" in text and f"ehss-gym {__version__}" in text
     assert "score = 0.5 * RMSE / RMSE_ref + 0.5 * TV / TV_ref" in text
     for label in ("RMSE", "IAE", "ITAE", "recovery on", "control TV", "saturation", "divergence rate", "V decrease"):
@@ -281,16 +280,71 @@ def test_cli_quick_writes_the_report(tmp_path, capsys):
 def test_interrupted_run_keeps_previous_report(tmp_path, monkeypatch):
     res = ev.evaluate([ev.parse_policy("clf-n2")], TINY, workers=1, progress=False)
     out = tmp_path / "cmp"
-    ev.write_report(res, str(out))
+    comparison.write_report(res, str(out))
     before = (out / "REPORT.md").read_text()
+    assert "**No learned policy was evaluated**" in before and "\n\n\n" not in before
+    assert "## 9. Learned policies against the scripted laws\n\nNo learned policy was evaluated, so" in before
 
     def boom(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(ev, "report_text", boom)
+    monkeypatch.setattr(comparison, "report_text", boom)
     res.command = "ehss evaluate --changed"
     with pytest.raises(KeyboardInterrupt):
-        ev.write_report(res, str(out))
+        comparison.write_report(res, str(out))
     assert (out / "REPORT.md").read_text() == before
     assert not [p for p in os.listdir(out) if p.startswith(".tmp-")]
     json.dumps(res.summary, default=str)  # summaries are plain data
+
+
+# ---------------------------------------------------------------------------------------------------
+# Loading once, layering and the names other layers use
+
+
+def test_each_model_is_loaded_once(tmp_path, monkeypatch):
+    for k in range(2):
+        export_policy(_ppo(), tmp_path / f"once-seed{k}", env_kwargs={"task": "velocity", "mode": "residual"})
+    calls = []
+    real = loading.load_policy
+
+    def counting(path):
+        calls.append(os.path.basename(str(path)))
+        return real(path)
+
+    monkeypatch.setattr(loading, "load_policy", counting)
+    spec = ev.parse_policy(f"residual-ppo:{tmp_path}/once-seed*")
+    ev.evaluate([ev.parse_policy("clf-n2"), spec], TINY, workers=1, progress=False)
+    assert sorted(calls) == ["once-seed0", "once-seed1"]  # parsing, the shape check and the episodes share a load
+    # worker processes get the loaded model as bytes and rebuild it without reading the file
+    pol = loading.load_run(spec.runs[0], "velocity", spec.env_kwargs_for("velocity"))
+    item = loading.portable(spec.runs[0], pol)
+    assert item[0] == "bytes"
+    copy = loading.restore(item, "velocity", spec.env_kwargs_for("velocity"))
+    obs = np.random.default_rng(0).standard_normal((5, 15)).astype(np.float32)
+    assert np.array_equal(copy.predict(obs)[0], pol.predict(obs)[0])
+    assert len(calls) == 2
+    # a scripted law travels as its description (rebuilt where it runs); a changed file is loaded again
+    assert loading.portable({"kind": "clf", "n": 2}, None) == ("build", {"kind": "clf", "n": 2})
+    os.utime(tmp_path / "once-seed0.json", ns=(1, 1))
+    loading.load_safe(spec.runs[0])
+    assert len(calls) == 3
+
+
+def test_evaluation_imports_no_higher_layer():
+    root = pathlib.Path(ev.__file__).parent
+    for path in root.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            mods = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            for m in mods:
+                assert not m.startswith(("ehss_gym.reporting", "ehss_gym.cli", "ehss_gym.study", "ehss_gym.train")), \
+                    f"{path.name} imports {m}"
+
+
+def test_harness_keeps_the_names_other_layers_use():
+    # the training report and validation call ``from ehss_gym.evaluation import harness as ev``
+    for name in ("evaluate", "EvalConfig", "object_spec", "scripted_spec", "learned_spec", "parse_policy",
+                 "primary_score", "SCORE_CAP", "REFERENCE_POLICY", "PolicyError", "PolicySpec", "Results", "Episode",
+                 "build_episodes", "check_fit", "rollout", "default_specs", "shipped_specs", "METRICS"):
+        assert getattr(harness, name) is getattr(ev, name), name
+    assert set(harness.__all__) >= {"evaluate", "EvalConfig", "Results", "primary_score", "SCORE_CAP"}

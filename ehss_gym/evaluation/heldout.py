@@ -7,7 +7,7 @@ reported on (:data:`TEST_START`, the block the evaluation harness draws from as 
 
 Scores (lower is better), per scenario i:
 
-- ``score``: the evaluation harness's primary score (:func:`ehss_gym.evaluation.harness.primary_score`),
+- ``score``: the evaluation harness's primary score (:func:`ehss_gym.evaluation.scoring.primary_score`),
   ``0.5 RMSE_i / RMSE_ref,i + 0.5 TV_i / TV_ref,i`` against the reference law (the CLF law with n = 2,
   zero residual, same scenario; 1 for the reference itself, 10 for a diverged episode); the mean over
   the scenarios picks the checkpoint to keep.
@@ -25,6 +25,8 @@ import numpy as np
 from ehss_gym.core.scenarios import heldout_scenarios
 from ehss_gym.envs import EnvConfig, rollout
 
+from .scoring import RMSE_FLOOR, SCORE_CAP, TV_FLOOR, primary_score
+
 VALIDATION_START = 5_000_000  # offset of the validation block among held-out seeds (the harness uses 0.. and 1e6..)
 TEST_START = 0  # offset of the test block (the evaluation harness's held-out suite)
 
@@ -38,9 +40,11 @@ class _ActFn:
     """An ``act_fn`` (raw observations (B, D) -> actions (B, 1)) as a policy with SB3's ``predict``."""
 
     def __init__(self, act_fn):
+        """Wrap ``act_fn`` (None: the zero action)."""
         self.act_fn = act_fn
 
     def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        """SB3-style: (actions (B, 1) float32, state unchanged)."""
         if self.act_fn is None:  # the base law in residual mode
             return np.zeros((len(observation), 1), dtype=np.float32), state
         return np.asarray(self.act_fn(observation), dtype=np.float32).reshape(len(observation), 1), state
@@ -70,8 +74,6 @@ def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
 
 def relative_scores(results: list[dict], base: list[dict], reference: list[dict] | None = None) -> dict:
     """Mean primary score against ``reference`` (default ``base``) and ratios to ``base`` (module docstring)."""
-    from .harness import SCORE_CAP, primary_score
-
     reference = base if reference is None else reference
     sc, rr, rf, rt, div = [], [], [], [], 0
     for m, b, ref in zip(results, base, reference):
@@ -83,10 +85,10 @@ def relative_scores(results: list[dict], base: list[dict], reference: list[dict]
             if b["has_friction"]:
                 rf.append(SCORE_CAP)
             continue
-        rr.append(m["rmse"] / max(b["rmse"], 1e-12))
-        rt.append(m["tv_u_rate"] / max(b["tv_u_rate"], 1e-9))
+        rr.append(m["rmse"] / max(b["rmse"], RMSE_FLOOR))
+        rt.append(m["tv_u_rate"] / max(b["tv_u_rate"], TV_FLOOR))
         if b["has_friction"] and math.isfinite(b["max_abs_e_friction"]) and math.isfinite(m["max_abs_e_friction"]):
-            rf.append(m["max_abs_e_friction"] / max(b["max_abs_e_friction"], 1e-12))
+            rf.append(m["max_abs_e_friction"] / max(b["max_abs_e_friction"], RMSE_FLOOR))
     out = {"score": float(np.mean(sc)), "rel_rmse": float(np.mean(rr)), "rel_fric": float(np.mean(rf)) if rf else 1.0,
            "rel_tv": float(np.mean(rt)), "diverged": div, "episodes": len(results)}
     out["rmse"] = float(np.mean([m["rmse"] for m in results]))
@@ -101,6 +103,7 @@ def sb3_act_fn(model, vecnormalize=None):
     """Deterministic actions of an SB3 model on raw observations, normalised as during training."""
 
     def act(obs):
+        """Deterministic actions (B, 1) for raw observations (B, D)."""
         o = vecnormalize.normalize_obs(obs) if vecnormalize is not None else obs
         return model.predict(o, deterministic=True)[0]
 

@@ -45,6 +45,7 @@ def _as_matrix(scores, name: str = "scores") -> np.ndarray:
 
 
 def _check_stat(stat: str) -> str:
+    """``stat`` if it is one of :data:`STATS`, else ValueError."""
     if stat not in STATS:
         raise ValueError(f"stat must be one of {list(STATS)}, got {stat!r}")
     return stat
@@ -79,6 +80,7 @@ def _batched(stat: str) -> Callable[[np.ndarray], np.ndarray]:
         return lambda x: np.median(x, axis=1)
 
     def _iqm(x):
+        """Row-wise IQM: the mean of the middle 50 % (floor(0.25 n) values cut from each end)."""
         n = x.shape[1]
         cut = int(math.floor(0.25 * n))
         return np.sort(x, axis=1)[:, cut:n - cut].mean(axis=1)
@@ -87,6 +89,7 @@ def _batched(stat: str) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def _check_common(n_boot, confidence, seed):
+    """ValueError unless n_boot >= 100, 0.5 <= confidence < 1 and seed >= 0 (integers where integers are meant)."""
     if isinstance(n_boot, bool) or not isinstance(n_boot, (int, np.integer)) or n_boot < 100:
         raise ValueError(f"n_boot must be an integer >= 100, got {n_boot!r}")
     if not isinstance(confidence, (int, float)) or not 0.5 <= confidence < 1.0:
@@ -96,6 +99,7 @@ def _check_common(n_boot, confidence, seed):
 
 
 def _resample_indices(rng: np.random.Generator, n_boot: int, n: int, resample: bool) -> np.ndarray:
+    """(n_boot, n) indices drawn with replacement, or the identity in every replicate when not ``resample``."""
     if not resample:
         return np.broadcast_to(np.arange(n), (n_boot, n))
     return rng.integers(0, n, size=(n_boot, n))

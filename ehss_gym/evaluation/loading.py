@@ -1,0 +1,184 @@
+"""Loading: one run of a policy spec (a model path, a scripted-law description or an object) as an object with
+SB3's ``predict``.
+
+A run is what :attr:`ehss_gym.evaluation.specs.PolicySpec.runs` holds per training seed:
+
+- a dict describing a scripted law (``{"kind": "clf", "n": n}`` or ``{"kind": "pid", "gains": ...}``), built
+  for the task it acts on (cheap: no file is read);
+- a model path: a safe-weights stem (``PATH.safetensors`` + ``PATH.json``, :mod:`ehss_gym.agents.safeweights`)
+  or an SB3 ``.zip`` (with a VecNormalize ``.pkl`` next to it if there is one);
+- any object with ``predict``, used as it is.
+
+Safe-weights models are loaded once per process (:func:`load_safe` remembers them by the identity of their two
+files, so spec parsing, the shape checks and the episodes share one load). Worker processes get the loaded
+objects as bytes from :func:`portable` and rebuild them with :func:`restore`: they read no model file unless an
+object cannot be pickled, and then load it at most once each.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import pickle
+
+import numpy as np
+
+from ehss_gym.agents.safeweights import SafePolicy, load_policy, model_paths
+from ehss_gym.controllers import CLFPolicy, PIDPolicy
+from ehss_gym.envs import EHSSTrackingEnv, EnvConfig
+
+SB3_ALGOS = ("PPO", "A2C", "SAC", "TD3", "DDPG")
+
+
+class PolicyError(ValueError):
+    """A policy specification that cannot be evaluated (unknown name, missing file, shapes that do not fit)."""
+
+
+class _Normalized:
+    """An SB3 model plus VecNormalize observation statistics (for .zip models trained with VecNormalize)."""
+
+    def __init__(self, model, mean, var, eps, clip):
+        """Wrap ``model``.
+
+        Args:
+            model: the SB3 model.
+            mean, var: VecNormalize's running observation mean and variance (per observation entry).
+            eps: its epsilon (added to the variance).
+            clip: its clip_obs (normalised observations are clipped to +-clip).
+        """
+        self.model = model
+        self.observation_space = model.observation_space
+        self.action_space = model.action_space
+        self._mean, self._std, self._clip = mean, np.sqrt(var + eps), clip
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        """SB3's ``predict`` on normalised, clipped observations."""
+        obs = np.clip((np.asarray(observation) - self._mean) / self._std, -self._clip, self._clip).astype(np.float32)
+        return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+
+
+def _file_identity(path: str) -> tuple:
+    """(inode, size [B], mtime [ns]) of a file: a changed or replaced file has another identity."""
+    st = os.stat(path)
+    return st.st_ino, st.st_size, st.st_mtime_ns
+
+
+@functools.lru_cache(maxsize=64)
+def _load_safe_once(stem: str, identity: tuple) -> SafePolicy:
+    """:func:`load_policy`, remembered per (absolute stem, identity of its two files)."""
+    return load_policy(stem)
+
+
+def load_safe(path: str) -> SafePolicy:
+    """A safe-weights model, loaded from disk at most once per process while its files are unchanged.
+
+    Args:
+        path: the model stem (or either of its two files).
+
+    Raises:
+        SafeWeightsError: see :func:`ehss_gym.agents.safeweights.load_policy` (never remembered: a failed load is
+            tried again).
+    """
+    st_path, js_path = model_paths(path)
+    try:
+        identity = (_file_identity(st_path), _file_identity(js_path))
+    except OSError:  # a missing file: the loader names it
+        return load_policy(path)
+    return _load_safe_once(os.path.abspath(js_path[:-5]), identity)
+
+
+def _load_vecnormalize(zip_path: str):
+    """The VecNormalize statistics saved next to an SB3 .zip, or None."""
+    stem = zip_path[:-4]
+    folder = os.path.dirname(os.path.abspath(zip_path))
+    for cand in (stem + "_vecnormalize.pkl", stem + ".vecnormalize.pkl", os.path.join(folder, "vecnormalize.pkl")):
+        if os.path.isfile(cand):
+            with open(cand, "rb") as f:  # SB3's own format; .zip users accept pickle (see safeweights)
+                return pickle.load(f)
+    return None
+
+
+def _load_zip(path: str):
+    """An SB3 model .zip (PPO, A2C, SAC, TD3 or DDPG), with a VecNormalize .pkl next to it if there is one."""
+    import stable_baselines3 as sb3  # heavy (about 2 s) and only needed for a user's .zip: imported on first use
+
+    model, errors = None, []
+    for algo in SB3_ALGOS:
+        try:
+            model = getattr(sb3, algo).load(path, device="cpu")
+            break
+        except Exception as exc:  # the file records its policy class, not its algorithm: try each in turn
+            errors.append(f"{algo}: {type(exc).__name__}: {str(exc)[:120]}")
+    if model is None:
+        raise PolicyError(f"{path} is not a loadable stable-baselines3 model ({'; '.join(errors)})")
+    vn = _load_vecnormalize(path)
+    if vn is not None and getattr(vn, "norm_obs", False):
+        return _Normalized(model, vn.obs_rms.mean, vn.obs_rms.var, vn.epsilon, vn.clip_obs)
+    return model
+
+
+def load_run(run, task: str, env_kwargs: dict):
+    """The object with ``predict`` for one run of a spec.
+
+    Args:
+        run: a scripted-law description (dict), a model path (str) or an object with ``predict``.
+        task: the task it acts on (scripted laws are built for it).
+        env_kwargs: the env settings it acts in (scripted laws take their controller settings from them).
+    """
+    if isinstance(run, dict):
+        cfg = EnvConfig.from_kwargs({**env_kwargs, "task": task})
+        if run["kind"] == "clf":
+            return CLFPolicy(cfg)
+        return PIDPolicy(cfg, gains=(run.get("gains") or {}).get(task))
+    if isinstance(run, str):
+        return _load_zip(run) if run.endswith(".zip") else load_safe(run)
+    return run
+
+
+def portable(run, policy) -> tuple:
+    """What a worker process needs to rebuild ``policy`` (the loaded form of ``run``) without loading it again.
+
+    Args:
+        run: the spec's run (scripted-law description, model path or object).
+        policy: what :func:`load_run` made of it in this process.
+
+    Returns:
+        ("build", run) for a scripted law (rebuilt in the worker: no file, no tuning), ("bytes", pickle) for a
+        loaded model or object that pickles, or ("load", run) for a model that does not pickle (the worker
+        loads it from its file).
+
+    Raises:
+        pickle.PicklingError, TypeError, AttributeError: a Python object given as a policy does not pickle.
+    """
+    if isinstance(run, dict):
+        return ("build", run)
+    try:
+        return ("bytes", pickle.dumps(policy, protocol=pickle.HIGHEST_PROTOCOL))
+    except Exception:  # e.g. a model with a lambda inside; a plain object has no file to fall back on
+        if isinstance(run, str):
+            return ("load", run)
+        raise
+
+
+def restore(item: tuple, task: str, env_kwargs: dict):
+    """The policy object of a :func:`portable` item (in the process that runs its episodes).
+
+    Args:
+        item: what :func:`portable` returned, or ("object", policy) for an object already at hand.
+        task: the task it acts on.
+        env_kwargs: the env settings it acts in.
+    """
+    how, what = item
+    if how == "bytes":
+        return pickle.loads(what)
+    if how == "object":  # in the process that loaded it
+        return what
+    return load_run(what, task, env_kwargs)
+
+
+def make_env(env_kwargs: dict) -> EHSSTrackingEnv:
+    """The env a policy acts in (the class behind ``gym.make("EHSSTracking-v0")``, without wrappers)."""
+    return EHSSTrackingEnv(**env_kwargs)
+
+
+__all__ = ["PolicyError", "SB3_ALGOS", "load_safe", "load_run", "portable", "restore", "make_env"]

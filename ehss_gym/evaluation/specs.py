@@ -1,0 +1,439 @@
+"""Policy specs: what to evaluate, parsed from ``--policies`` entries, shipped models or Python objects.
+
+A :class:`PolicySpec` names a policy, its kind, the env settings it acts in and one *run* per training seed
+(:mod:`ehss_gym.evaluation.loading` turns a run into an object with ``predict``). Forms of a ``--policies``
+entry (:func:`parse_policy`):
+
+- ``clf-n<even n>`` and ``pid``: the scripted laws of :mod:`ehss_gym.controllers` (both tasks);
+- ``residual-ppo:PATH`` and ``ppo-direct:PATH``: a model file (safe-weights stem or SB3 .zip) or a glob of
+  several training seeds, checked against the mode it was trained in;
+- the name of a model shipped in ``ehss_gym/models`` (``-seed<k>`` files grouped into one spec).
+
+Learned policies trained at controller settings other than the env's defaults get the CLF laws at *their*
+settings as extra specs (:func:`matched_clf_specs`), so that each is compared with the laws it builds on.
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ehss_gym.agents.safeweights import shipped_models
+from ehss_gym.envs import ENV_ID, EnvConfig
+
+from .loading import PolicyError, load_safe, make_env
+from .suites import TASKS
+
+REFERENCE_POLICY = "clf-n2"  # the law the primary score is normalised by
+SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "pid")
+LEARNED_KINDS = ("residual-ppo", "ppo-direct")
+CONTROLLER_KEYS = ("fr", "sigma", "smoothing", "current_limit", "control_period", "substeps", "estimator_hz")
+CLF_RE = re.compile(r"^clf-n(\d+)$")
+_SEED_RE = re.compile(r"^(.*?)[-_](?:seed|s)(\d+)$")
+_GENERIC = ("policy", "model", "best_model", "final_model", "best", "final", "checkpoints")
+_NOT_ENV = ("scenario", "render_mode")  # env kwargs a policy does not carry over (set per episode)
+
+
+@dataclass
+class PolicySpec:
+    """A policy to evaluate, with one entry in ``runs`` per training seed.
+
+    Attributes:
+        name: label in the report (unique).
+        kind: "clf", "pid", "residual-ppo", "ppo-direct" or "object".
+        runs: per training seed, what :func:`ehss_gym.evaluation.loading.load_run` loads: a model path (str) or
+            an object with ``predict`` (scripted policies: a dict describing them).
+        env_kwargs: keyword arguments of the env the policy acts in (without ``task`` for scripted
+            policies, which run on every task).
+        tasks: tasks it runs on.
+        source: human-readable origin (for the report).
+    """
+
+    name: str
+    kind: str
+    runs: list
+    env_kwargs: dict
+    tasks: tuple = TASKS
+    source: str = ""
+
+    @property
+    def learned(self) -> bool:
+        """True for trained models and Python objects (everything but the scripted laws)."""
+        return self.kind in (*LEARNED_KINDS, "object")
+
+    def env_kwargs_for(self, task: str) -> dict:
+        """The env kwargs of this policy on ``task``."""
+        kw = dict(self.env_kwargs)
+        kw["task"] = task
+        return kw
+
+
+def _kind_of_mode(mode: str) -> str:
+    """The spec kind of a model trained in env mode ``mode`` ("residual" or "direct")."""
+    return "residual-ppo" if mode == "residual" else "ppo-direct"
+
+
+def valid_forms() -> str:
+    """Every accepted form of a ``--policies`` entry, with the shipped model names (for error messages)."""
+    names = sorted(shipped_models())
+    shipped = ", ".join(names) if names else "none shipped yet"
+    return ("clf-n<even n >= 2> (e.g. clf-n2, clf-n4, clf-n6), pid, residual-ppo:PATH, ppo-direct:PATH "
+            "(PATH = an SB3 .zip, a safe-weights stem PATH with PATH.safetensors + PATH.json, or a glob "
+            f"matching several training seeds), or a shipped model name ({shipped})")
+
+
+def scripted_spec(name: str, label: str | None = None, env_overrides: dict | None = None,
+                  gains: dict | None = None) -> PolicySpec:
+    """``clf-n<n>`` or ``pid`` as a :class:`PolicySpec` (runs on both tasks).
+
+    Args:
+        name: "clf-n<even n>" or "pid".
+        label: report name (default ``name``); needed when ``env_overrides`` change the law.
+        env_overrides: env settings changed from the defaults (e.g. ``{"sigma": 1.0}``: the paper's scale).
+        gains: PID only: task -> (kp [mA per output unit], ki [mA per unit*s], kd [mA per unit/s]) instead of
+            the tuned gains.
+
+    Raises:
+        PolicyError: an unknown name or an odd power factor.
+    """
+    over = dict(env_overrides or {})
+    m = CLF_RE.match(name)
+    if m:
+        n = int(m.group(1))
+        if n < 2 or n % 2:
+            raise PolicyError(f"unknown policy {name!r}: the CLF power factor must be an even integer >= 2 "
+                              f"(clf-n2, clf-n4, clf-n6, ...)")
+        src = f"scripted Sontag/CLF law, n = {n}" + (f", {over}" if over else "")
+        return PolicySpec(name=label or name, kind="clf", runs=[{"kind": "clf", "n": n}],
+                          env_kwargs={"n": n, "mode": "residual", **over}, source=src)
+    if name == "pid":
+        run = {"kind": "pid"}
+        if gains:
+            run["gains"] = {t: tuple(float(g) for g in v) for t, v in gains.items()}
+        src = ("scripted PID (ehss_gym.controllers)" + (f", {over}" if over else "")
+               + (f", gains {gains}" if gains else ""))
+        return PolicySpec(name=label or "pid", kind="pid", runs=[run], env_kwargs={"mode": "direct", **over},
+                          source=src)
+    raise PolicyError(f"unknown policy {name!r}; valid: {valid_forms()}")
+
+
+def _sidecar_env_kwargs(zip_path: str) -> dict | None:
+    """env_kwargs recorded next to an SB3 .zip (``STEM.json`` or the run folder's config.json), if any."""
+    stem = zip_path[:-4]
+    folder = os.path.dirname(os.path.abspath(zip_path))
+    for cand in (stem + ".json", os.path.join(folder, "config.json"), os.path.join(os.path.dirname(folder),
+                                                                                    "config.json")):
+        if os.path.isfile(cand):
+            try:
+                with open(cand, encoding="utf-8") as f:
+                    d = json.load(f)
+            except (OSError, ValueError):
+                continue
+            if isinstance(d, dict) and isinstance(d.get("env_kwargs"), dict):
+                return dict(d["env_kwargs"])
+    return None
+
+
+def _existing_model(p: str) -> str | None:
+    """The model a candidate path names: an existing .zip, a safe-weights stem or the stem's .zip; else None."""
+    if p.endswith(".zip"):
+        return p if os.path.isfile(p) else None
+    stem = p[:-5] if p.endswith(".json") else (p[:-12] if p.endswith(".safetensors") else p)
+    if os.path.isfile(stem + ".json") and os.path.isfile(stem + ".safetensors"):
+        return stem
+    return stem + ".zip" if os.path.isfile(stem + ".zip") else None
+
+
+def _model_files(pattern: str, spec_text: str) -> list[str]:
+    """The model paths a PATH (or glob) names; PolicyError if none exists.
+
+    A safe-weights stem is preferred over an SB3 .zip in the same folder (a training run keeps both).
+    """
+    has_glob = any(c in pattern for c in "*?[")
+    if has_glob:
+        cands = sorted(set(glob.glob(pattern)) | set(glob.glob(pattern + ".json")) | set(glob.glob(pattern + ".zip")))
+    else:
+        cands = [pattern]
+    out = list(dict.fromkeys(p for p in map(_existing_model, cands) if p is not None))
+    if has_glob:
+        safe_dirs = {os.path.dirname(p) for p in out if not p.endswith(".zip")}
+        out = [p for p in out if not (p.endswith(".zip") and os.path.dirname(p) in safe_dirs)]
+    if not out:
+        what = "no file matches the pattern" if has_glob else "file not found"
+        raise PolicyError(f"policy {spec_text!r}: {what} {pattern!r}; PATH must be an SB3 .zip or a safe-weights "
+                          "stem with PATH.safetensors + PATH.json")
+    return sorted(out)
+
+
+def _run_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
+    """The env kwargs a model was trained with, checked against the spec's mode."""
+    want_mode = "residual" if kind == "residual-ppo" else "direct"
+    if path.endswith(".zip"):
+        kw = _sidecar_env_kwargs(path) or {}
+    else:
+        pol = load_safe(path)
+        if pol.env_id != ENV_ID:
+            raise PolicyError(f"policy {spec_text!r}: model {path!r} was trained on {pol.env_id!r}, not {ENV_ID!r}")
+        kw = dict(pol.env_kwargs)
+    mode = kw.get("mode", "residual")
+    if "mode" in kw and mode != want_mode:
+        raise PolicyError(f"policy {spec_text!r}: model {path!r} was trained with mode={mode!r}; name it "
+                          f"{_kind_of_mode(mode)}:{path} (residual-ppo = mode 'residual', ppo-direct = mode 'direct')")
+    kw["mode"] = want_mode
+    for k in _NOT_ENV:
+        kw.pop(k, None)
+    return kw
+
+
+def _path_label(path: str) -> str:
+    """A readable name for a model path: its file stem, or the run folder for generic stems (policy, model)."""
+    parts = os.path.normpath(os.path.abspath(path)).split(os.sep)
+    stem = parts[-1].removesuffix(".zip")
+    if stem not in _GENERIC:
+        return stem
+    for folder in reversed(parts[:-1]):
+        if folder and folder not in _GENERIC:
+            return folder
+    return stem
+
+
+def _learned_name(kind: str, paths: Sequence[str]) -> str:
+    """The report name of a learned policy: its file stem, or the common stem of its training seeds."""
+    labels = [_path_label(p) for p in paths]
+    zip_tag = " (sb3 zip)" if all(p.endswith(".zip") for p in paths) else ""
+    if len(labels) == 1:
+        return f"{kind}:{labels[0]}{zip_tag}"
+    common = os.path.commonprefix(labels).rstrip("-_")
+    m = _SEED_RE.match(common) if common else None
+    name = f"{kind}:{common or labels[0]}" if not m else f"{kind}:{m.group(1)}"
+    return re.sub(r"[-_](?:seed|s)$", "", name) + zip_tag
+
+
+def learned_spec(kind: str, pattern: str, spec_text: str | None = None, name: str | None = None) -> PolicySpec:
+    """A learned policy from one model file or a glob of several training seeds.
+
+    Args:
+        kind: "residual-ppo" or "ppo-direct" (must match the mode the models were trained in).
+        pattern: a model path (safe-weights stem or SB3 .zip) or a glob of several.
+        spec_text: the ``--policies`` entry, for error messages (default ``kind:pattern``).
+        name: report name (default: derived from the file names).
+
+    Raises:
+        PolicyError: no model file, a mode that does not match, or seeds trained with different settings.
+    """
+    spec_text = spec_text or f"{kind}:{pattern}"
+    paths = _model_files(pattern, spec_text)
+    kws = [_run_env_kwargs(p, kind, spec_text) for p in paths]
+    first = kws[0]
+    for p, kw in zip(paths[1:], kws[1:]):
+        if kw != first:
+            raise PolicyError(f"policy {spec_text!r}: the training seeds were trained with different env settings "
+                              f"({paths[0]}: {first}; {p}: {kw}); evaluate them as separate policies")
+    tasks = (first["task"],) if "task" in first else ("velocity",)
+    return PolicySpec(name=name or _learned_name(kind, paths), kind=kind, runs=list(paths), env_kwargs=first,
+                      tasks=tasks, source=", ".join(os.path.relpath(p) if not os.path.isabs(p) else p for p in paths))
+
+
+def _shipped_kind(path: str) -> str:
+    """The spec kind of a shipped safe-weights model (from the mode it was trained in)."""
+    return _kind_of_mode(load_safe(path).env_kwargs.get("mode", "residual"))
+
+
+def shipped_specs() -> list[PolicySpec]:
+    """Every model in ``ehss_gym/models``, one spec per name with its ``-seed<k>`` files as training seeds.
+
+    Raises:
+        PolicyError: the seeds of one name were trained with different env settings.
+    """
+    groups: dict[str, list[str]] = {}
+    for nm, path in shipped_models().items():
+        m = _SEED_RE.match(nm)
+        groups.setdefault(m.group(1) if m else nm, []).append(path)
+    out = []
+    for base, paths in sorted(groups.items()):
+        kind = _shipped_kind(paths[0])
+        spec = learned_spec(kind, paths[0], spec_text=base, name=base)
+        if len(paths) > 1:
+            kws = [_run_env_kwargs(p, kind, base) for p in paths]
+            if any(kw != kws[0] for kw in kws):
+                raise PolicyError(f"shipped model group {base!r}: seeds trained with different env settings")
+            spec.runs = sorted(paths)
+        spec.source = "shipped: " + ", ".join(os.path.basename(p) for p in spec.runs)
+        out.append(spec)
+    return out
+
+
+def parse_policy(text: str) -> PolicySpec:
+    """One ``--policies`` entry as a :class:`PolicySpec`.
+
+    Raises:
+        PolicyError: an entry that is none of the accepted forms; the message names what would fit.
+    """
+    text = text.strip()
+    if not text:
+        raise PolicyError(f"empty policy name; valid: {valid_forms()}")
+    if ":" in text:
+        kind, _, path = text.partition(":")
+        if kind not in LEARNED_KINDS:
+            raise PolicyError(f"unknown policy kind {kind!r} in {text!r}; valid: {valid_forms()}")
+        if not path:
+            raise PolicyError(f"policy {text!r} needs a PATH after the colon; valid: {valid_forms()}")
+        return learned_spec(kind, path, spec_text=text)
+    if CLF_RE.match(text) or text == "pid":
+        return scripted_spec(text)
+    models = shipped_models()
+    shipped = {s.name: s for s in shipped_specs()} if models else {}
+    if text in shipped:
+        return shipped[text]
+    if text in models:  # one seed of a group, by its full name
+        return learned_spec(_shipped_kind(models[text]), models[text], spec_text=text, name=text)
+    raise PolicyError(f"unknown policy {text!r}; valid: {valid_forms()}")
+
+
+def parse_policies(items: Sequence[str]) -> list[PolicySpec]:
+    """``--policies`` entries (each may hold several, comma-separated) as specs.
+
+    Raises:
+        PolicyError: no entry at all, or one that :func:`parse_policy` refuses.
+    """
+    tokens = [t for item in items for t in item.split(",") if t.strip()]
+    if not tokens:
+        raise PolicyError(f"--policies needs at least one policy; valid: {valid_forms()}")
+    return [parse_policy(t) for t in tokens]
+
+
+def object_spec(name: str, policy, env_kwargs: dict | None = None, runs: Sequence | None = None) -> PolicySpec:
+    """Any object (or list of objects, one per training seed) with SB3's ``predict`` as a policy.
+
+    Args:
+        name: report label.
+        policy: an object with ``predict``; ignored when ``runs`` is given.
+        env_kwargs: env settings it acts in (default: ``policy.env_kwargs`` if present, else the env's
+            defaults); ``task`` restricts it to one task.
+        runs: several objects, one per training seed.
+
+    Raises:
+        PolicyError: an object without ``predict``.
+    """
+    objs = list(runs) if runs is not None else [policy]
+    for o in objs:
+        if not callable(getattr(o, "predict", None)):
+            raise PolicyError(f"policy {name!r}: {type(o).__name__} has no predict(obs, state, episode_start, "
+                              "deterministic) method")
+    kw = dict(env_kwargs if env_kwargs is not None else getattr(objs[0], "env_kwargs", None) or {})
+    for k in _NOT_ENV:
+        kw.pop(k, None)
+    tasks = (kw["task"],) if "task" in kw else TASKS
+    return PolicySpec(name=name, kind="object", runs=objs, env_kwargs=kw, tasks=tasks,
+                      source=f"Python object {type(objs[0]).__name__}")
+
+
+def default_specs() -> list[PolicySpec]:
+    """Every shipped policy: the scripted CLF (n = 2, 4, 6) and PID, and the models in ehss_gym/models."""
+    return [scripted_spec(n) for n in SCRIPTED_DEFAULT] + shipped_specs()
+
+
+def controller_settings(env_kwargs: dict, task: str) -> dict:
+    """The settings that shape the base law's closed loop (defaults resolved), for "same settings" checks.
+
+    Args:
+        env_kwargs: a spec's env kwargs (``mode`` is ignored).
+        task: the task.
+    """
+    cfg = EnvConfig.from_kwargs({k: v for k, v in env_kwargs.items() if k != "mode"} | {"task": task})
+    return {k: getattr(cfg, k) for k in CONTROLLER_KEYS}
+
+
+def matched_clf_specs(specs: Sequence[PolicySpec], tasks: Sequence[str]) -> list[PolicySpec]:
+    """CLF laws n = 2, 4, 6 at the controller settings of learned policies that differ from the defaults.
+
+    A learned policy must be compared with the scripted laws *at the same settings*; when it was trained
+    with, say, another sigma or current limit, these extra specs (``clf-n2@sigma=...``) provide them.
+    """
+    have = {s.name for s in specs}
+    out = []
+    for spec in specs:
+        if not spec.learned:
+            continue
+        for task in spec.tasks:
+            if task not in tasks:
+                continue
+            mine = controller_settings(spec.env_kwargs, task)
+            default = controller_settings({}, task)
+            diff = {k: v for k, v in mine.items() if v != default[k]}
+            if not diff:
+                continue
+            tag = ",".join(f"{k}={'none' if v is None else format(v, 'g')}" for k, v in diff.items())
+            for n in (2, 4, 6):
+                label = f"clf-n{n}@{tag}"
+                if label in have:
+                    continue
+                extra = scripted_spec(f"clf-n{n}", label=label, env_overrides=diff)
+                extra.tasks = (task,)
+                extra.source += f" (the settings of {spec.name})"
+                out.append(extra)
+                have.add(label)
+    return out
+
+
+def _fitting_observations(kw: dict) -> list[str]:
+    """The observation shape of every task under env settings ``kw`` (what a policy could fit instead)."""
+    fits = []
+    for t in TASKS:
+        try:
+            e = make_env({**kw, "task": t})
+            fits.append(f"task={t!r}: observation {tuple(e.observation_space.shape)}")
+        except ValueError:
+            pass
+    return fits
+
+
+def _action_shape(spec: PolicySpec, policy, want_obs: tuple) -> tuple | None:
+    """The action shape a policy declares, or (a plain object) gives for a batch of one zero observation."""
+    act_space = getattr(policy, "action_space", None)
+    if act_space is not None:
+        return tuple(act_space.shape)
+    try:
+        a, _ = policy.predict(np.zeros((1,) + want_obs, dtype=np.float32), state=None,
+                              episode_start=np.ones(1, dtype=bool), deterministic=True)
+        return tuple(np.asarray(a).shape[1:])
+    except Exception as exc:  # any failure of foreign code is reported with its name
+        raise PolicyError(f"policy {spec.name!r}: predict() on a batch of observations of shape "
+                          f"(1, {want_obs[0]}) failed ({type(exc).__name__}: {exc})") from None
+
+
+def check_fit(spec: PolicySpec, policy, task: str) -> None:
+    """PolicyError unless the policy's observation/action shapes fit the env it will act in.
+
+    Args:
+        spec: the policy's spec (its env settings and name).
+        policy: the loaded object with ``predict``.
+        task: the task it will act on.
+    """
+    kw = spec.env_kwargs_for(task)
+    try:
+        env = make_env(kw)
+    except ValueError as exc:
+        raise PolicyError(f"policy {spec.name!r}: its env settings {kw} are not valid for {ENV_ID}: {exc}") from None
+    want_obs = tuple(env.observation_space.shape)
+    want_act = tuple(env.action_space.shape)
+    obs_space = getattr(policy, "observation_space", None)
+    got_obs = tuple(obs_space.shape) if obs_space is not None else None
+    got_act = _action_shape(spec, policy, want_obs)
+    if (got_obs is not None and got_obs != want_obs) or got_act != want_act:
+        raise PolicyError(
+            f"policy {spec.name!r} does not fit {ENV_ID}(task={task!r}, mode={kw.get('mode', 'residual')!r}): it "
+            f"expects observations of shape {got_obs} and gives actions of shape {got_act}, the env has "
+            f"observation shape {want_obs} and action shape {want_act}. What fits: "
+            f"{'; '.join(_fitting_observations(kw))}; action {want_act} in [-1, 1].")
+
+
+__all__ = ["REFERENCE_POLICY", "SCRIPTED_DEFAULT", "PolicySpec", "PolicyError", "valid_forms", "scripted_spec",
+           "learned_spec", "shipped_specs", "parse_policy", "parse_policies", "object_spec", "default_specs",
+           "controller_settings", "matched_clf_specs", "check_fit"]

@@ -1,0 +1,179 @@
+"""Suites: the pinned physical episodes every policy of an evaluation sees, and the sizes that make them.
+
+Per task (the physical episodes come from :mod:`ehss_gym.core.scenarios`):
+
+- ``paper``: the paper's 20 s run (1 rad/s, 2 rad/s sine; 1.8 N*m friction from 8 s to 10 s).
+- ``heldout``: ``K`` randomised episodes from :func:`ehss_gym.core.scenarios.heldout_scenarios` (seeds at
+  ``HELDOUT_SEED_BASE + i`` and above, disjoint from every training seed).
+- ``robustness``: two sweeps on episodes drawn from further held-out seeds (offset
+  :data:`ROBUST_SEED_START`) with their noise removed and one friction event from
+  :data:`SWEEP_WINDOW`: friction amplitude (plant = model) and model mismatch (beta, J, B, c_sm, P_s
+  of the true plant each scaled by 1 +- level, signs drawn per episode; friction 1.8 N*m).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ehss_gym.core.params import PlantParams
+from ehss_gym.core.scenarios import HELDOUT_SEED_BASE, PHYSICAL_FIELDS, heldout_scenarios, paper_scenario
+from ehss_gym.core.sim import UNITS  # task -> unit of its output y (re-exported: the report's tables use it)
+from ehss_gym.envs import EnvConfig
+
+TASKS = ("velocity", "position")
+SUITES = ("paper", "heldout", "robustness")
+ROBUST_SEED_START = 1_000_000  # held-out seed offset of the robustness episodes (the heldout suite uses 0..K-1)
+SWEEP_WINDOW = (0.8, 1.4)  # [s] friction event of the robustness sweeps (in 2 s episodes)
+SWEEP_MISMATCH_FRICTION = 1.8  # [N*m] friction amplitude during the mismatch sweep (the paper's)
+MISMATCH_PARAMS = ("beta", "J", "B", "c_sm", "P_s")
+NO_NOISE = (0.0, 0.0, 0.0, 0.0)  # sensor noise std of the four measured channels in the sweeps
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Sizes and seeds of an evaluation.
+
+    Attributes:
+        suites: any of "paper", "heldout", "robustness".
+        tasks: any of "velocity", "position".
+        heldout_episodes: randomised held-out episodes per task (K).
+        episode_seconds: duration of held-out and robustness episodes [s].
+        paper_seconds: duration of the paper run [s] (the paper: 20).
+        friction_levels: friction amplitudes of the sweep [N*m].
+        mismatch_levels: relative plant-parameter deviations of the mismatch sweep (0.2 = +-20 %).
+        sweep_episodes: episodes per sweep level (M).
+        n_boot: bootstrap replicates.
+        seed: bootstrap seed.
+        chunk: episodes per job (one job = one policy run on up to ``chunk`` episodes of one suite/task).
+    """
+
+    suites: tuple = SUITES
+    tasks: tuple = TASKS
+    heldout_episodes: int = 48
+    episode_seconds: float = 2.0
+    paper_seconds: float = 20.0
+    friction_levels: tuple = (0.0, 0.9, 1.8, 2.7, 3.6)
+    mismatch_levels: tuple = (0.0, 0.05, 0.1, 0.15, 0.2)
+    sweep_episodes: int = 5
+    n_boot: int = 2000
+    seed: int = 0
+    chunk: int = 24
+
+    @classmethod
+    def quick(cls, **changes) -> EvalConfig:
+        """The CI form: 8 held-out episodes, one episode per sweep level, the paper run cut at 12 s (friction
+        8-10 s and 2 s after it), fewer bootstrap replicates.
+
+        Args:
+            **changes: fields to set on top of the quick form.
+        """
+        base = cls(heldout_episodes=8, paper_seconds=12.0, friction_levels=(0.0, 1.8, 3.6), mismatch_levels=(0.0, 0.2),
+                   sweep_episodes=1, n_boot=1000)
+        return replace(base, **changes)
+
+    def __post_init__(self):
+        """Raises ValueError naming the first setting out of range."""
+        bad = [s for s in self.suites if s not in SUITES]
+        if bad or not self.suites:
+            raise ValueError(f"suites must be a non-empty subset of {list(SUITES)}, got {list(self.suites)}")
+        bad = [t for t in self.tasks if t not in TASKS]
+        if bad or not self.tasks:
+            raise ValueError(f"tasks must be a non-empty subset of {list(TASKS)}, got {list(self.tasks)}")
+        for name in ("heldout_episodes", "sweep_episodes", "chunk"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+        for name in ("episode_seconds", "paper_seconds"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ValueError(f"{name} must be a finite number > 0 (s), got {v!r}")
+        if any(not math.isfinite(a) or a < 0 for a in self.friction_levels) or not self.friction_levels:
+            raise ValueError(f"friction_levels must be finite amplitudes >= 0 (N*m), got {self.friction_levels}")
+        if any(not math.isfinite(m) or not 0 <= m < 1 for m in self.mismatch_levels) or not self.mismatch_levels:
+            raise ValueError(f"mismatch_levels must be in [0, 1), got {self.mismatch_levels}")
+        if self.episode_seconds <= SWEEP_WINDOW[1] and "robustness" in self.suites:
+            raise ValueError(f"episode_seconds must be > {SWEEP_WINDOW[1]} s for the robustness sweeps, got "
+                             f"{self.episode_seconds}")
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One pinned episode: its physical fields (:data:`ehss_gym.core.scenarios.PHYSICAL_FIELDS`) and labels.
+
+    Attributes:
+        suite: "paper", "heldout" or "robustness".
+        task: "velocity" or "position".
+        episode_id: unique within the suite and task (e.g. "heldout-3", "friction=1.8#0").
+        physical: the scenario's physical fields (reference, friction, plant, model, noise, seed, t_end, ...).
+        sweep: robustness episodes: "friction" or "mismatch"; "" otherwise.
+        level: robustness episodes: the sweep level (friction amplitude [N*m] or relative mismatch [-]).
+        scenario_seed: the held-out scenario seed (-1 for the paper run).
+    """
+
+    suite: str
+    task: str
+    episode_id: str
+    physical: dict = field(repr=False, hash=False, compare=False)
+    sweep: str = ""
+    level: float = math.nan
+    scenario_seed: int = -1
+
+    @property
+    def t_end(self) -> float:
+        """Duration of the episode [s]."""
+        return float(self.physical["t_end"])
+
+
+def _physical(sc) -> dict:
+    """The physical fields of a Scenario (what an episode pins; the controller settings come from the env)."""
+    return {f: getattr(sc, f) for f in PHYSICAL_FIELDS}
+
+
+def _robustness_episodes(cfg: EvalConfig, task: str, tmpl) -> list[Episode]:
+    """The friction sweep (plant = model) and the mismatch sweep of one task, noise removed."""
+    out: list[Episode] = []
+    nominal = PlantParams()
+    base = heldout_scenarios(cfg.sweep_episodes, tmpl, cfg.episode_seconds, start=ROBUST_SEED_START)
+    t0, t1 = SWEEP_WINDOW
+    seed0 = HELDOUT_SEED_BASE + ROBUST_SEED_START
+    for amp in cfg.friction_levels:
+        for i, sc in enumerate(base):
+            sc2 = sc.replace(friction=((float(amp), t0, t1),) if amp > 0 else (), plant=nominal, model=nominal,
+                             noise_std=NO_NOISE)
+            out.append(Episode("robustness", task, f"friction={amp:g}#{i}", _physical(sc2), "friction", float(amp),
+                               seed0 + i))
+    for lvl in cfg.mismatch_levels:
+        for i, sc in enumerate(base):
+            signs = np.random.default_rng(ROBUST_SEED_START + i).choice([-1.0, 1.0], len(MISMATCH_PARAMS))
+            plant = nominal.scaled(**{p: 1.0 + float(lvl) * s for p, s in zip(MISMATCH_PARAMS, signs)})
+            sc2 = sc.replace(friction=((SWEEP_MISMATCH_FRICTION, t0, t1),), plant=plant, model=nominal,
+                             noise_std=NO_NOISE)
+            out.append(Episode("robustness", task, f"mismatch={lvl:g}#{i}", _physical(sc2), "mismatch", float(lvl),
+                               seed0 + i))
+    return out
+
+
+def build_episodes(cfg: EvalConfig) -> list[Episode]:
+    """Every episode of the configured suites and tasks, in a fixed order (task, then suite).
+
+    Args:
+        cfg: the evaluation's sizes.
+    """
+    out: list[Episode] = []
+    for task in cfg.tasks:
+        tmpl = EnvConfig.from_kwargs({"task": task}).template()
+        if "paper" in cfg.suites:
+            out.append(Episode("paper", task, "paper", _physical(paper_scenario(tmpl, cfg.paper_seconds))))
+        if "heldout" in cfg.suites:
+            for i, sc in enumerate(heldout_scenarios(cfg.heldout_episodes, tmpl, cfg.episode_seconds)):
+                out.append(Episode("heldout", task, f"heldout-{i}", _physical(sc), scenario_seed=HELDOUT_SEED_BASE + i))
+        if "robustness" in cfg.suites:
+            out += _robustness_episodes(cfg, task, tmpl)
+    return out
+
+
+__all__ = ["TASKS", "SUITES", "UNITS", "ROBUST_SEED_START", "SWEEP_WINDOW", "SWEEP_MISMATCH_FRICTION",
+           "MISMATCH_PARAMS", "EvalConfig", "Episode", "build_episodes"]

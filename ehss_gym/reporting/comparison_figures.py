@@ -1,0 +1,222 @@
+"""Figures of the policy comparison (``ehss evaluate``): score bars, held-out metric bars, paper-run traces and
+robustness curves, each PNG written atomically with the command that made it in its footer (their captions are
+in templates/comparison.md.j2)."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+
+import matplotlib
+import numpy as np
+
+from ehss_gym._version import __version__
+from ehss_gym.core.util import atomic_write
+from ehss_gym.evaluation import stats as st
+from ehss_gym.evaluation.harness import Results
+from ehss_gym.evaluation.scoring import matrix
+from ehss_gym.evaluation.specs import REFERENCE_POLICY
+from ehss_gym.evaluation.suites import SUITES, TASKS, UNITS
+
+from .plotting import plt
+
+DPI = 90
+FIGURE_KINDS = ("bars", "traces", "robustness", "metrics")
+ZOOM_BEFORE, ZOOM_AFTER = 0.3, 2.6  # [s] the trace zoom around the first friction switch-on
+
+
+def _footer(fig, res: Results) -> None:
+    """The made-by line (command and version) at the bottom left."""
+    fig.text(0.01, 0.005, f"made by: {res.command}  (ehss-gym {__version__})", fontsize=7, color="gray")
+
+
+def _finish(fig, res: Results, folder: str, name: str, bottom: float) -> str:
+    """Footer, layout (``bottom`` left for the footer), atomic PNG write and close; returns the path relative
+    to the report."""
+    _footer(fig, res)
+    fig.tight_layout(rect=(0, bottom, 1, 1))
+    atomic_write(os.path.join(folder, name), lambda f: fig.savefig(f, format="png", dpi=DPI))
+    plt.close(fig)
+    return os.path.join("figures", name)
+
+
+def _colors(names: Sequence[str]) -> dict:
+    """One tab10 colour per policy name, in spec order (the same colour in every figure)."""
+    cmap = matplotlib.colormaps["tab10"]
+    return {n: cmap(i % 10) for i, n in enumerate(names)}
+
+
+def _score_bars(res: Results, folder: str, col: dict, suite: str):
+    """Mean primary score with its 95 % CI and the IQM per policy, one panel per task: (path, suite), or None if
+    the suite did not run."""
+    names = [s.name for s in res.specs]
+    tasks = [t for t in TASKS if any(d["suite"] == suite and d["task"] == t for d in res.summary)]
+    if not tasks:
+        return None
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.2 * len(tasks), 0.45 * len(names) + 2.2), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        block = [d for d in res.summary if d["suite"] == suite and d["task"] == task]
+        block.sort(key=lambda d: -d["rank"])
+        y = np.arange(len(block))
+        means = np.array([d["score_mean"] for d in block])
+        lo = means - np.array([d["score_mean_lo"] for d in block])
+        hi = np.array([d["score_mean_hi"] for d in block]) - means
+        ax.barh(y, means, xerr=[lo, hi], color=[col[d["policy"]] for d in block], alpha=0.8, capsize=3,
+                label="mean, 95 % CI")
+        ax.plot([d["score_iqm"] for d in block], y, "kD", ms=4, label="IQM")
+        ax.axvline(1.0, color="gray", ls="--", lw=1)
+        ax.set_yticks(y, [d["policy"] for d in block], fontsize=8)
+        ax.set_xlabel(f"primary score (lower is better; {REFERENCE_POLICY} = 1)")
+        if means.max() / max(means.min(), 1e-9) > 20:
+            ax.set_xscale("log")
+        n_ep = block[0]["n_episodes"]
+        ax.set_title(f"{suite} suite, {task} ({n_ep} episode{'s' if n_ep > 1 else ''})", fontsize=9)
+        ax.legend(fontsize=7, loc="lower right")
+    return _finish(fig, res, folder, f"scores_{suite}.png", 0.03), suite
+
+
+def _mean_ci(res: Results, v: np.ndarray) -> tuple[float, float, float]:
+    """Mean of the finite values ``v`` with a 95 % bootstrap CI (NaNs if none)."""
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return math.nan, math.nan, math.nan
+    lo, hi = st.bootstrap_ci(v, "mean", n_boot=res.cfg.n_boot, seed=res.cfg.seed)
+    return float(v.mean()), lo, hi
+
+
+def _metric_bars(res: Results, folder: str, col: dict, task: str):
+    """Held-out RMSE, peak error in friction and control TV per policy: (path, task), or None if the
+    suite did not run."""
+    block = [d for d in res.summary if d["suite"] == "heldout" and d["task"] == task]
+    if not block:
+        return None
+    keys = (("rmse", f"RMSE [{UNITS[task]}]"), ("max_abs_e_friction", f"max |e| in friction [{UNITS[task]}]"),
+            ("tv_u_rate", "control TV [mA/s]"))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 0.4 * len(block) + 2.2))
+    block.sort(key=lambda d: -d["rank"])
+    for ax, (key, label) in zip(axes, keys):
+        vals, los, his = [], [], []
+        for d in block:
+            mean, lo, hi = _mean_ci(res, matrix(res.rows, d["policy"], "heldout", task, key)[0])
+            vals.append(mean)
+            los.append(mean - lo)
+            his.append(hi - mean)
+        y = np.arange(len(block))
+        ax.barh(y, vals, xerr=[los, his], color=[col[d["policy"]] for d in block], alpha=0.8, capsize=3)
+        ax.set_yticks(y, [d["policy"] for d in block], fontsize=8)
+        ax.set_xlabel(label)
+        fin = [v for v in vals if math.isfinite(v) and v > 0]
+        if fin and max(fin) / min(fin) > 30:
+            ax.set_xscale("log")
+        else:
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(-2, 3))
+    fig.suptitle(f"Held-out suite, {task}: mean over episodes (non-diverged) with 95 % bootstrap CI", fontsize=9)
+    return _finish(fig, res, folder, f"metrics_heldout_{task}.png", 0.03), task
+
+
+def _paper_traces(res: Results, folder: str, col: dict, task: str):
+    """Output, error (full and zoomed on the friction event) and current of every policy on the paper run (first
+    training seed): (path, task), or None if the paper suite did not run."""
+    names = [s.name for s in res.specs]
+    tr = {n: res.traces[(n, 0, task)] for n in names if (n, 0, task) in res.traces}
+    if not tr:
+        return None
+    unit = UNITS[task]
+    ep = next(e for e in res.episodes if e.suite == "paper" and e.task == task)
+    fr = [ev for ev in ep.physical["friction"] if ev[0] > 0]
+    t_on = fr[0][1] if fr else 0.0
+    zoom = (max(0.0, t_on - ZOOM_BEFORE), t_on + ZOOM_AFTER) if fr else (0.0, ep.t_end)
+    fig, ax = plt.subplots(4, 1, figsize=(10, 11))
+    first = next(iter(tr.values()))
+    ax[0].plot(first["t"], first["y_ref"], "k--", lw=1.2, label="reference $y_d$")
+    for n, d in tr.items():
+        ax[0].plot(d["t"], d["y"], lw=0.8, color=col[n], label=n)
+        ax[1].plot(d["t"], d["e"], lw=0.7, color=col[n], label=n)
+        sel = (d["t"] >= zoom[0]) & (d["t"] <= zoom[1])
+        ax[2].plot(d["t"][sel], d["e"][sel], lw=0.8, color=col[n], label=n)
+        ax[3].plot(d["t"][sel], d["u"][sel], lw=0.6, color=col[n], label=n)
+    ax[0].set_ylabel(f"output [{unit}]")
+    ax[1].set_ylabel(f"error e [{unit}]")
+    ax[2].set_ylabel(f"e [{unit}] (zoom)")
+    ax[3].set_ylabel("applied u [mA] (zoom)")
+    ax[3].set_xlabel("time [s]")
+    for a in ax[2:]:
+        for ev in fr:
+            a.axvspan(ev[1], ev[2], color="orange", alpha=0.12)
+    ax[1].axhline(0, color="gray", lw=0.5)
+    ax[0].legend(fontsize=7, ncol=3, loc="upper right")
+    fig.suptitle(f"Paper scenario, {task} task: every policy overlaid (first training seed); friction shaded",
+                 fontsize=9)
+    return _finish(fig, res, folder, f"paper_traces_{task}.png", 0.02), task
+
+
+def _sweep_curve(res: Results, pr: list, key: str) -> tuple[list, list, list, list]:
+    """(levels, means, CI lows, CI highs) of ``key`` over the non-diverged rows ``pr`` of one policy and sweep."""
+    xs, ms, los, his = [], [], [], []
+    for lv in sorted({r["level"] for r in pr}):
+        v = np.array([r[key] for r in pr if r["level"] == lv and not r["diverged"]], dtype=float)
+        v = v[np.isfinite(v)]
+        if not v.size:
+            continue
+        xs.append(lv)
+        ms.append(v.mean())
+        if v.size > 1:
+            lo, hi = st.bootstrap_ci(v, "mean", n_boot=res.cfg.n_boot, seed=res.cfg.seed)
+        else:
+            lo = hi = float(v.mean())
+        los.append(lo)
+        his.append(hi)
+    return xs, ms, los, his
+
+
+def _robustness(res: Results, folder: str, col: dict, task: str):
+    """Error and control TV against friction amplitude and model mismatch per policy: (path, task), or None if
+    the sweeps did not run."""
+    rr = [r for r in res.rows if r["suite"] == "robustness" and r["task"] == task]
+    if not rr:
+        return None
+    u = UNITS[task]
+    panels = (("friction", "max_abs_e_friction", "friction amplitude [N m]", f"max |e| in friction [{u}]"),
+              ("friction", "rmse", "friction amplitude [N m]", f"RMSE [{u}]"),
+              ("mismatch", "rmse", "plant-parameter mismatch [+-]", f"RMSE [{u}]"),
+              ("mismatch", "tv_u_rate", "plant-parameter mismatch [+-]", "control TV [mA/s]"))
+    fig, axes = plt.subplots(2, 2, figsize=(11, 8))
+    for ax, (sweep, key, xl, yl) in zip(axes.ravel(), panels):
+        for n in [s.name for s in res.specs]:
+            pr = [r for r in rr if r["policy"] == n and r["sweep"] == sweep]
+            if not pr:
+                continue
+            xs, ms, los, his = _sweep_curve(res, pr, key)
+            if xs:
+                ax.plot(xs, ms, "o-", color=col[n], lw=1.2, ms=3, label=n)
+                ax.fill_between(xs, los, his, color=col[n], alpha=0.15)
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.set_yscale("log")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"Robustness, {task}: mean over {res.cfg.sweep_episodes} episodes per level (band: 95 % bootstrap "
+                 "CI; diverged episodes left out)", fontsize=9)
+    return _finish(fig, res, folder, f"robustness_{task}.png", 0.02), task
+
+
+def make_figures(res: Results, folder: str) -> dict:
+    """Every figure of the comparison, written under ``folder``.
+
+    Args:
+        res: the evaluation's results.
+        folder: the report's figures/ folder.
+
+    Returns:
+        kind ("bars", "traces", "robustness", "metrics") -> list of (path relative to the report, what it shows: the
+        suite for "bars", the task otherwise); the captions are the template's.
+    """
+    col = _colors([s.name for s in res.specs])
+    made = {"bars": [_score_bars(res, folder, col, suite) for suite in SUITES],
+            "metrics": [_metric_bars(res, folder, col, task) for task in TASKS],
+            "traces": [_paper_traces(res, folder, col, task) for task in TASKS],
+            "robustness": [_robustness(res, folder, col, task) for task in TASKS]}
+    return {k: [f for f in made[k] if f is not None] for k in FIGURE_KINDS}
+
+
+__all__ = ["make_figures"]
