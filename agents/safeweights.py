@@ -3,7 +3,8 @@
 An SB3 ``.zip`` (and a ``VecNormalize`` ``.pkl``) is deserialised with pickle, so opening a downloaded
 file can run code. This module writes the parts of a policy that its *deterministic* action needs, as
 a safetensors file (raw little-endian arrays behind a JSON header; reading it cannot run code) and a
-JSON config, and reads them back into a small torch MLP that reproduces SB3's ``predict`` exactly:
+JSON config (:func:`ehss_gym.agents.export.export_policy`, from the torch model), and reads them back
+(:func:`load_policy`, here) into a small MLP that reproduces SB3's ``predict`` exactly:
 
     obs (float32) --VecNormalize--> clip((obs - mean) / sqrt(var + eps), -clip_obs, clip_obs) as float32
         --> [Linear -> activation] x L (SB3's ``mlp_extractor.policy_net``) --> Linear (``action_net``)
@@ -27,6 +28,12 @@ file whose SHA-256 differs from the one recorded in the JSON, a missing or extra
 the wrong shape or dtype, a non-finite value, or a JSON config with unknown or missing fields. The
 hash guards integrity (a corrupted or edited file), not authenticity: anyone who edits both files can
 change the weights, but never make the loader run code.
+
+Loading needs no torch: the file is parsed with safetensors' numpy API and checked with numpy. The forward
+pass imports torch on its first call, because torch's float32 kernels are what SB3's ``predict`` runs: numpy
+gives the same actions only up to the last bit (numpy's ``tanh`` rounds differently, and its BLAS sums a
+single observation's dot products in another order; measured on the shipped policies, 80 % of the actions
+of a trained policy differed in the last bit), and the evaluation's results would then change.
 """
 
 from __future__ import annotations
@@ -38,7 +45,11 @@ import os
 import sys
 from dataclasses import dataclass, field
 
+import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
+from safetensors import SafetensorError
+from safetensors.numpy import load
 
 FORMAT = "ehss-gym-safeweights/1"
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu", "gelu", "identity")
@@ -65,41 +76,12 @@ def model_paths(path) -> tuple[str, str]:
     return stem + ".safetensors", stem + ".json"
 
 
-def _sha256(data: bytes) -> str:
+def sha256(data: bytes) -> str:
+    """SHA-256 of ``data`` as 64 lowercase hex digits (what the JSON config records of the tensor file)."""
     return hashlib.sha256(data).hexdigest()
 
 
-def _activation_name(module) -> str:
-    import torch.nn as nn
-
-    table = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu", nn.LeakyReLU: "leaky_relu", nn.SiLU: "silu",
-             nn.GELU: "gelu", nn.Identity: "identity"}
-    for cls, name in table.items():
-        if type(module) is cls:
-            if name == "leaky_relu" and module.negative_slope != 0.01:
-                break
-            if name == "gelu" and module.approximate != "none":
-                break
-            if name == "elu" and module.alpha != 1.0:
-                break
-            return name
-    raise SafeWeightsError(f"activation {module!r} is not supported; supported (with default arguments): "
-                           f"{list(ACTIVATIONS)}")
-
-
-def _box_to_json(space) -> dict:
-    from gymnasium import spaces
-
-    if not isinstance(space, spaces.Box):
-        raise SafeWeightsError(f"only Box spaces are supported, got {space!r}")
-    return {"type": "Box", "low": np.asarray(space.low, dtype=np.float64).reshape(-1).tolist(),
-            "high": np.asarray(space.high, dtype=np.float64).reshape(-1).tolist(), "shape": list(space.shape),
-            "dtype": np.dtype(space.dtype).name}
-
-
-def _box_from_json(d, what: str):
-    from gymnasium import spaces
-
+def _box_from_json(d, what: str) -> spaces.Box:
     if not isinstance(d, dict) or sorted(d) != sorted(SPACE_KEYS) or d["type"] != "Box":
         raise SafeWeightsError(f"{what} must be a dict with keys {list(SPACE_KEYS)} and type 'Box', got {d!r}")
     shape = d["shape"]
@@ -122,135 +104,8 @@ def _box_from_json(d, what: str):
                       dtype=dtype)
 
 
-def _jsonable(obj):
-    """Plain JSON values (tuples -> lists, numpy scalars -> Python); raises for anything else."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return obj.item()
-    if obj is None or isinstance(obj, (bool, int, float, str)):
-        return obj
-    raise SafeWeightsError(f"value {obj!r} of type {type(obj).__name__} cannot be stored in the JSON config")
-
-
-# ---------------------------------------------------------------------------------------------------
-# Export
-
-
-def policy_tensors(model, vecnormalize=None) -> tuple[dict, dict, dict | None]:
-    """The tensors, architecture and normalisation config of an SB3 on-policy actor-critic policy.
-
-    Args:
-        model: a stable-baselines3 PPO/A2C model (or its ``.policy``) with an MLP policy, a flatten
-            features extractor and a Gaussian (non-state-dependent) Box action.
-        vecnormalize: the ``VecNormalize`` wrapper the model was trained with, or None.
-
-    Returns:
-        (tensors name -> torch tensor, architecture dict, obs-normalisation dict or None).
-    """
-    import torch
-    import torch.nn as nn
-    from gymnasium import spaces
-    from stable_baselines3.common.distributions import DiagGaussianDistribution
-    from stable_baselines3.common.torch_layers import FlattenExtractor
-
-    policy = getattr(model, "policy", model)
-    if not isinstance(policy.observation_space, spaces.Box) or len(policy.observation_space.shape) != 1:
-        raise SafeWeightsError(f"observation space must be a 1-D Box, got {policy.observation_space!r}")
-    if not isinstance(policy.action_space, spaces.Box) or len(policy.action_space.shape) != 1:
-        raise SafeWeightsError(f"action space must be a 1-D Box, got {policy.action_space!r}")
-    if not isinstance(getattr(policy, "action_dist", None), DiagGaussianDistribution):
-        raise SafeWeightsError("only a diagonal-Gaussian action distribution is supported (use_sde=False)")
-    if getattr(policy, "squash_output", False):
-        raise SafeWeightsError("squash_output=True policies are not supported")
-    if not isinstance(policy.pi_features_extractor, FlattenExtractor):
-        raise SafeWeightsError(f"only the flatten features extractor is supported, got "
-                               f"{type(policy.pi_features_extractor).__name__}")
-    tensors: dict[str, torch.Tensor] = {}
-    hidden: list[int] = []
-    act_names: list[str] = []
-    for mod in policy.mlp_extractor.policy_net:
-        if isinstance(mod, nn.Linear):
-            i = len(hidden)
-            tensors[f"pi.{i}.weight"] = mod.weight.detach().cpu().to(torch.float32).contiguous().clone()
-            tensors[f"pi.{i}.bias"] = mod.bias.detach().cpu().to(torch.float32).contiguous().clone()
-            hidden.append(int(mod.out_features))
-        else:
-            act_names.append(_activation_name(mod))
-    if len(act_names) != len(hidden) or len(set(act_names)) > 1:
-        raise SafeWeightsError(f"policy_net must alternate Linear and one kind of activation, got {act_names}")
-    an = policy.action_net
-    tensors["action.weight"] = an.weight.detach().cpu().to(torch.float32).contiguous().clone()
-    tensors["action.bias"] = an.bias.detach().cpu().to(torch.float32).contiguous().clone()
-    tensors["log_std"] = policy.log_std.detach().cpu().to(torch.float32).contiguous().clone()
-    arch = {"obs_dim": int(policy.observation_space.shape[0]), "hidden": hidden,
-            "activation": act_names[0] if act_names else "identity", "act_dim": int(policy.action_space.shape[0])}
-    norm = None
-    if vecnormalize is not None and vecnormalize.norm_obs:
-        rms = vecnormalize.obs_rms
-        if isinstance(rms, dict):
-            raise SafeWeightsError("dict observations are not supported")
-        tensors["obs_mean"] = torch.from_numpy(np.asarray(rms.mean, dtype=np.float64).copy())
-        tensors["obs_var"] = torch.from_numpy(np.asarray(rms.var, dtype=np.float64).copy())
-        norm = {"epsilon": float(vecnormalize.epsilon), "clip_obs": float(vecnormalize.clip_obs)}
-    return tensors, arch, norm
-
-
-def export_policy(model, path, *, vecnormalize=None, name: str | None = None, env_id: str = "EHSSTracking-v0",
-                  env_kwargs: dict | None = None, metadata: dict | None = None) -> tuple[str, str]:
-    """Write ``path.safetensors`` and ``path.json`` for an SB3 policy (see the module docstring).
-
-    Both files are written atomically, the tensors first, so a crash leaves no JSON pointing to a
-    half-written tensor file.
-
-    Args:
-        model: the SB3 model (PPO/A2C with an MLP policy) or its policy.
-        path: output stem (``.json`` / ``.safetensors`` suffixes are stripped); folders are created.
-        vecnormalize: the VecNormalize wrapper whose observation statistics the policy expects, or None.
-        name: model name (default: the stem's file name).
-        env_id: the Gymnasium id of the env the policy acts in.
-        env_kwargs: keyword arguments of ``gym.make(env_id, ...)`` the policy was trained with (JSON values).
-        metadata: free-form JSON-able extras (training config, scores, ...).
-
-    Returns:
-        (safetensors path, json path).
-    """
-    from safetensors.torch import save
-
-    from ehss_gym.core.util import atomic_write, atomic_write_text
-
-    st_path, js_path = model_paths(path)
-    tensors, arch, norm = policy_tensors(model, vecnormalize)
-    policy = getattr(model, "policy", model)
-    blob = save(tensors)
-    config = {
-        "format": FORMAT,
-        "name": name or os.path.basename(st_path[: -len(".safetensors")]),
-        "sha256": _sha256(blob),
-        "architecture": arch,
-        "observation_space": _box_to_json(policy.observation_space),
-        "action_space": _box_to_json(policy.action_space),
-        "obs_normalization": norm,
-        "env_id": env_id,
-        "env_kwargs": _jsonable(env_kwargs or {}),
-        "metadata": _jsonable(metadata or {}),
-    }
-    atomic_write(st_path, lambda f: f.write(blob))
-    atomic_write_text(js_path, json.dumps(config, indent=1, sort_keys=True, allow_nan=False) + "\n")
-    return st_path, js_path
-
-
 # ---------------------------------------------------------------------------------------------------
 # Load
-
-
-def _activation_fn(name: str):
-    import torch.nn.functional as F
-
-    return {"tanh": F.tanh, "relu": F.relu, "elu": F.elu, "leaky_relu": F.leaky_relu, "silu": F.silu,
-            "gelu": F.gelu, "identity": lambda x: x}[name]
 
 
 def _check_config(cfg, js_path: str) -> None:
@@ -312,6 +167,20 @@ def expected_tensors(cfg: dict) -> dict[str, tuple[tuple[int, ...], str]]:
     return out
 
 
+def _torch_forward(layers, act_name: str, head, x: np.ndarray) -> np.ndarray:
+    """[Linear -> activation] x L -> Linear in torch's float32 kernels, SB3's arithmetic bit for bit."""
+    import torch  # the forward pass only (see the module docstring): loading a policy stays torch-free
+
+    F = torch.nn.functional
+    act = {"tanh": torch.tanh, "relu": torch.relu, "elu": F.elu, "leaky_relu": F.leaky_relu, "silu": F.silu,
+           "gelu": F.gelu, "identity": lambda v: v}[act_name]
+    with torch.no_grad():
+        h = torch.as_tensor(x).float()
+        for w, b in layers:
+            h = act(F.linear(h, torch.from_numpy(w), torch.from_numpy(b)))
+        return F.linear(h, torch.from_numpy(head[0]), torch.from_numpy(head[1])).numpy()
+
+
 @dataclass
 class SafePolicy:
     """A loaded safe-weights policy with SB3's ``predict`` (see the module docstring).
@@ -323,6 +192,9 @@ class SafePolicy:
         metadata: training config and scores stored with the model.
         obs_normalization: None or {"epsilon", "clip_obs"} of the VecNormalize statistics.
         path: the JSON file it was loaded from.
+        tensors: name -> numpy array (float32 weights, float64 normalisation statistics).
+        activation: hidden activation name (one of :data:`ACTIVATIONS`).
+        seed: seed of the Gaussian samples of ``predict(..., deterministic=False)``.
     """
 
     name: str
@@ -340,11 +212,11 @@ class SafePolicy:
     def __post_init__(self):
         n_hidden = sum(1 for k in self.tensors if k.startswith("pi.") and k.endswith(".weight"))
         self._layers = [(self.tensors[f"pi.{i}.weight"], self.tensors[f"pi.{i}.bias"]) for i in range(n_hidden)]
-        self._act = _activation_fn(self.activation)
+        self._head = (self.tensors["action.weight"], self.tensors["action.bias"])
         self._rng = np.random.default_rng(self.seed)
         if self.obs_normalization is not None:
-            self._mean = self.tensors["obs_mean"].numpy()
-            self._std = np.sqrt(self.tensors["obs_var"].numpy() + self.obs_normalization["epsilon"])
+            self._mean = self.tensors["obs_mean"]
+            self._std = np.sqrt(self.tensors["obs_var"] + self.obs_normalization["epsilon"])
             self._clip = self.obs_normalization["clip_obs"]
         self._low = np.asarray(self.action_space.low)
         self._high = np.asarray(self.action_space.high)
@@ -356,15 +228,8 @@ class SafePolicy:
         return np.clip((obs - self._mean) / self._std, -self._clip, self._clip).astype(np.float32)
 
     def mean_action(self, obs_norm: np.ndarray) -> np.ndarray:
-        """The Gaussian mean (before clipping) for a batch of normalised observations (B, obs_dim)."""
-        import torch
-        import torch.nn.functional as F
-
-        with torch.no_grad():
-            x = torch.as_tensor(obs_norm).float()
-            for w, b in self._layers:
-                x = self._act(F.linear(x, w, b))
-            return F.linear(x, self.tensors["action.weight"], self.tensors["action.bias"]).numpy()
+        """The Gaussian mean [action units] (before clipping) for a batch of normalised observations (B, obs_dim)."""
+        return _torch_forward(self._layers, self.activation, self._head, obs_norm)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """SB3-style prediction: (action, state). Accepts one observation or a batch (B, obs_dim).
@@ -386,53 +251,38 @@ class SafePolicy:
         obs = obs.reshape((-1, *shape))
         act = self.mean_action(self.normalize_obs(obs))
         if not deterministic:
-            std = np.exp(self.tensors["log_std"].numpy())
+            std = np.exp(self.tensors["log_std"])
             act = (act + std * self._rng.standard_normal(act.shape)).astype(np.float32)
         act = np.clip(act.reshape((-1, *self.action_space.shape)), self._low, self._high)
         if not batched:
             act = act.squeeze(axis=0)
         return act, state
 
-    def make_env(self, **overrides):
+    def make_env(self, **overrides) -> gym.Env:
         """``gym.make(env_id, **env_kwargs, **overrides)``: the env this policy was trained for."""
-        import gymnasium as gym
-
         return gym.make(self.env_id, **{**self.env_kwargs, **overrides})
 
 
-def load_policy(path) -> SafePolicy:
-    """Load ``path.safetensors`` + ``path.json`` without unpickling (see the module docstring).
-
-    Args:
-        path: the model stem ``.../<name>`` (or either of its two files).
-
-    Raises:
-        SafeWeightsError (a ValueError): a missing file, a hash mismatch, missing/extra/misshaped tensors,
-            non-finite values or a malformed JSON config; the message names the file and the problem.
-    """
-    import torch
-    from safetensors import SafetensorError
-    from safetensors.torch import load
-
-    st_path, js_path = model_paths(path)
-    for p in (js_path, st_path):
-        if not os.path.isfile(p):
-            raise SafeWeightsError(f"model file {p} not found (a model is PATH.safetensors + PATH.json)")
+def _read_config(js_path: str) -> dict:
     try:
         with open(js_path, encoding="utf-8") as f:
             cfg = json.load(f, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(f"non-finite {c}")))
     except (ValueError, UnicodeDecodeError) as exc:
         raise SafeWeightsError(f"{js_path}: not valid JSON ({exc})") from None
     _check_config(cfg, js_path)
+    return cfg
+
+
+def _read_tensors(st_path: str, js_path: str, cfg: dict) -> dict[str, np.ndarray]:
     with open(st_path, "rb") as f:
         blob = f.read()  # hash and parse the same bytes, so the file cannot change in between
-    digest = _sha256(blob)
+    digest = sha256(blob)
     if digest != cfg["sha256"]:
         raise SafeWeightsError(f"{st_path}: SHA-256 {digest} does not match the {cfg['sha256']} recorded in "
                                f"{js_path}; the weights were modified or corrupted, refusing to load")
     try:
         tensors = load(blob)
-    except (SafetensorError, ValueError, RuntimeError) as exc:
+    except (SafetensorError, ValueError, RuntimeError, TypeError) as exc:  # numpy has no bfloat16: TypeError
         raise SafeWeightsError(f"{st_path}: not a valid safetensors file ({exc})") from None
     want = expected_tensors(cfg)
     missing = sorted(set(want) - set(tensors))
@@ -442,13 +292,32 @@ def load_policy(path) -> SafePolicy:
                                f"unexpected {extra}")
     for k, (shape, dtype) in want.items():
         t = tensors[k]
-        if tuple(t.shape) != shape or str(t.dtype) != f"torch.{dtype}":
+        if tuple(t.shape) != shape or t.dtype != np.dtype(dtype):
             raise SafeWeightsError(f"{st_path}: tensor {k!r} must have shape {shape} and dtype {dtype}, got "
-                                   f"{tuple(t.shape)} {str(t.dtype).removeprefix('torch.')}")
-        if not bool(torch.isfinite(t).all()):
+                                   f"{tuple(t.shape)} {t.dtype.name}")
+        if not np.isfinite(t).all():
             raise SafeWeightsError(f"{st_path}: tensor {k!r} contains non-finite values")
-    if "obs_var" in tensors and bool((tensors["obs_var"] < 0).any()):
+    if "obs_var" in tensors and (tensors["obs_var"] < 0).any():
         raise SafeWeightsError(f"{st_path}: obs_var must be >= 0")
+    return {k: np.array(t, order="C") for k, t in tensors.items()}  # own, writable copies (torch.from_numpy)
+
+
+def load_policy(path) -> SafePolicy:
+    """Load ``path.safetensors`` + ``path.json`` without unpickling and without torch (see the module docstring).
+
+    Args:
+        path: the model stem ``.../<name>`` (or either of its two files).
+
+    Raises:
+        SafeWeightsError (a ValueError): a missing file, a hash mismatch, missing/extra/misshaped tensors,
+            non-finite values or a malformed JSON config; the message names the file and the problem.
+    """
+    st_path, js_path = model_paths(path)
+    for p in (js_path, st_path):
+        if not os.path.isfile(p):
+            raise SafeWeightsError(f"model file {p} not found (a model is PATH.safetensors + PATH.json)")
+    cfg = _read_config(js_path)
+    tensors = _read_tensors(st_path, js_path, cfg)
     obs_space = _box_from_json(cfg["observation_space"], "observation_space")
     act_space = _box_from_json(cfg["action_space"], "action_space")
     arch = cfg["architecture"]
@@ -472,5 +341,5 @@ def shipped_models() -> dict[str, str]:
     return out
 
 
-__all__ = ["FORMAT", "SafeWeightsError", "SafePolicy", "export_policy", "load_policy", "policy_tensors",
-           "expected_tensors", "model_paths", "shipped_models"]
+__all__ = ["FORMAT", "ACTIVATIONS", "SafeWeightsError", "SafePolicy", "load_policy", "expected_tensors",
+           "model_paths", "sha256", "shipped_models"]

@@ -12,8 +12,10 @@ mode and in how the policy starts.
 - ``ppo`` (env ``mode="direct"``): pure RL, the action is the whole valve current, ``current_limit``
   mA per unit; standard initialisation (orthogonal, gain 0.01 on the action net) and a larger noise.
 
-Every hyperparameter is in :data:`AGENTS` with the reason for its value; :func:`make_agent` builds the
-model. Observations are normalised by ``VecNormalize`` (see :mod:`ehss_gym.train.loop`), rewards too.
+Every hyperparameter is in :data:`AGENTS` with the reason for its value. This module is plain data (no torch
+at import): :mod:`ehss_gym.agents.factory` builds the SB3 model of a spec, and the rl-zoo3 files in
+``agents/hyperparams/`` are generated from :data:`AGENTS` (:mod:`ehss_gym.train.zoo`). Observations are normalised
+by ``VecNormalize`` (see :mod:`ehss_gym.train.loop`), rewards too.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
-import numpy as np
+from ehss_gym.envs import EnvConfig
 
 
 @dataclass(frozen=True)
@@ -111,6 +113,7 @@ class AgentSpec:
             bad("env_kwargs", "a dict of EHSSTracking-v0 keyword arguments other than task, n and mode")
 
     def as_dict(self) -> dict:
+        """The spec as JSON values (``net_arch`` a list): what a run's ``config.json`` records."""
         d = asdict(self)
         d["net_arch"] = list(self.net_arch)
         return d
@@ -133,6 +136,10 @@ COMMON_ENV = {"control_period": 5e-5, "smoothing": 0.0, "agent_period": 20, "rew
 PINNED_ENV_KEYS = ("task", "n", "mode", "fr", "sigma", "smoothing", "residual_scale", "agent_period",
                    "control_period", "substeps", "current_limit", "estimator_hz", "estimator", "reward_weights",
                    "error_scale")
+
+# AgentSpec fields that are keyword arguments of SB3's PPO under the same name, as they are
+PPO_KEYS = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "clip_range", "ent_coef", "vf_coef",
+            "max_grad_norm", "target_kl")
 
 AGENTS: dict[str, AgentSpec] = {
     # Residual: gamma 0.98 (a 50-step, 50 ms horizon: several plant time constants; the reward is the
@@ -197,8 +204,6 @@ def env_kwargs_for(spec: AgentSpec, task: str, n: int) -> dict:
 def resolved_env_kwargs(env_kwargs: dict) -> dict:
     """``env_kwargs`` with every setting of :data:`PINNED_ENV_KEYS` made explicit (the env's current defaults
     filled in), as JSON values: what an exported policy records."""
-    from ehss_gym.envs import EnvConfig
-
     cfg = EnvConfig.from_kwargs(env_kwargs)
     out = {k: getattr(cfg, k) for k in PINNED_ENV_KEYS}
     out["reward_weights"] = dict(cfg.reward_weights)
@@ -207,56 +212,14 @@ def resolved_env_kwargs(env_kwargs: dict) -> dict:
     return out
 
 
-def make_agent(spec: AgentSpec, venv, seed: int, tensorboard_log: str | None = None, verbose: int = 0):
-    """Build the SB3 PPO model of ``spec`` on the (VecNormalize-wrapped) vector env ``venv``.
+def ppo_kwargs(spec: AgentSpec) -> dict:
+    """The keyword arguments of SB3's ``PPO`` that are plain numbers in ``spec`` (names as in SB3).
 
-    Args:
-        spec: the agent's hyperparameters.
-        venv: an SB3 VecEnv of ``EHSSTracking-v0`` in ``spec.mode``.
-        seed: seeds SB3 (torch, numpy, the action space).
-        tensorboard_log: TensorBoard folder or None.
-        verbose: SB3 verbosity.
+    The learning rate (a schedule), the policy and its keyword arguments are built by
+    :mod:`ehss_gym.agents.factory` (torch objects) and written as rl-zoo3 strings by :mod:`ehss_gym.train.zoo`.
     """
-    import torch
-    from stable_baselines3 import PPO
-
-    act = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
-    if spec.activation not in act:
-        raise ValueError(f"activation must be one of {sorted(act)}, got {spec.activation!r}")
-    policy_kwargs = dict(net_arch=dict(pi=list(spec.net_arch), vf=list(spec.net_arch)),
-                         activation_fn=act[spec.activation], log_std_init=spec.log_std_init)
-    lr = spec.learning_rate if spec.lr_schedule == "constant" else LinearSchedule(spec.learning_rate)
-    model = PPO("MlpPolicy", venv, learning_rate=lr, n_steps=spec.n_steps,
-                batch_size=spec.batch_size, n_epochs=spec.n_epochs, gamma=spec.gamma, gae_lambda=spec.gae_lambda,
-                clip_range=spec.clip_range, ent_coef=spec.ent_coef, vf_coef=spec.vf_coef,
-                max_grad_norm=spec.max_grad_norm, target_kl=spec.target_kl, policy_kwargs=policy_kwargs,
-                tensorboard_log=tensorboard_log, seed=seed, device="cpu", verbose=verbose)
-    if spec.zero_init_action:
-        zero_action_net(model)
-    return model
+    return {k: getattr(spec, k) for k in PPO_KEYS}
 
 
-def zero_action_net(model) -> None:
-    """Zero the action net's weight and bias: the Gaussian mean is 0 for every observation.
-
-    The hidden layers still learn: the gradient of the action-net weight is the (non-zero) hidden
-    activation times the advantage-weighted score, so after the first step the mean moves.
-    """
-    import torch
-
-    with torch.no_grad():
-        model.policy.action_net.weight.zero_()
-        model.policy.action_net.bias.zero_()
-
-
-def initial_mean_abs(model, obs: np.ndarray) -> float:
-    """max |mean action| of ``model`` over a batch of (normalised) observations."""
-    import torch
-
-    with torch.no_grad():
-        dist = model.policy.get_distribution(torch.as_tensor(obs).float())
-        return float(dist.distribution.mean.abs().max())
-
-
-__all__ = ["AgentSpec", "AGENTS", "agent_names", "get_spec", "env_kwargs_for", "resolved_env_kwargs", "make_agent",
-           "zero_action_net", "initial_mean_abs", "PINNED_ENV_KEYS"]
+__all__ = ["AgentSpec", "AGENTS", "COMMON_ENV", "PINNED_ENV_KEYS", "PPO_KEYS", "LinearSchedule", "agent_names",
+           "get_spec", "env_kwargs_for", "resolved_env_kwargs", "ppo_kwargs"]

@@ -1,5 +1,6 @@
-"""Training cost: Stable-Baselines3 PPO on EHSSTracking-v0 against Pendulum-v1, same hyperparameters, and
-the wall time of one seed of the shipped residual-PPO recipe (issue 6: <= 30 min on 2 CPU cores).
+"""Training cost: Stable-Baselines3 PPO on EHSSTracking-v0 against Pendulum-v1, same hyperparameters; the
+residual-PPO recipe trained on the native vector env through the SB3 adapter against SB3's DummyVecEnv, side
+by side; and the wall time of one seed of the shipped residual-PPO recipe (issue 6: <= 30 min on 2 CPU cores).
 
 Both runs use the same PPO settings on the CPU with one torch thread (the two cores
 are shared, and one thread keeps the two sides comparable). The env is wrapped in a
@@ -16,6 +17,12 @@ import tempfile
 import time
 
 import gymnasium as gym
+import numpy as np
+import torch
+from ehss_gym.agents.factory import make_agent
+from ehss_gym.agents.specs import env_kwargs_for, get_spec
+from ehss_gym.train.loop import Config, make_env, train
+from stable_baselines3 import PPO
 
 from . import bench_env
 from .common import Section, Table, Target, interleave, log, median, spread
@@ -51,8 +58,6 @@ class EnvTimer(gym.Wrapper):
 
 def ppo_run(make_env, total_steps: int, record: list) -> float:
     """Train PPO for total_steps; returns the learn() wall time [s] and appends (learn s, env s) to record."""
-    from stable_baselines3 import PPO
-
     env = EnvTimer(make_env())
     model = PPO("MlpPolicy", env, **PPO_KW)
     t0 = time.perf_counter()
@@ -69,8 +74,6 @@ def run(quick: bool) -> Section:
     if status:
         sec.skipped = status
         return sec
-    import torch
-
     steps = 512 if quick else 4096
     reps = 1 if quick else 3
     sec.note(f"PPO('MlpPolicy', {', '.join(f'{k}={v!r}' for k, v in PPO_KW.items())}), {steps} steps per run, "
@@ -97,16 +100,81 @@ def run(quick: bool) -> Section:
     ours = median([e / t for t, e in rec["EHSSTracking-v0 (ours)"]])
     sec.note(f"The env accounts for {ours:.0%} of PPO's wall time on EHSSTracking-v0 (env step/reset time measured "
              "by a wrapper around the env); the rest is SB3/torch (rollout buffer, policy forward passes, updates).")
+    vec_env_throughput(sec, quick)
     recipe_cost(sec, quick, pend_rate)
     return sec
+
+
+def recipe_run(native: bool, steps: int) -> float:
+    """Train the residual-PPO recipe (8 envs, its hyperparameters) for ``steps`` agent steps on the native vector
+    env adapter (``native``) or SB3's DummyVecEnv; returns the learn() wall time [s] (construction excluded)."""
+    spec = get_spec("residual-ppo")
+    venv = make_env(env_kwargs_for(spec, "velocity", 2), spec.n_envs, spec.gamma, spec.norm_reward, native=native)
+    model = make_agent(spec, venv, seed=0)
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=steps)
+    dt = time.perf_counter() - t0
+    venv.close()
+    return dt
+
+
+def step_run(native: bool, steps: int) -> float:
+    """Step the recipe's VecNormalize-wrapped training env (8 envs) with zero actions for ``steps`` agent steps,
+    no policy; returns the wall time [s] (construction and the first reset excluded)."""
+    spec = get_spec("residual-ppo")
+    venv = make_env(env_kwargs_for(spec, "velocity", 2), spec.n_envs, spec.gamma, spec.norm_reward, native=native)
+    venv.seed(0)
+    venv.reset()
+    actions = np.zeros((spec.n_envs, 1), dtype=np.float32)
+    t0 = time.perf_counter()
+    for _ in range(steps // spec.n_envs):
+        venv.step(actions)
+    dt = time.perf_counter() - t0
+    venv.close()
+    return dt
+
+
+def vec_env_throughput(sec: Section, quick: bool) -> None:
+    """PPO training throughput of the residual-PPO recipe on the native vector env (one compiled call for all 8
+    envs, through ``ehss_gym.train.vec_env.NativeVecEnv``) against SB3's DummyVecEnv of single envs (stepped in
+    turn): the same seed gives the same weights on both, so only the time differs."""
+    spec = get_spec("residual-ppo")
+    steps = spec.n_envs * spec.n_steps * (1 if quick else 8)
+    reps = 1 if quick else 3
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        recipe_run(True, spec.n_envs * spec.n_steps)  # warm the compiled kernels and torch
+        log(f"train: residual-ppo recipe {steps} steps x {reps} repeats, native vector env vs DummyVecEnv, "
+            "interleaved")
+        cases = {"native vector env (NativeVecEnv)": True, "DummyVecEnv of single envs": False}
+        times = interleave({k: (lambda v=v: recipe_run(v, steps)) for k, v in cases.items()}, reps)
+        env_times = interleave({k: (lambda v=v: step_run(v, steps)) for k, v in cases.items()}, reps)
+    finally:
+        torch.set_num_threads(threads)
+    tb = Table("ppo_vec_env", "PPO training throughput of the residual-PPO recipe by vector env (median of "
+               "interleaved repeats)", ["vector env", "median_learn_s", "min..max_s", "steps_per_s", "vs_DummyVecEnv",
+                                        "env_only_steps_per_s", "env_only_vs_DummyVecEnv"])
+    rate = {k: steps / median(ts) for k, ts in times.items()}
+    env_rate = {k: steps / median(ts) for k, ts in env_times.items()}
+    dummy = "DummyVecEnv of single envs"
+    for k, ts in times.items():
+        tb.add(k, median(ts), spread(ts), rate[k], rate[k] / rate[dummy], env_rate[k], env_rate[k] / env_rate[dummy])
+    sec.tables.append(tb)
+    native = "native vector env (NativeVecEnv)"
+    sec.note(f"Residual-PPO recipe ({spec.n_envs} envs x {spec.n_steps} steps per rollout, {spec.n_epochs} epochs, "
+             f"velocity n = 2, seed 0), {steps} agent steps per run, 1 torch thread: training on the native vector "
+             f"env runs at {rate[native] / rate[dummy]:.2f}x the steps per second of SB3's DummyVecEnv; both give "
+             "identical weights for the same seed (tests/test_train.py). Stepping the env alone (zero actions, no "
+             f"policy, VecNormalize included) is {env_rate[native] / env_rate[dummy]:.2f}x as fast: the env is a "
+             f"small part of training ({rate[native] / env_rate[native]:.0%} of the time with the native env), the "
+             "rest is the policy's forward passes and the PPO updates.")
 
 
 def recipe_cost(sec: Section, quick: bool, pend_rate: float) -> None:
     """One seed of the shipped residual-PPO recipe through ``ehss_gym.train.loop.train`` (progress bar off;
     held-out evaluations, checkpoints and exports included), next to PPO on Pendulum-v1 for as many steps
     with the throughput measured above. --quick trains 1/100 of the steps and extrapolates linearly."""
-    from ehss_gym.train.loop import Config, train
-
     steps = RECIPE_STEPS // 100 if quick else RECIPE_STEPS
     log(f"train: residual-ppo velocity n=2 seed 0, {steps} agent steps (the shipped recipe's settings)")
     with tempfile.TemporaryDirectory() as tmp:

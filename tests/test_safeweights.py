@@ -1,14 +1,18 @@
-"""Safe weights: export an SB3 policy as tensors + JSON, load it without unpickling, refuse tampered files."""
+"""Safe weights: export an SB3 policy as tensors + JSON, load it without unpickling (and without torch), refuse
+tampered files."""
 
 import json
 import os
 import pickle
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 import torch
 from ehss_gym.agents import safeweights as sw
-from ehss_gym.agents.safeweights import SafeWeightsError, export_policy, load_policy
+from ehss_gym.agents.export import export_policy
+from ehss_gym.agents.safeweights import SafeWeightsError, load_policy
 
 
 @pytest.fixture(scope="module")
@@ -145,7 +149,7 @@ def _rewrite(dst, tensors, cfg, fix_hash=True):
     with open(dst + ".safetensors", "wb") as f:
         f.write(blob)
     if fix_hash:
-        cfg = dict(cfg, sha256=sw._sha256(blob))
+        cfg = dict(cfg, sha256=sw.sha256(blob))
     with open(dst + ".json", "w") as f:
         json.dump(cfg, f)
 
@@ -227,3 +231,35 @@ def test_export_refuses_unsupported_policies(tmp_path):
     with pytest.raises(SafeWeightsError, match="diagonal-Gaussian"):
         export_policy(model, str(tmp_path / "sde"))
     assert not os.path.exists(tmp_path / "sde.json")
+
+
+def test_wrong_dtype_refused(trained, tmp_path):
+    from safetensors.torch import load
+
+    dst, blob, cfg = _copy(trained[2], tmp_path)
+    t = load(blob)
+    t["action.bias"] = t["action.bias"].double()
+    _rewrite(dst, t, cfg)
+    with pytest.raises(SafeWeightsError, match=r"'action.bias' must have shape \(1,\) and dtype float32, got \(1,\) "
+                                               "float64"):
+        load_policy(dst)
+
+
+def test_loading_a_shipped_policy_needs_no_torch():
+    """load_policy parses and checks with numpy only; torch comes in with the first forward pass (its float32
+    kernels are what SB3's predict runs)."""
+    code = ("import sys; from ehss_gym.agents.safeweights import load_policy, shipped_models; "
+            "p = load_policy(shipped_models()['residual-ppo-velocity-n2-seed1']); loaded = 'torch' in sys.modules; "
+            "import numpy as np; a = p.predict(np.zeros(p.observation_space.shape, np.float32))[0]; "
+            "print(loaded, 'torch' in sys.modules, a.shape)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.split() == ["False", "True", "(1,)"]
+
+
+def test_loaded_policy_pickles_without_torch_objects(trained):
+    """The evaluation sends loaded policies to its workers as pickles: the tensors are numpy arrays."""
+    model, venv, stem = trained
+    pol = pickle.loads(pickle.dumps(load_policy(stem)))
+    assert all(isinstance(v, np.ndarray) for v in pol.tensors.values())
+    obs = _obs(20)
+    assert np.array_equal(pol.predict(obs)[0], model.predict(venv.normalize_obs(obs), deterministic=True)[0])

@@ -1,18 +1,36 @@
-"""Training: config and seed parsing, run names, the CLI's bad-input errors, a smoke run, resume after kill -9."""
+"""Training: options from the Config dataclass, seed parsing, run names, the CLI's bad-input errors, the native
+vector env against SB3's DummyVecEnv, a smoke run, resume after kill -9, the report's analyses and template."""
 
+import argparse
+import ast
+import dataclasses
 import json
 import os
+import pathlib
 import signal
 import subprocess
 import sys
 import time
 
+import gymnasium as gym
 import numpy as np
 import pytest
-from ehss_gym.train import runs
-from ehss_gym.train.loop import Config
+import torch
+from ehss_gym.agents.factory import make_agent
+from ehss_gym.agents.specs import env_kwargs_for, get_spec
+from ehss_gym.train import launch, options, runs
+from ehss_gym.train.callbacks import capture_rng, restore_rng
+from ehss_gym.train.config import Config, build_parser, config_from_args
+from ehss_gym.train.loop import make_env
+from ehss_gym.train.vec_env import NativeVecEnv
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from ehss_gym.cli import main as cli_main
+from ehss_gym.cli import training_report
+from ehss_gym.reporting import training as report_writer
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 # A tiny but complete run: 2 envs x 64 steps per rollout, 1 validation episode.
 TINY = ["--n-envs", "2", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", "n_epochs=1", "--eval-episodes", "1",
@@ -82,13 +100,11 @@ def test_resume_without_checkpoint_exit_2(capsys, tmp_path):
 def test_rng_capture_restore_round_trip():
     import random
 
-    import torch
-
     g = [np.random.default_rng(5), np.random.default_rng(6)]
-    st = json.loads(json.dumps(runs.capture_rng(g)))  # survives JSON
+    st = json.loads(json.dumps(capture_rng(g)))  # survives JSON
     want = (random.random(), np.random.rand(), torch.rand(1).item(), g[0].random(), g[1].random())
     random.random(), np.random.rand(), torch.rand(1), g[0].random(), g[1].random()  # move on
-    runs.restore_rng(st, g)
+    restore_rng(st, g)
     assert (random.random(), np.random.rand(), torch.rand(1).item(), g[0].random(), g[1].random()) == want
 
 
@@ -111,6 +127,7 @@ def test_training_smoke(tmp_path):
 
     from ehss_gym.agents.safeweights import load_policy
     from ehss_gym.agents.specs import resolved_env_kwargs
+    from ehss_gym.train import analysis
     from stable_baselines3 import PPO
 
     from ehss_gym.envs import EHSSTrackingEnv
@@ -150,19 +167,21 @@ def test_training_smoke(tmp_path):
     # a second start in the same folder is refused: it would overwrite the run
     assert cli_main(["train", "--timesteps", "256", "--out", str(out), *TINY]) == 2
     # the report's helpers on this run: grouping, learning curves, shipping as safe weights
-    from ehss_gym.train import analysis as report
-
-    groups = report.group_runs(report.load_runs(str(tmp_path)))
+    groups = analysis.group_runs(analysis.load_runs(str(tmp_path)))
     assert [k[:3] for k in groups] == [("residual-ppo", "velocity", 2)]
     assert json.loads(list(groups)[0][3]) == {"batch_size": 64, "n_epochs": 1, "n_steps": 64}  # the --hp variant
-    report.plot_curves(groups, str(tmp_path / "curves.png"))
+    report_writer.plot_curves(groups, str(tmp_path / "curves.png"))
     assert (tmp_path / "curves.png").stat().st_size > 1000
-    shipped = report.ship(groups, str(tmp_path / "models"))
+    shipped = analysis.ship(groups, str(tmp_path / "models"), made_by="test")
     assert [os.path.basename(p) for p in shipped] == ["residual-ppo-velocity-n2-seed0"]
     ship_pol = load_policy(shipped[0])
-    assert ship_pol.name == "residual-ppo-velocity-n2-seed0"
+    assert ship_pol.name == "residual-ppo-velocity-n2-seed0" and ship_pol.metadata["made_by"].endswith("by test")
     best = load_policy(str(out / "best" / "policy"))
     assert np.array_equal(ship_pol.predict(obs)[0], best.predict(obs)[0])
+    # shipping the same model again leaves the files as they are (made_by records the first shipping)
+    stamp = os.stat(shipped[0] + ".json").st_mtime_ns
+    assert analysis.ship(groups, str(tmp_path / "models"), made_by="another command") == shipped
+    assert os.stat(shipped[0] + ".json").st_mtime_ns == stamp and load_policy(shipped[0]).metadata == ship_pol.metadata
 
 
 def test_training_other_base_law(tmp_path):
@@ -211,8 +230,6 @@ def test_resume_after_sigkill(tmp_path):
 
 def test_multi_seed_launches_one_process_per_seed(tmp_path, monkeypatch, capsys):
     """--seeds starts one child per seed, at most --jobs at a time (children faked here; see the slow test)."""
-    import ehss_gym.cli.train as tc
-
     started, alive = [], []
 
     class Fake:
@@ -233,8 +250,8 @@ def test_multi_seed_launches_one_process_per_seed(tmp_path, monkeypatch, capsys)
         def kill(self):
             raise AssertionError("no child should be left to kill")
 
-    monkeypatch.setattr(tc.subprocess, "Popen", Fake)
-    monkeypatch.setattr(tc.time, "sleep", lambda s: None)
+    monkeypatch.setattr(launch.subprocess, "Popen", Fake)
+    monkeypatch.setattr(launch.time, "sleep", lambda s: None)
     assert cli_main(["train", "--seeds", "0-2", "--jobs", "2", "--out", str(tmp_path), "--timesteps", "64",
                      *TINY]) == 0
     seeds = [a[a.index("--seed") + 1] for a in started]
@@ -244,6 +261,10 @@ def test_multi_seed_launches_one_process_per_seed(tmp_path, monkeypatch, capsys)
     tiny = dict(n_envs=2, eval_episodes=1, eval_seconds=0.1, hp={"n_steps": 64, "batch_size": 64, "n_epochs": 1})
     assert all(os.path.basename(o) == Config(seed=int(s), **tiny).run_name() for o, s in zip(outs, seeds))
     assert all("--hp" in a and "--no-progress" in a for a in started)
+    # each child's flags rebuild its Config exactly (the options derive from the dataclass)
+    for a, o, s in zip(started, outs, seeds):
+        child = config_from_args(build_parser().parse_args(a[3:]))
+        assert child == Config(seed=int(s), out=o, progress=False, timesteps=64, **tiny)
 
 
 @pytest.mark.slow
@@ -264,7 +285,7 @@ def test_period_log_replays_the_agents_loop_at_the_control_rate():
 
     from ehss_gym.core.scenarios import heldout_scenarios
 
-    pol = load_policy(shipped_models()["residual-ppo-velocity-n4-seed0"])
+    pol = load_policy(shipped_models()["residual-ppo-velocity-n2-seed1"])  # a seed whose kept policy acts
     tmpl = pol.make_env().unwrapped.scenario_template
     sc = next(s for s in heldout_scenarios(48, tmpl) if has_noise(s.noise_std)).replace(t_end=0.2)
     env = pol.make_env()
@@ -278,3 +299,208 @@ def test_period_log_replays_the_agents_loop_at_the_control_rate():
     assert log["tv"] == pytest.approx(log["metrics_tv"], rel=1e-9) and log["tv_own"] > 0 and log["crossings"] > 0
     base = period_log(pol, sc, base_only=True)
     assert base["tv_own"] == 0.0 and base["rmse"] != log["rmse"]
+
+
+# --- options from the Config dataclass ----------------------------------------------------------------
+
+
+def test_every_config_field_is_an_option_with_its_docstring():
+    """One flag per Config field (no second list), its help the field's docstring; the Launch fields on ehss train."""
+    p = build_parser(argparse.ArgumentParser(), launch=True)
+    actions = {a.dest: a for a in p._actions if a.dest != "help"}
+    docs = options.field_docs(Config)
+    assert set(actions) == {f.name for f in dataclasses.fields(Config)} | {"seeds", "jobs"}
+    for f in dataclasses.fields(Config):
+        assert docs[f.name] and actions[f.name].help.startswith(docs[f.name]), f.name
+    assert "--no-progress" in actions["progress"].option_strings and "--resume" in actions["resume"].option_strings
+    args = p.parse_args(["--n", "4", "--hp", "gamma=0.99", "--hp", 'env_kwargs={"agent_period": 10}',
+                         "--eval-seconds", "0.5", "--no-progress"])
+    cfg = config_from_args(args)
+    assert cfg == Config(n=4, hp={"gamma": 0.99, "env_kwargs": {"agent_period": 10}}, eval_seconds=0.5,
+                         progress=False)
+    assert config_from_args(build_parser().parse_args(options.to_argv(cfg))) == cfg  # the round trip
+
+
+@pytest.mark.parametrize("argv, match", [(["--n", "x"], "--n must be an integer, got 'x'"),
+                                         (["--eval-seconds", "fast"], "--eval-seconds must be a number"),
+                                         (["--hp", "gamma=.9x"], "--hp gamma: value '.9x' is not JSON")])
+def test_bad_option_values_name_the_option(argv, match):
+    with pytest.raises(runs.RunError, match=match):
+        config_from_args(build_parser().parse_args(argv))
+
+
+def test_run_names_are_stable():
+    """The names of the shipped runs follow from their settings as before (resume and the reports rely on it)."""
+    from ehss_gym.agents.safeweights import load_policy, shipped_models
+
+    meta = load_policy(shipped_models()["residual-ppo-velocity-n2-seed1"]).metadata
+    cfg = Config(agent="residual-ppo", task="velocity", n=2, timesteps=meta["timesteps"], seed=1, eval_freq=50_000,
+                 eval_episodes=24, out="elsewhere", progress=False)
+    assert cfg.run_name() == meta["run_name"] == "residual-ppo_velocity_n2_s1_23a16e78"
+
+
+# --- the package layout ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("code, package", [("import agents", "ehss_gym.agents"), ("import train", "ehss_gym.train"),
+                                           ("import train.loop", "ehss_gym.train")])
+def test_checkout_folders_are_not_a_second_copy(code, package):
+    """From the repository root, agents/ and train/ would import as top-level packages: a second copy of every
+    module. That import fails with a message naming the package to import instead."""
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode != 0
+    assert f"is the package {package}" in out.stderr and "second copy" in out.stderr, out.stderr[-2000:]
+
+
+def test_agents_and_train_import_only_downwards():
+    """Nothing in agents/ or train/ imports ehss_gym.reporting or ehss_gym.cli; agents/ does not import training."""
+    for folder, banned in (("agents", ("ehss_gym.reporting", "ehss_gym.cli", "ehss_gym.train", "ehss_gym.study")),
+                           ("train", ("ehss_gym.reporting", "ehss_gym.cli"))):
+        for path in (ROOT / folder).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else []
+                bad = [n for n in names if n.startswith(banned)]
+                assert not bad, f"{path.relative_to(ROOT)}:{node.lineno} imports {bad}"
+
+
+# --- the native vector env as an SB3 VecEnv ----------------------------------------------------------------
+
+SHORT_KW = {**env_kwargs_for(get_spec("residual-ppo"), "velocity", 2), "episode_seconds": 0.05}
+
+
+def _dummy(n, kw):
+    return DummyVecEnv([lambda: Monitor(gym.make("EHSSTracking-v0", **kw)) for _ in range(n)])
+
+
+def _same_info(a: dict, b: dict) -> None:
+    assert list(a) == list(b)
+    for k in a:
+        if k == "terminal_observation":
+            assert np.array_equal(a[k], b[k])
+        elif k == "episode":
+            assert (a[k]["r"], a[k]["l"]) == (b[k]["r"], b[k]["l"])
+        else:
+            assert str(a[k]) == str(b[k]), k  # scenario objects and metrics dicts by their text
+
+
+@pytest.mark.parametrize("over, low", [({}, -1.3), ({"mode": "direct"}, -1.3),
+                                       ({"current_limit": None, "residual_scale": 1e5}, 0.5)])  # the last diverges
+def test_native_vec_env_steps_like_dummy_vec_env(over, low):
+    """Step by step, with out-of-range actions and auto-resets every 50 steps (or at divergence): observations,
+    float32 rewards, dones, infos (TimeLimit.truncated, terminal_observation, Monitor's episode, metrics,
+    divergence_reason) and reset infos all equal."""
+    kw = {**SHORT_KW, **over}
+    a, b = _dummy(3, kw), NativeVecEnv(3, kw)
+    for v in (a, b):
+        v.seed(11)
+    assert np.array_equal(a.reset(), b.reset())
+    rng = np.random.default_rng(0)
+    ends = diverged = 0
+    for _ in range(160):
+        act = rng.uniform(low, 1.3, size=(3, 1)).astype(np.float32)
+        (oa, ra, da, ia), (ob, rb, db, ib) = a.step(act), b.step(act)
+        assert np.array_equal(oa, ob) and np.array_equal(ra, rb) and rb.dtype == np.float32 and np.array_equal(da, db)
+        for x, y in zip(ia, ib):
+            _same_info(x, y)
+        ends += int(da.sum())
+        diverged += sum("divergence_reason" in x for x in ib)
+    for x, y in zip(a.reset_infos, b.reset_infos):
+        _same_info(x, y)
+    assert ends >= 6 and (diverged > 0) == ("residual_scale" in over)
+    assert [g.bit_generator.state for g in a.get_attr("np_random")] == \
+        [g.bit_generator.state for g in b.get_attr("np_random")]
+
+
+def test_native_vec_env_trains_like_dummy_vec_env():
+    """4096 agent steps of the residual-PPO recipe (8 envs, seed 3, episodes of 0.1 s so that every env restarts
+    several times): the same weights, VecNormalize statistics and episode returns as with SB3's DummyVecEnv."""
+    torch.set_num_threads(1)
+    spec = get_spec("residual-ppo")
+    kw = {**env_kwargs_for(spec, "velocity", 2), "episode_seconds": 0.1}
+    models = []
+    for native in (True, False):
+        venv = make_env(kw, spec.n_envs, spec.gamma, spec.norm_reward, native=native)
+        assert isinstance(venv.venv, NativeVecEnv if native else DummyVecEnv)
+        model = make_agent(spec, venv, seed=3)
+        model.learn(4096)
+        models.append(model)
+    a, b = (m.policy.state_dict() for m in models)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    va, vb = (m.get_vec_normalize_env() for m in models)
+    for x, y in ((va.obs_rms.mean, vb.obs_rms.mean), (va.obs_rms.var, vb.obs_rms.var),
+                 (va.ret_rms.var, vb.ret_rms.var)):
+        assert np.array_equal(x, y)
+    ra, rb = ([e["r"] for e in m.ep_info_buffer] for m in models)
+    assert len(ra) >= 8 * 4 and ra == rb
+
+
+def test_native_vec_env_attributes_and_options():
+    env = NativeVecEnv(2, SHORT_KW)
+    assert env.get_attr("config")[0].mode == "residual" and env.has_attr("scenario_template")
+    assert not env.has_attr("no_such_attribute")
+    assert env.env_is_wrapped(Monitor) == [True, True] and env.env_is_wrapped(DummyVecEnv.__base__) == [False] * 2
+    g = env.get_attr("np_random", indices=[1])[0]
+    env.set_attr("np_random", np.random.default_rng(5), indices=[1])
+    assert env.get_attr("np_random")[1] is not g
+    with pytest.raises(ValueError, match="holds all 2 sub-envs"):
+        env.set_attr("render_mode", None, indices=[0])
+    paper = env.get_attr("scenario_template")[0]
+    env.set_options([{"scenario": "paper"}, {}])
+    env.reset()
+    assert env.reset_infos[0]["scenario_name"] == "paper" and env.reset_infos[1]["scenario_name"] == "random"
+    env.set_options({"nope": 1})
+    with pytest.raises(ValueError, match=r"reset options \['nope'\] are not supported"):
+        env.reset()
+    assert paper is not None
+    env.close()
+
+
+# --- the training report ---------------------------------------------------------------------------------
+
+
+def _fake_task() -> dict:
+    target = {"policy": "residual-ppo-velocity-n2", "n_runs": 5, "best_clf": "clf-n2", "improvement": 0.25,
+              "improvement_lo": 0.05, "improvement_hi": 0.4, "improvement_met": True, "tv_ratio": 0.9, "tv_met": True,
+              "friction_ratio": 0.7, "friction_met": False, "rmse_vs_best": 0.8, "tv_vs_best": 0.95}
+    return {"task": "velocity", "summary_rows": [["heldout"] + ["x"] * 11],
+            "comparison_rows": [["heldout"] + ["y"] * 12],
+            "targets": [target], "seed_rows": [["residual-ppo-velocity-n2", "run_s0", "0.9"]],
+            "diag": {"saturation_mean": 0.1, "tv_rate_min": 1.0, "tv_rate_max": 2e4, "tv_rate_median_noisy": 1e4,
+                     "tv_rate_median_clean": 50.0, "noisy_episodes": 3, "episodes": 5},
+            "eb": {"start_share": 0.5, "start_saturation": 0.1, "friction_share": 0.3, "other_share": 0.2,
+                   "peak_delay_median": 0.003, "events": 7},
+            "fa": {"events": 2, "all_events": 7, "rise_median": 0.002, "at_limit_share": 0.25}, "tv_rows": [],
+            "wall": 12.3}
+
+
+def test_report_template_renders_every_section():
+    groups = {("residual-ppo", "velocity", 2, ""): [{"config": {"agent": "residual-ppo", "task": "velocity", "n": 2,
+                                                                 "seed": 0, "timesteps": 64, "eval_freq": 64,
+                                                                 "eval_episodes": 1, "hp": {}},
+                                                      "summary": {"timesteps": 64, "wall_s": 6.0, "best_step": 0,
+                                                                  "best_validation": {"score": 1.0}},
+                                                      "history": [{"step": 0, "wall_s": 0.6}]}]}
+    shipped = {"chosen": [{"base": "residual-ppo-velocity-n2", "label": "residual-ppo-velocity-n2", "score": 0.9,
+                           "others": [{"label": "variant", "score": 1.1}]}], "count": 1, "folder": "models",
+               "kb": 24.6, "names": ["residual-ppo-velocity-n2-seed0"]}
+    text = report_writer.markdown("ehss training-report --runs r", groups, [_fake_task()], None, shipped, "f.png", 8)
+    for part in ("## Runs", "## Hyperparameters", "## Training cost", "## Held-out results, velocity task",
+                 "improvement over clf-n2 +25.0% (95 % CI [+5.0%, +40.0%]) -> target (>= 20 %, CI excluding 0, >= 5 "
+                 "seeds) met", "halving NOT met", "Held-out score of each training seed", "50% in the first 50 ms",
+                 "within 10 ms of the switch-on (median 2.00 ms)", "Evaluation wall time: 12 s.", "## Shipped models",
+                 "`variant` 1.100)", "1 policies in `models` (25 kB in total)"):
+        assert part in text, part
+    assert "## Initial exploration noise" not in text and "\n\n\n" not in text and text.endswith("runs.\n\n")
+
+
+def test_training_report_command_refuses_bad_input(tmp_path, capsys):
+    p = argparse.ArgumentParser(prog="ehss")
+    training_report.register(p.add_subparsers(dest="command"))
+    args = p.parse_args(["training-report", "--runs", str(tmp_path / "none"), "--out", str(tmp_path / "out")])
+    assert args.func(args) == 2
+    assert "ehss training-report: error: --runs folder" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    args = p.parse_args(["training-report", "--runs", str(tmp_path / "empty"), "--out", str(tmp_path / "out")])
+    assert args.func(args) == 2
+    assert "no finished runs" in capsys.readouterr().err

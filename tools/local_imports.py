@@ -3,7 +3,8 @@
     python tools/local_imports.py [--max N] [PATHS ...]
 
 The layering rule: imports sit at the top of a module, except for optional heavy dependencies, each with a
-reason in a comment on the import line. Exits 1 if there are more than ``--max`` of them.
+reason in a comment on the import line. Exits 1 if there are more than ``--max`` of them or one has no
+reason.
 """
 
 from __future__ import annotations
@@ -39,10 +40,14 @@ def main(argv=None) -> int:
     p.add_argument("--max", type=int, default=None)
     args = p.parse_args(argv)
     found = local_imports(args.paths)
+    unexplained = []
     for f, line, mod in found:
-        print(f"{f}:{line}: {mod}")
-    print(f"{len(found)} function-local import(s)")
-    return 1 if args.max is not None and len(found) > args.max else 0
+        has_reason = "#" in pathlib.Path(f).read_text(encoding="utf-8").splitlines()[line - 1]
+        unexplained += [] if has_reason else [(f, line)]
+        print(f"{f}:{line}: {mod}" + ("" if has_reason else "  <- no reason given on the import line"))
+    print(f"{len(found)} function-local import(s), {len(unexplained)} without a reason")
+    too_many = args.max is not None and len(found) > args.max
+    return 1 if too_many or unexplained else 0
 
 
 if __name__ == "__main__":

@@ -1,10 +1,25 @@
-"""Training entry point. The script itself is :mod:`ehss_gym.train.loop` (read it top to bottom); it lives in
-the package so that ``ehss train`` works from an installed wheel. From a checkout::
+"""Training of the learned agents on EHSSTracking-v0 (this folder is the package ``ehss_gym.train``).
 
-    python -m train.ppo --agent residual-ppo --task velocity --n 2 --timesteps 300000 --seed 0
-    ehss train --agent residual-ppo --seeds 0-4          # the same through the CLI, one process per core
+- :mod:`~ehss_gym.train.config`: :class:`Config`, the settings of a run (the flags are its fields) and
+  :class:`Launch` (several seeds);
+- :mod:`~ehss_gym.train.loop`: the training script, read top to bottom (``python -m ehss_gym.train.loop``);
+- :mod:`~ehss_gym.train.vec_env`: the native vector env as an SB3 VecEnv (training steps all envs in one call);
+- :mod:`~ehss_gym.train.callbacks`, :mod:`~ehss_gym.train.runs`: SB3 callbacks; run names, checkpoints, resume;
+- :mod:`~ehss_gym.train.launch`: ``ehss train``, one process per seed;
+- :mod:`~ehss_gym.train.options`: command-line options from a dataclass;
+- :mod:`~ehss_gym.train.zoo`: writes rl-zoo3's ``agents/hyperparams`` from the agent specs;
+- :mod:`~ehss_gym.train.analysis`: the analyses behind ``ehss training-report``;
+- :mod:`~ehss_gym.train.noise_study`: the measurement behind the initial exploration noise.
+
+From a checkout::
+
+    ehss train --agent residual-ppo --task velocity --n 2 --timesteps 300000 --seed 0
+    ehss train --agent residual-ppo --seeds 0-4          # one process per core
+
+``import train`` from the repository root fails (see :mod:`ehss_gym.agents._checkout`): the package is
+``ehss_gym.train``.
 """
 
-from .loop import Config, make_env, train
+from ehss_gym.agents._checkout import refuse_second_copy
 
-__all__ = ["Config", "make_env", "train"]
+refuse_second_copy(__name__, "ehss_gym.train")

@@ -1,40 +1,49 @@
-"""``reports/training/TRAINING.md``: training cost, learning curves and held-out results of trained runs.
-
-    python -m ehss_gym.train.analysis --runs runs/final runs/final_ppo --out reports/training --ship ehss_gym/models
+"""The analyses behind the training report (``ehss training-report``; the writer is
+:mod:`ehss_gym.reporting.training`): finished runs, their evaluation and the diagnostics of the residuals.
 
 Reads every run folder under the ``--runs`` folders (those with ``summary.json``), groups them by
-(agent, task, n),
-and:
+(agent, task, n, --hp variant), and:
 
-1. tabulates the training cost per seed (wall time of the whole run and to the kept policy);
-2. plots the learning curves (validation score, RMSE and control TV ratios to the base law) as a PNG;
-3. evaluates each group's kept (best-on-validation) policies, loaded from their safe weights, with the
+1. the training cost per seed (wall time of the whole run and to the kept policy): :func:`wall_to_best`;
+2. evaluates each group's kept (best-on-validation) policies, loaded from their safe weights, with the
    evaluation harness (:func:`ehss_gym.evaluation.harness.evaluate`) on its held-out suite (seeds disjoint from
    training and from the validation block used for model selection) and on the paper's scenario, next
-   to the scripted CLF laws n = 2, 4, 6; the primary score, its 95 % bootstrap CI (over seeds and
-   episodes), the improvement over the best CLF with its CI, and the ratios of control TV, friction-window
-   peak error and RMSE to the policy's base law;
-4. with ``--ship``, copies the residual policies' safe weights to the models folder as
-   ``<agent>-<task>-n<n>-seed<k>`` (every seed, so the harness reports them with CIs over seeds).
+   to the scripted CLF laws n = 2, 4, 6 (:func:`evaluate_groups`), with the targets of the residual policies
+   (:func:`residual_targets`) and each seed's score (:func:`seed_scores`);
+3. what the reference law's error is made of (:func:`base_law_diagnostics`, :func:`error_budget`), how much of
+   the friction peak a residual can reach (:func:`friction_authority`) and where a residual's added control TV
+   comes from (:func:`tv_sources`);
+4. chooses and copies the residual policies' safe weights to the models folder as
+   ``<agent>-<task>-n<n>-seed<k>`` (:func:`choose_variants`, :func:`ship`; every seed, so the harness reports
+   them with CIs over seeds).
 """
 
 from __future__ import annotations
 
-import argparse
-import csv
-import io
 import json
 import math
 import os
-import sys
-import time
 
 import numpy as np
+from ehss_gym.agents.safeweights import load_policy, model_paths
+from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
 
+from ehss_gym.core.scenarios import heldout_scenarios
+from ehss_gym.core.sim import simulate_batch
 from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.envs import EHSSTrackingEnv
+from ehss_gym.evaluation import harness as ev
 
-COMMAND = "python -m ehss_gym.train.analysis"
 ONSET_PEAK = 0.01  # [s] a friction-window peak this soon after the switch-on is the torque step's transient
+TARGET_IMPROVEMENT = 0.2  # [-] the residuals' target: 1 - score/score_best >= this, ...
+TARGET_SEEDS = 5  # ... its CI excluding 0, over at least this many training seeds
+TARGET_FRICTION = 0.5  # [-] and the friction-window peak at most this times the base law's (halved)
+
+
+def read_json(path: str):
+    """The JSON value in file ``path``."""
+    with open(path, encoding="utf-8") as f:
+        return json.load(f)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -51,7 +60,7 @@ def load_runs(folder: str) -> list[dict]:
         paths = [os.path.join(d, f) for f in ("config.json", "summary.json", "evaluations.json")]
         if not all(os.path.isfile(p) for p in paths) or not os.path.isfile(os.path.join(d, "best", "policy.json")):
             continue
-        cfg, summ, hist = (json.load(open(p, encoding="utf-8")) for p in paths)
+        cfg, summ, hist = (read_json(p) for p in paths)
         out.append({"dir": d, "config": cfg, "summary": summ, "history": hist})
     return out
 
@@ -64,6 +73,7 @@ def group_key(run: dict) -> tuple:
 
 
 def group_runs(runs: list[dict]) -> dict[tuple, list[dict]]:
+    """Runs by :func:`group_key`, each group sorted by seed; ValueError if a group mixes settings."""
     groups: dict[tuple, list[dict]] = {}
     for r in runs:
         groups.setdefault(group_key(r), []).append(r)
@@ -77,6 +87,7 @@ def group_runs(runs: list[dict]) -> dict[tuple, list[dict]]:
 
 
 def label(key: tuple) -> str:
+    """``<agent>-<task>-n<n>`` of a group key, with its --hp variant if any."""
     agent, task, n, variant = key
     return f"{agent}-{task}-n{n}" + (f" {variant}" if variant else "")
 
@@ -91,48 +102,23 @@ def wall_to_best(run: dict) -> float:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Figure
-
-
-def plot_curves(groups: dict, path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    keys = list(groups)
-    fig, axes = plt.subplots(3, len(keys), figsize=(4.2 * len(keys), 8.0), squeeze=False, sharex="col")
-    rows = (("score", "validation score (ref. CLF n=2 = 1)"), ("rel_rmse", "RMSE / base law"),
-            ("rel_tv", "control TV / base law"))
-    for j, k in enumerate(keys):
-        for i, (field_, ylabel) in enumerate(rows):
-            ax = axes[i][j]
-            for r in groups[k]:
-                h = r["history"]
-                ax.plot([x["step"] / 1e3 for x in h], [x[field_] for x in h], lw=1, marker=".",
-                        label=f"seed {r['config']['seed']}")
-            ax.axhline(1.0, color="k", lw=0.8, ls="--")
-            ax.set_ylabel(ylabel, fontsize=8)
-            if i == 0:
-                ax.set_title(label(k), fontsize=9)
-            if i == 2:
-                ax.set_xlabel("agent steps [thousands]")
-            ax.tick_params(labelsize=7)
-        axes[0][j].legend(fontsize=6)
-    fig.suptitle(f"Learning curves on the validation scenarios (lower is better); made by: {COMMAND}", fontsize=8)
-    fig.tight_layout()
-    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
-    plt.close(fig)
-
-
-# ---------------------------------------------------------------------------------------------------
 # Evaluation
 
 
-def evaluate_groups(groups: dict, episodes: int, workers: int, progress: bool):
-    """Run the evaluation harness on every task that has runs; returns {task: Results}."""
-    from ehss_gym.evaluation import harness as ev
+def evaluate_groups(groups: dict, episodes: int, workers: int, progress: bool, command: str) -> dict:
+    """Run the evaluation harness on every task that has runs: the groups' kept policies (every seed) and the
+    scripted CLF laws n = 2, 4, 6 on the paper's scenario and ``episodes`` held-out episodes.
 
+    Args:
+        groups: :func:`group_runs` output.
+        episodes: held-out episodes per task.
+        workers: evaluation worker processes.
+        progress: show the harness's progress bar.
+        command: the command line recorded with the results.
+
+    Returns:
+        {task: :class:`ehss_gym.evaluation.harness.Results`}.
+    """
     out = {}
     for task in sorted({k[1] for k in groups}):
         specs = [ev.scripted_spec(f"clf-n{n}") for n in (2, 4, 6)]
@@ -144,8 +130,53 @@ def evaluate_groups(groups: dict, episodes: int, workers: int, progress: bool):
             spec.runs = [os.path.join(r["dir"], "best", "policy") for r in rs]
             specs.append(spec)
         cfg = ev.EvalConfig(suites=("paper", "heldout"), tasks=(task,), heldout_episodes=episodes)
-        out[task] = ev.evaluate(specs, cfg, workers=workers, progress=progress, command=COMMAND)
+        out[task] = ev.evaluate(specs, cfg, workers=workers, progress=progress, command=command)
     return out
+
+
+def residual_targets(res) -> list[dict]:
+    """The residual policies' targets on the held-out suite, from the harness's comparisons.
+
+    Returns one dict per residual policy: ``policy``, ``n_runs``, ``best_clf``, ``improvement`` (1 -
+    score/score_best) with its CI ``improvement_lo``/``_hi`` and ``improvement_met`` (>= TARGET_IMPROVEMENT, CI
+    excluding 0, >= TARGET_SEEDS seeds); ``tv_ratio`` and ``friction_ratio`` (to its base law) with ``tv_met``
+    (<= 1) and ``friction_met`` (<= TARGET_FRICTION); ``rmse_vs_best`` and ``tv_vs_best`` (means over the
+    episodes, against the best CLF itself).
+    """
+    means = {(d["suite"], d["policy"]): d for d in res.summary}
+    out = []
+    for c in res.comparisons:
+        if c["suite"] != "heldout" or not c["policy"].startswith("residual-ppo"):
+            continue
+        tv = c.get("tv_ratio", math.nan)
+        fr = c.get("friction_peak_ratio", math.nan)
+        pol, best = means[("heldout", c["policy"])], means[("heldout", c["best_clf"])]
+        out.append({"policy": c["policy"], "n_runs": c["n_runs"], "best_clf": c["best_clf"],
+                    "improvement": c["improvement"], "improvement_lo": c["improvement_lo"],
+                    "improvement_hi": c["improvement_hi"],
+                    "improvement_met": c["improvement"] >= TARGET_IMPROVEMENT and c["improvement_lo"] > 0
+                    and c["n_runs"] >= TARGET_SEEDS, "tv_ratio": tv, "tv_met": tv <= 1, "friction_ratio": fr,
+                    "friction_met": fr <= TARGET_FRICTION, "rmse_vs_best": pol["rmse"] / best["rmse"],
+                    "tv_vs_best": pol["tv_u_rate"] / best["tv_u_rate"]})
+    return out
+
+
+def seed_scores(res) -> list[tuple[str, str, float]]:
+    """(policy, run folder name, mean held-out score) of every training seed of the learned policies."""
+    out = []
+    for d in res.specs:
+        if not d.learned:
+            continue
+        for i in range(len(d.runs)):
+            sel = [r for r in res.rows if r["policy"] == d.name and r["run"] == i and r["suite"] == "heldout"]
+            if sel:
+                out.append((d.name, os.path.basename(os.path.dirname(os.path.dirname(str(d.runs[i])))),
+                            float(np.mean([r["score"] for r in sel]))))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# Diagnostics
 
 
 def has_noise(noise_std) -> bool:
@@ -155,8 +186,6 @@ def has_noise(noise_std) -> bool:
 
 def base_law_diagnostics(results) -> dict:
     """What the reference law's error is made of on the held-out suite (where a residual could gain)."""
-    from ehss_gym.evaluation import harness as ev
-
     rows = [r for r in results.rows if r["suite"] == "heldout" and r["policy"] == ev.REFERENCE_POLICY]
     noisy = {ep.episode_id for ep in results.episodes
              if ep.suite == "heldout" and has_noise(ep.physical["noise_std"])}
@@ -174,9 +203,13 @@ def base_law_diagnostics(results) -> dict:
 
 def agent_env_kwargs(task: str) -> dict:
     """The residual agent's env settings for ``task`` (n = 2): the loop its diagnostics must be measured in."""
-    from ehss_gym.agents.specs import env_kwargs_for, get_spec
-
     return env_kwargs_for(get_spec("residual-ppo"), task, 2)
+
+
+def agent_heldout_scenarios(task: str, episodes: int) -> list:
+    """The harness's held-out scenarios with the residual agent's controller settings, logged every period."""
+    tmpl = EHSSTrackingEnv(**{k: v for k, v in agent_env_kwargs(task).items() if k != "mode"}).scenario_template
+    return [sc.replace(log_interval=sc.control_period) for sc in heldout_scenarios(episodes, tmpl)]
 
 
 def friction_authority(task: str, episodes: int) -> dict:
@@ -191,13 +224,7 @@ def friction_authority(task: str, episodes: int) -> dict:
     limit in that direction (``at_limit_share``), the median rise time [s], the number of such events and
     of all events.
     """
-    from ehss_gym.core.scenarios import heldout_scenarios
-    from ehss_gym.core.sim import simulate_batch
-    from ehss_gym.envs import EHSSTrackingEnv
-
-    tmpl = EHSSTrackingEnv(**{k: v for k, v in agent_env_kwargs(task).items() if k != "mode"}).scenario_template
-    scs = [sc.replace(log_interval=sc.control_period, noise_std=(0.0, 0.0, 0.0, 0.0))
-           for sc in heldout_scenarios(episodes, tmpl)]
+    scs = [sc.replace(noise_std=(0.0, 0.0, 0.0, 0.0)) for sc in agent_heldout_scenarios(task, episodes)]
     shares, rise, total = [], [], 0
     for sc, tr in zip(scs, simulate_batch(scs)):
         if sc.current_limit is None:
@@ -226,12 +253,7 @@ def error_budget(task: str, episodes: int) -> dict:
     after each), and elsewhere, and the median delay [s] from a friction switch-on to the largest |e| of
     that event.
     """
-    from ehss_gym.core.scenarios import heldout_scenarios
-    from ehss_gym.core.sim import simulate_batch
-    from ehss_gym.envs import EHSSTrackingEnv
-
-    tmpl = EHSSTrackingEnv(**{k: v for k, v in agent_env_kwargs(task).items() if k != "mode"}).scenario_template
-    scs = [sc.replace(log_interval=sc.control_period) for sc in heldout_scenarios(episodes, tmpl)]
+    scs = agent_heldout_scenarios(task, episodes)
     start = fric = total = 0.0
     delays, sat_start = [], []
     for sc, tr in zip(scs, simulate_batch(scs)):
@@ -294,10 +316,6 @@ def tv_sources(policy_paths: list[str], episodes: int) -> dict:
     TV is; the suite's TV ratio is a ratio of means): the policies' total TV against their base law's on the
     same episodes, the residual's own steps as a share of the added TV, and the ratio of sign changes of the
     combined error s (the base law's sign(s) term switches there). Ratios of sums over seeds and episodes."""
-    from ehss_gym.agents.safeweights import load_policy
-
-    from ehss_gym.core.scenarios import heldout_scenarios
-
     pols = [load_policy(p) for p in policy_paths]
     tmpl = pols[0].make_env().unwrapped.scenario_template
     scs = [sc for sc in heldout_scenarios(episodes, tmpl) if has_noise(sc.noise_std)]
@@ -337,281 +355,60 @@ def choose_variants(groups: dict) -> dict[tuple, tuple]:
     return best
 
 
-def ship(groups: dict, models_dir: str) -> list[str]:
-    """Copy the kept policies of every seed of the chosen residual groups (:func:`choose_variants`) to
-    ``models_dir`` as ``<agent>-<task>-n<n>-seed<k>``."""
-    from ehss_gym.agents.safeweights import load_policy, model_paths
-    from ehss_gym.agents.specs import resolved_env_kwargs
+def _same_model(dst: str, blob: bytes, cfg: dict) -> bool:
+    """True if ``dst`` already holds these weights and this config (its ``made_by`` aside)."""
+    st, js = model_paths(dst)
+    if not (os.path.isfile(st) and os.path.isfile(js)):
+        return False
+    with open(st, "rb") as f:
+        if f.read() != blob:
+            return False
+    old = read_json(js)
+    meta = {k: v for k, v in old.get("metadata", {}).items() if k != "made_by"}
+    return {**old, "metadata": meta} == {**cfg, "metadata": {k: v for k, v in cfg["metadata"].items()
+                                                               if k != "made_by"}}
 
+
+def ship(groups: dict, models_dir: str, made_by: str) -> list[str]:
+    """Copy the kept policies of every seed of the chosen residual groups (:func:`choose_variants`) to
+    ``models_dir`` as ``<agent>-<task>-n<n>-seed<k>``; the stems shipped.
+
+    A model already there with the same weights and settings is left as it is, so re-running the report does not
+    rewrite the package's model files (``metadata.made_by`` keeps the command that first shipped it).
+
+    Args:
+        groups: :func:`group_runs` output.
+        models_dir: the models folder (``ehss_gym/models`` for the package).
+        made_by: the shipping command, recorded in each model's metadata.
+    """
     written = []
     os.makedirs(models_dir, exist_ok=True)
     for base, k in sorted(choose_variants(groups).items()):
-        rs = groups[k]
-        for r in rs:
+        for r in groups[k]:
             stem = os.path.join(r["dir"], "best", "policy")
             load_policy(stem)  # refuse to ship anything that does not load
             st, js = model_paths(stem)
             name = f"{label(base + ('',))}-seed{r['config']['seed']}"
             with open(st, "rb") as f:
                 blob = f.read()
-            with open(js, encoding="utf-8") as f:
-                cfg = json.load(f)
+            cfg = read_json(js)
             cfg["name"] = name
             cfg["env_kwargs"] = resolved_env_kwargs(cfg["env_kwargs"])  # pin the env defaults it was trained with
             cfg["metadata"] = {"run_name": r["summary"]["run_name"], "seed": r["config"]["seed"],
                                "hp_overrides": r["config"].get("hp") or {},
                                "step": r["summary"]["best_step"], "validation": r["summary"]["best_validation"],
                                "agent_spec": r["config"]["agent_spec"], "timesteps": r["config"]["timesteps"],
-                               "made_by": f"ehss train (run {r['summary']['run_name']}); shipped by {COMMAND}"}
+                               "made_by": f"ehss train (run {r['summary']['run_name']}); shipped by {made_by}"}
             dst = os.path.join(models_dir, name)
-            atomic_write(dst + ".safetensors", lambda f, b=blob: f.write(b))
-            atomic_write_text(dst + ".json", json.dumps(cfg, indent=1, sort_keys=True) + "\n")
-            load_policy(dst)
+            if not _same_model(dst, blob, cfg):
+                atomic_write(dst + ".safetensors", lambda f, b=blob: f.write(b))
+                atomic_write_text(dst + ".json", json.dumps(cfg, indent=1, sort_keys=True) + "\n")
+                load_policy(dst)
             written.append(dst)
     return written
 
 
-# ---------------------------------------------------------------------------------------------------
-# Markdown
-
-
-def _f(x, d=3):
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "-"
-    if isinstance(x, float):
-        return f"{x:.{d}g}" if abs(x) < 1e-2 or abs(x) >= 1e4 else f"{x:.{d}f}"
-    return str(x)
-
-
-def _table(header, rows) -> str:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(_f(v) for v in row) + " |" for row in rows]
-    return "\n".join(out)
-
-
-def markdown(groups, results, noise, args, shipped, figure, wall_eval) -> str:
-    from ehss_gym.agents.specs import AGENTS
-
-    lines = ["# Training: residual PPO and pure PPO on EHSSTracking-v0",
-             "",
-             f"Generated by `{COMMAND} --runs {' '.join(args.runs)} --out {args.out} --episodes {args.episodes}"
-             + (f" --ship {args.ship}" if args.ship else "") + "` from the run folders that `ehss train` wrote "
-             "(commands below). Do not edit by hand.", ""]
-    lines += ["## Runs", ""]
-    for k, rs in groups.items():
-        c = rs[0]["config"]
-        seeds = ",".join(str(r["config"]["seed"]) for r in rs)
-        hp = "".join(f" --hp '{key}={json.dumps(v)}'" for key, v in sorted((c.get("hp") or {}).items()))
-        lines.append(f"- `{label(k)}`: `ehss train --agent {c['agent']} --task {c['task']} --n {c['n']} --seeds "
-                     f"{seeds} --timesteps {c['timesteps']} --eval-freq {c['eval_freq']} --eval-episodes "
-                     f"{c['eval_episodes']}{hp}`")
-    lines += ["", "## Hyperparameters", "",
-              "From `agents/specs.py` (`AGENTS`, reasons in the comments there); every run's exact "
-              "settings are in its `config.json`.", ""]
-    fields_ = [f for f in AGENTS["residual-ppo"].as_dict() if f not in ("name",)]
-    lines.append(_table(["hyperparameter"] + list(AGENTS), [[f] + [json.dumps(AGENTS[a].as_dict()[f])
-                                                                 for a in AGENTS] for f in fields_]))
-    lines += ["", "Observations and rewards are normalised by VecNormalize (clip 10); the residual agent's "
-              "action net is zero-initialised, so its deterministic policy at step 0 is exactly the base law "
-              "(the step-0 validation score equals the base law's in every run).", ""]
-    if noise:
-        lines += ["## Initial exploration noise", "",
-                  f"Measured by `{noise['command']}` (seeds {noise['seeds']}, {noise['episodes']} validation "
-                  f"episodes, {noise['timesteps']} steps per candidate, evaluation every {noise['eval_freq']} "
-                  "steps, constant learning rate as in the early phase of an annealed run). *Exploration "
-                  "score*: the untrained residual sampled as in PPO's rollouts; *early scores*: deterministic "
-                  "evaluations during the short run (1 = the base law, lower is better).", ""]
-        lines.append(_table(["log_std_init", "std [mA]", "exploration score", "early evaluation scores (per seed)",
-                             "mean early", "worst early", "below base law?"],
-                            [[r["log_std_init"], r["std_mA"], r["explore_score"],
-                              "; ".join(", ".join(f"{x:.3f}" for x in v) for v in r["early_scores"].values()),
-                              r["mean_early_score"], r["worst_early_score"], "yes" if r["below_base"] else "no"]
-                             for r in noise["rows"]]))
-        safe = noise["largest_safe_log_std_init"]
-        lines += ["", "Largest log_std_init whose early evaluations never fell below the base law: "
-                  f"{'none of the candidates' if safe is None else _f(safe)}"
-                  f"; the residual agent uses {_f(AGENTS['residual-ppo'].log_std_init)} (the reasons are in "
-                  "`agents/specs.py`"
-                  + ("; the validation comparison of log_std_init variants is in the training-cost table and under "
-                     "Shipped models)." if any("log_std_init" in k[3] for k in groups) else
-                     "; this report has no log_std_init variant runs).") , ""]
-    lines += ["## Training cost", "",
-              "Wall time of each seed on this machine (2 cores shared with other jobs; one process per seed, one "
-              "torch thread), including the periodic validation episodes. *To kept policy*: up to the "
-              "evaluation that selected the shipped/evaluated policy.", ""]
-    rows = []
-    for k, rs in groups.items():
-        for r in rs:
-            s = r["summary"]
-            rows.append([label(k), r["config"]["seed"], s["timesteps"], s["wall_s"] / 60, wall_to_best(r) / 60,
-                         s["best_step"], s["best_validation"]["score"]])
-    lines.append(_table(["policy", "seed", "steps", "wall [min]", "to kept policy [min]", "kept step",
-                         "validation score"], rows))
-    lines += ["", f"![learning curves]({os.path.basename(figure)})", "",
-              f"`{os.path.basename(figure)}`: validation score, RMSE and control-TV ratios to the base law against "
-              f"training steps, per seed (made by `{COMMAND}`).", ""]
-    for task, res in results.items():
-        lines += [f"## Held-out results, {task} task", "",
-                  f"The evaluation harness (`ehss_gym.evaluation.harness.evaluate`) on its held-out suite "
-                  f"({args.episodes} episodes of 2 s, scenario seeds disjoint from training and from the validation "
-                  "block) and on the paper's 20 s scenario. Primary score: 0.5 RMSE/RMSE_ref + 0.5 TV/TV_ref per "
-                  "episode (reference: the CLF law n = 2 at the env defaults; lower is better). CI: 95 % "
-                  "percentile bootstrap, over training seeds and episodes for learned policies.", ""]
-        rows = []
-        for d in res.summary:
-            lo = d.get("score_mean_lo_both", d["score_mean_lo"])
-            hi = d.get("score_mean_hi_both", d["score_mean_hi"])
-            rows.append([d["suite"], d["policy"], d["n_runs"], d["n_episodes"], d["score_mean"],
-                         f"[{_f(lo)}, {_f(hi)}]", d["score_iqm"], d["rmse"], d["max_abs_e_friction"], d["tv_u_rate"],
-                         d["divergence_rate"], d["rank"]])
-        lines.append(_table(["suite", "policy", "seeds", "episodes", "score (mean)", "95 % CI", "IQM", "RMSE",
-                             "max |e| friction", "TV [mA/s]", "diverged", "rank"], rows))
-        lines += ["", "Learned policies against the best CLF law at their own settings (improvement = 1 - "
-                  "score/score_best with both scores normalised by the CLF n = 2 at those settings, the score "
-                  "reference; CI over seeds and episodes, paired episodes) and against their own base law (ratios "
-                  "of means over the episodes; friction ratio over episodes with friction):", ""]
-        rows = []
-        for c in res.comparisons:
-            rows.append([c["suite"], c["policy"], c["n_runs"], c["score_reference"], c["score_mean"], c["best_clf"],
-                         c["best_clf_score_mean"], c["improvement"],
-                         f"[{_f(c['improvement_lo'])}, {_f(c['improvement_hi'])}]", c["base_law"],
-                         c.get("rmse_ratio"), c.get("tv_ratio"), c.get("friction_peak_ratio")])
-        lines.append(_table(["suite", "policy", "seeds", "score reference", "score", "best CLF", "its score",
-                             "improvement", "95 % CI", "base law", "RMSE ratio", "TV ratio", "friction peak ratio"],
-                            rows))
-        lines += ["", "Targets of the residual policies on the held-out suite (from the table above):", ""]
-        means = {(d["suite"], d["policy"]): d for d in res.summary}
-        for c in res.comparisons:
-            if c["suite"] != "heldout" or not c["policy"].startswith("residual-ppo"):
-                continue
-            imp_ok = c["improvement"] >= 0.2 and c["improvement_lo"] > 0 and c["n_runs"] >= 5
-            tv = c.get("tv_ratio", math.nan)
-            fr = c.get("friction_peak_ratio", math.nan)
-            pol, best = means[("heldout", c["policy"])], means[("heldout", c["best_clf"])]
-            lines.append(f"- `{c['policy']}` ({c['n_runs']} seeds): improvement over {c['best_clf']} "
-                         f"{c['improvement']:+.1%} (95 % CI [{c['improvement_lo']:+.1%}, {c['improvement_hi']:+.1%}]) "
-                         f"-> target (>= 20 %, CI excluding 0, >= 5 seeds) {'met' if imp_ok else 'NOT met'}; "
-                         f"control TV {tv:.3f} x its base law -> {'met' if tv <= 1 else 'NOT met'}; friction-window "
-                         f"peak {fr:.3f} x its base law -> halving {'met' if fr <= 0.5 else 'NOT met'}. Against the "
-                         f"best CLF itself (means over the episodes): RMSE {pol['rmse'] / best['rmse']:.3f} x, control "
-                         f"TV {pol['tv_u_rate'] / best['tv_u_rate']:.3f} x.")
-        per_seed = []
-        for d in res.specs:
-            if not d.learned:
-                continue
-            for i in range(len(d.runs)):
-                sel = [r for r in res.rows if r["policy"] == d.name and r["run"] == i and r["suite"] == "heldout"]
-                if sel:
-                    per_seed.append([d.name, os.path.basename(os.path.dirname(os.path.dirname(str(d.runs[i])))),
-                                     float(np.mean([r["score"] for r in sel]))])
-        if per_seed:
-            lines += ["", "Held-out score of each training seed:", ""]
-            lines.append(_table(["policy", "run", "score (mean over episodes)"], per_seed))
-        diag = base_law_diagnostics(res)
-        lines += ["", f"Reference law on this suite: mean saturation {diag['saturation_mean']:.3f}; its control TV "
-                  f"ranges from {_f(diag['tv_rate_min'])} to {_f(diag['tv_rate_max'])} mA/s, median "
-                  f"{_f(diag['tv_rate_median_noisy'])} mA/s on the {diag['noisy_episodes']} episodes with sensor "
-                  f"noise and {_f(diag['tv_rate_median_clean'])} mA/s on the "
-                  f"{diag['episodes'] - diag['noisy_episodes']} without: on the latter, any jitter of a residual "
-                  "weighs heavily in the per-episode TV ratio of the score.", ""]
-        eb = error_budget(task, args.episodes)
-        lines += ["Where the reference law's squared error lies on this suite (simulated at the control rate): "
-                  f"{eb['start_share']:.0%} in the first 50 ms (start-up transient; the applied current is at the "
-                  f"limit on {eb['start_saturation']:.0%} of those control steps), {eb['friction_share']:.0%} during "
-                  f"friction events (+50 ms), {eb['other_share']:.0%} elsewhere. Median delay from a friction "
-                  f"switch-on to the event's largest |e|: {eb['peak_delay_median'] * 1e3:.2f} ms over "
-                  f"{eb['events']} events.", ""]
-        fa = friction_authority(task, args.episodes)
-        lines += ["How much of the friction peak a residual can reach (the same episodes without sensor noise): "
-                  f"on the {fa['events']} of {fa['all_events']} friction events whose window peak comes within "
-                  f"{ONSET_PEAK * 1e3:g} ms of the switch-on (median {fa['rise_median'] * 1e3:.2f} ms), the reference "
-                  "law already applies the full current limit in the direction that opposes the error on a median "
-                  f"{fa['at_limit_share']:.0%} of the control steps before the peak. There a "
-                  "residual cannot add current; only acting *before* the switch-on could (the env's oracle "
-                  "feed-forward, which knows the event in advance, halves the peak; the same doublet started at "
-                  "the switch-on does not, see docs/ENV.md).", ""]
-        rows = []
-        for k, rs in groups.items():
-            if k[1] == task and rs[0]["config"]["env_kwargs"]["mode"] == "residual":
-                ts = tv_sources([os.path.join(r["dir"], "best", "policy") for r in rs], args.episodes)
-                rows.append([label(k), ts["policies"], ts["episodes"], ts["tv_ratio"], ts["own_share_of_added"],
-                             ts["own_share_of_total"], ts["crossings_ratio"], ts["rmse_ratio"]])
-        if rows:
-            lines += ["Where the residuals' added control TV comes from: each seed's kept policy and its base law "
-                      "on the held-out episodes with sensor noise (where the suite's TV is), logged at every "
-                      "control period (`period_log`); sums over seeds and episodes. *Own steps*: sum |r_k - r_(k-1)| "
-                      "of the residual current. A share of the added TV well below 1 means the added TV is the base "
-                      "law's own switching in the state the residual drives the loop into, which no penalty on the "
-                      "action's changes reaches (docs/ENV.md, \"Residual PPO settings\"); sign changes of s are "
-                      "where the law's sign(s) term switches.", ""]
-            lines.append(_table(["policy", "seeds", "episodes", "TV ratio", "own steps / added TV",
-                                 "own steps / total TV", "sign changes of s ratio", "RMSE ratio"], rows))
-            lines.append("")
-        lines += [f"Evaluation wall time: {wall_eval[task]:.0f} s.", ""]
-    if shipped:
-        total = sum(os.path.getsize(p + ext) for p in shipped for ext in (".safetensors", ".json"))
-        chosen = choose_variants(groups)
-        lines += ["## Shipped models", "",
-                  "Per (task, n), the residual runs whose kept policies have the best mean *validation* score "
-                  "(the selection never looks at the held-out suite above):", ""]
-        lines += [f"- `{label(b + ('',))}`: `{label(k)}` (mean validation score {mean_validation(groups[k]):.3f}"
-                  + "".join(f"; `{label(o)}` {mean_validation(groups[o]):.3f}" for o in groups
-                            if o[:3] == b and o != k) + ")" for b, k in sorted(chosen.items())]
-        lines += ["",
-                  f"{len(shipped)} policies in `{args.ship}` ({total / 1e3:.0f} kB in total), safe weights "
-                  "(`.safetensors` + `.json`, loaded by `ehss_gym.agents.safeweights.load_policy` without unpickling): "
-                  + ", ".join(f"`{os.path.basename(p)}`" for p in shipped) + ". `ehss evaluate` picks them up "
-                  "as one policy per name with the seeds as training runs.", ""]
-    return "\n".join(lines) + "\n"
-
-
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog=COMMAND, description=__doc__.split("\n")[0])
-    p.add_argument("--runs", nargs="+", default=[os.path.join("runs", "final")], help="folders of run folders")
-    p.add_argument("--out", default=os.path.join("reports", "training"))
-    p.add_argument("--episodes", type=int, default=48, help="held-out episodes of the evaluation")
-    p.add_argument("--noise", default=os.path.join("reports", "training", "noise_study.json"))
-    p.add_argument("--ship", default=None, help="copy the residual policies' safe weights here (e.g. ehss_gym/models)")
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--no-progress", action="store_true")
-    args = p.parse_args(argv)
-    try:
-        groups = group_runs([r for folder in args.runs for r in load_runs(folder)])
-    except ValueError as exc:
-        print(f"{COMMAND}: error: {exc}", file=sys.stderr)
-        return 2
-    if not groups:
-        print(f"{COMMAND}: error: no finished runs under {args.runs}", file=sys.stderr)
-        return 2
-    os.makedirs(args.out, exist_ok=True)
-    figure = os.path.join(args.out, "learning_curves.png")
-    plot_curves(groups, figure)
-    workers = args.workers or 2
-    results, wall_eval = {}, {}
-    for task in sorted({k[1] for k in groups}):
-        t0 = time.perf_counter()
-        results.update(evaluate_groups({k: v for k, v in groups.items() if k[1] == task}, args.episodes, workers,
-                                       not args.no_progress))
-        wall_eval[task] = time.perf_counter() - t0
-    shipped = ship(groups, args.ship) if args.ship else []
-    noise = json.load(open(args.noise, encoding="utf-8")) if args.noise and os.path.isfile(args.noise) else None
-    atomic_write_text(os.path.join(args.out, "TRAINING.md"),
-                      markdown(groups, results, noise, args, shipped, figure, wall_eval))
-    buf = io.StringIO()
-    w = csv.writer(buf)
-    w.writerow(["task", "suite", "policy", "run", "episode", "score", "rmse", "max_abs_e_friction", "tv_u_rate",
-                "diverged"])
-    for task, res in results.items():
-        for r in res.rows:
-            w.writerow([task, r["suite"], r["policy"], r["run"], r["episode"], r["score"], r["rmse"],
-                        r["max_abs_e_friction"], r["tv_u_rate"], r["diverged"]])
-    atomic_write_text(os.path.join(args.out, "episodes.csv"), buf.getvalue())
-    summary = {task: {"summary": res.summary, "comparisons": res.comparisons} for task, res in results.items()}
-    atomic_write_text(os.path.join(args.out, "results.json"), json.dumps(summary, indent=1, default=str) + "\n")
-    print(f"wrote {os.path.join(args.out, 'TRAINING.md')}, {figure}, episodes.csv, results.json"
-          + (f"; shipped {len(shipped)} models to {args.ship}" if shipped else ""))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+__all__ = ["ONSET_PEAK", "TARGET_IMPROVEMENT", "TARGET_SEEDS", "TARGET_FRICTION", "read_json", "load_runs",
+           "group_key", "group_runs", "label", "wall_to_best", "evaluate_groups", "residual_targets", "seed_scores",
+           "has_noise", "base_law_diagnostics", "agent_env_kwargs", "agent_heldout_scenarios", "friction_authority",
+           "error_budget", "period_log", "tv_sources", "mean_validation", "choose_variants", "ship"]

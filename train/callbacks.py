@@ -1,5 +1,6 @@
 """SB3 callbacks of the training script: progress bar, held-out evaluation with best-model keeping,
-checkpoints at rollout boundaries, and the wall-time clock.
+checkpoints at rollout boundaries (with the RNG states: :func:`capture_rng`, :func:`restore_rng`), and the
+wall-time clock.
 
 All custom behaviour of training lives here, so :mod:`ehss_gym.train.loop` stays a plain script.
 Callbacks that carry state across an interruption expose ``state_dict()`` / ``load_state_dict()``;
@@ -13,14 +14,52 @@ import io
 import json
 import os
 import pickle
+import random
 import shutil
 import time
 
+import numpy as np
+import torch
 from stable_baselines3.common.callbacks import BaseCallback
+from tqdm.auto import tqdm
 
 from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.evaluation.heldout import relative_scores, run_episodes, sb3_act_fn
 
 from . import runs
+
+# ---------------------------------------------------------------------------------------------------
+# RNG state (stored in each checkpoint)
+
+
+def capture_rng(env_rngs=()) -> dict:
+    """JSON-able states of Python's, NumPy's and torch's global RNGs and of the given Generators."""
+    py = random.getstate()
+    npst = np.random.get_state()
+    return {
+        "python": [py[0], list(py[1]), py[2]],
+        "numpy": [npst[0], npst[1].tolist(), int(npst[2]), int(npst[3]), float(npst[4])],
+        "torch": torch.get_rng_state().tolist(),
+        "envs": [g.bit_generator.state for g in env_rngs],
+    }
+
+
+def restore_rng(state: dict, env_rngs=()) -> None:
+    """Inverse of :func:`capture_rng` (``env_rngs`` must be Generators of the same bit generators)."""
+    py = state["python"]
+    random.setstate((py[0], tuple(py[1]), py[2]))
+    n = state["numpy"]
+    np.random.set_state((n[0], np.asarray(n[1], dtype=np.uint32), n[2], n[3], n[4]))
+    torch.set_rng_state(torch.tensor(state["torch"], dtype=torch.uint8))
+    envs = state.get("envs", [])
+    if envs and len(envs) != len(env_rngs):
+        raise runs.RunError(f"checkpoint holds {len(envs)} env RNG states but the run has {len(env_rngs)} envs")
+    for g, s in zip(env_rngs, envs):
+        g.bit_generator.state = s
+
+
+# ---------------------------------------------------------------------------------------------------
+# Callbacks
 
 
 class WallClock(BaseCallback):
@@ -33,6 +72,7 @@ class WallClock(BaseCallback):
 
     @property
     def seconds(self) -> float:
+        """Wall time of this and the earlier segments [s]."""
         return self.previous + time.perf_counter() - self._t0
 
     def _on_training_start(self) -> None:
@@ -45,9 +85,11 @@ class WallClock(BaseCallback):
         return True
 
     def state_dict(self) -> dict:
+        """What a checkpoint stores: the wall time so far [s]."""
         return {"seconds": self.seconds}
 
     def load_state_dict(self, d: dict) -> None:
+        """Continue from a checkpoint's :meth:`state_dict`."""
         self.previous = float(d["seconds"])
         self._t0 = time.perf_counter()
 
@@ -63,8 +105,6 @@ class ProgressBar(BaseCallback):
         self.bar = None
 
     def _on_training_start(self) -> None:
-        from tqdm.auto import tqdm
-
         self.bar = tqdm(total=self.total, initial=self.num_timesteps, desc=self.desc, unit="step",
                         disable=self.disable, dynamic_ncols=True, smoothing=0.05)
 
@@ -117,8 +157,7 @@ class HeldoutEval(BaseCallback):
         return True
 
     def evaluate(self) -> dict:
-        from ehss_gym.evaluation.heldout import relative_scores, run_episodes, sb3_act_fn
-
+        """Score the deterministic policy now; log it, keep it if it is the best so far; the history row."""
         vn = self.model.get_vec_normalize_env()
         t0 = time.perf_counter()
         results = run_episodes(self.env_kwargs, self.scenarios, sb3_act_fn(self.model, vn))
@@ -144,9 +183,11 @@ class HeldoutEval(BaseCallback):
         atomic_write(os.path.join(d, "vecnormalize.pkl"), lambda f: pickle.dump(vn, f))
 
     def best_dir(self) -> str | None:
+        """The folder of the best model so far (``<run>/evals/best_step_<S>``), or None before any evaluation."""
         return None if self.best_step is None else os.path.join(self.run_dir, "evals", f"best_step_{self.best_step}")
 
     def write_history(self) -> None:
+        """Write ``evaluations.csv`` and ``evaluations.json`` (one row per evaluation)."""
         if not self.history:
             return
         keys = list(self.history[0])
@@ -158,6 +199,7 @@ class HeldoutEval(BaseCallback):
         atomic_write_text(os.path.join(self.run_dir, "evaluations.json"), json.dumps(self.history, indent=1))
 
     def state_dict(self) -> dict:
+        """What a checkpoint stores: the history, the best score and step, the step of the last evaluation."""
         return {"history": self.history, "best_score": self.best_score, "best_step": self.best_step,
                 "last_eval": self.last_eval}
 
@@ -202,7 +244,8 @@ class Checkpoint(BaseCallback):
         return True
 
     def save(self) -> dict:
-        state = {"num_timesteps": int(self.num_timesteps), "rng": runs.capture_rng(self.env_rngs()),
+        """Write a checkpoint now (model, VecNormalize, RNG and callback states); its manifest."""
+        state = {"num_timesteps": int(self.num_timesteps), "rng": capture_rng(self.env_rngs()),
                  "callbacks": {k: cb.state_dict() for k, cb in self.stateful.items()}}
         man = runs.save_checkpoint(self.run_dir, self.num_timesteps, self.model, self.model.get_vec_normalize_env(),
                                    state)
@@ -210,4 +253,4 @@ class Checkpoint(BaseCallback):
         return man
 
 
-__all__ = ["WallClock", "ProgressBar", "HeldoutEval", "Checkpoint"]
+__all__ = ["capture_rng", "restore_rng", "WallClock", "ProgressBar", "HeldoutEval", "Checkpoint"]

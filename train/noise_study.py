@@ -21,10 +21,18 @@ import argparse
 import json
 import math
 import os
+import shutil
 import sys
 import time
 
 import numpy as np
+from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
+
+from ehss_gym.core.util import atomic_write_text
+from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
+
+from .config import Config
+from .loop import train
 
 CANDIDATES = (-4.0, -3.0, -2.0, -1.0)
 
@@ -38,14 +46,6 @@ def stochastic_zero_policy(std: float, seed: int):
 def run(candidates=CANDIDATES, timesteps: int = 40_960, eval_freq: int = 8_192, episodes: int = 16,
         seeds=(0, 1), workdir: str = "runs/noise_study", progress: bool = False) -> dict:
     """The study (see the module docstring); returns a JSON-able dict."""
-    import shutil
-
-    from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
-
-    from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
-
-    from .loop import Config, train
-
     spec = get_spec("residual-ppo")
     kw = env_kwargs_for(spec, "velocity", 2)
     scale = resolved_env_kwargs(kw)["residual_scale"]  # [mA] per action unit
@@ -80,8 +80,7 @@ def run(candidates=CANDIDATES, timesteps: int = 40_960, eval_freq: int = 8_192, 
 
 
 def main(argv=None) -> int:
-    from ehss_gym.core.util import atomic_write_text
-
+    """Run the study from the command line and write its JSON."""
     p = argparse.ArgumentParser(prog="python -m ehss_gym.train.noise_study", description=__doc__.split("\n")[0])
     p.add_argument("--out", default=os.path.join("reports", "training", "noise_study.json"))
     p.add_argument("--timesteps", type=int, default=40_960)

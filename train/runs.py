@@ -1,6 +1,7 @@
 """Run bookkeeping for training: seed ranges, reproducible run names, checkpoints and RNG state.
 
-None of this needs the env, so it is tested on its own.
+None of this needs the env or torch (the CLI parses seeds and names runs before any training starts), so it is
+tested on its own. The RNG states a checkpoint holds are captured by :mod:`ehss_gym.train.callbacks`.
 
 Checkpoint layout (in ``<run>/checkpoints/``), written at a rollout boundary (after a PPO update, so
 the saved parameters have learned from every counted step):
@@ -19,12 +20,9 @@ import hashlib
 import json
 import os
 import pickle
-import random
 import re
 
-import numpy as np
-
-from ehss_gym.core.util import atomic_write_text
+from ehss_gym.core.util import atomic_write, atomic_write_text
 
 LATEST = "latest.json"
 CKPT_DIR = "checkpoints"
@@ -88,44 +86,11 @@ def run_name(agent: str, task: str, n: int, seed: int, config: dict, exclude=())
 
 
 # ---------------------------------------------------------------------------------------------------
-# RNG state
-
-
-def capture_rng(env_rngs=()) -> dict:
-    """JSON-able states of Python's, NumPy's and torch's global RNGs and of the given Generators."""
-    import torch
-
-    py = random.getstate()
-    npst = np.random.get_state()
-    return {
-        "python": [py[0], list(py[1]), py[2]],
-        "numpy": [npst[0], npst[1].tolist(), int(npst[2]), int(npst[3]), float(npst[4])],
-        "torch": torch.get_rng_state().tolist(),
-        "envs": [g.bit_generator.state for g in env_rngs],
-    }
-
-
-def restore_rng(state: dict, env_rngs=()) -> None:
-    """Inverse of :func:`capture_rng` (``env_rngs`` must be Generators of the same bit generators)."""
-    import torch
-
-    py = state["python"]
-    random.setstate((py[0], tuple(py[1]), py[2]))
-    n = state["numpy"]
-    np.random.set_state((n[0], np.asarray(n[1], dtype=np.uint32), n[2], n[3], n[4]))
-    torch.set_rng_state(torch.tensor(state["torch"], dtype=torch.uint8))
-    envs = state.get("envs", [])
-    if envs and len(envs) != len(env_rngs):
-        raise RunError(f"checkpoint holds {len(envs)} env RNG states but the run has {len(env_rngs)} envs")
-    for g, s in zip(env_rngs, envs):
-        g.bit_generator.state = s
-
-
-# ---------------------------------------------------------------------------------------------------
 # Checkpoints
 
 
 def checkpoint_dir(run_dir: str) -> str:
+    """``<run>/checkpoints``."""
     return os.path.join(run_dir, CKPT_DIR)
 
 
@@ -161,8 +126,6 @@ def save_checkpoint(run_dir: str, step: int, model, vecnormalize, state: dict) -
     Every file is written to a temporary name and renamed, so an interrupted save never replaces a
     good checkpoint with a partial one. Older checkpoints beyond :data:`KEEP_CHECKPOINTS` are deleted.
     """
-    from ehss_gym.core.util import atomic_write
-
     files = checkpoint_files(run_dir, step)
     os.makedirs(checkpoint_dir(run_dir), exist_ok=True)
     atomic_write(files["model"], lambda f: model.save(f))
@@ -201,9 +164,10 @@ def prune_checkpoints(run_dir: str, keep: int = KEEP_CHECKPOINTS) -> None:
 
 
 def read_state(path: str) -> dict:
+    """The JSON state file of a checkpoint (RNG states, the callbacks' state)."""
     with open(path, encoding="utf-8") as f:
         return json.load(f)
 
 
-__all__ = ["RunError", "parse_seeds", "config_hash", "run_name", "capture_rng", "restore_rng", "latest_checkpoint",
+__all__ = ["RunError", "parse_seeds", "config_hash", "run_name", "latest_checkpoint",
            "save_checkpoint", "checkpoint_files", "checkpoint_steps", "prune_checkpoints", "read_state"]

@@ -1,1 +1,3 @@
-"""Hyperparameter files for rl-zoo3 (``ppo.yml``); ``ehss_gym.agents.hyperparams.ppo`` exposes it as a module."""
+"""rl-zoo3's configuration of the residual agent: ``ppo.yml`` and the module ``ppo`` (``--conf-file
+ehss_gym.agents.hyperparams.ppo``), both generated from :data:`ehss_gym.agents.specs.AGENTS` by
+``python -m ehss_gym.train.zoo`` (a test fails when they drift from the specs)."""

@@ -1,0 +1,159 @@
+"""Export a trained SB3 policy as safe weights (``PATH.safetensors`` + ``PATH.json``; format in
+:mod:`ehss_gym.agents.safeweights`, which loads them without torch).
+
+Exporting reads the torch model, so this module imports torch; training imports it, the evaluation does not.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import torch
+import torch.nn as nn
+from gymnasium import spaces
+from safetensors.torch import save
+from stable_baselines3.common.distributions import DiagGaussianDistribution
+from stable_baselines3.common.torch_layers import FlattenExtractor
+
+from ehss_gym.core.util import atomic_write, atomic_write_text
+
+from .safeweights import ACTIVATIONS, FORMAT, SafeWeightsError, model_paths, sha256
+
+# torch activation modules by safe-weights name; only the default arguments are supported
+TORCH_ACTIVATIONS = {nn.Tanh: "tanh", nn.ReLU: "relu", nn.ELU: "elu", nn.LeakyReLU: "leaky_relu", nn.SiLU: "silu",
+                     nn.GELU: "gelu", nn.Identity: "identity"}
+
+
+def _activation_name(module: nn.Module) -> str:
+    name = TORCH_ACTIVATIONS.get(type(module))
+    non_default = {"leaky_relu": lambda m: m.negative_slope != 0.01, "gelu": lambda m: m.approximate != "none",
+                   "elu": lambda m: m.alpha != 1.0}
+    if name is None or non_default.get(name, lambda m: False)(module):
+        raise SafeWeightsError(f"activation {module!r} is not supported; supported (with default arguments): "
+                               f"{list(ACTIVATIONS)}")
+    return name
+
+
+def _box_to_json(space) -> dict:
+    if not isinstance(space, spaces.Box):
+        raise SafeWeightsError(f"only Box spaces are supported, got {space!r}")
+    return {"type": "Box", "low": np.asarray(space.low, dtype=np.float64).reshape(-1).tolist(),
+            "high": np.asarray(space.high, dtype=np.float64).reshape(-1).tolist(), "shape": list(space.shape),
+            "dtype": np.dtype(space.dtype).name}
+
+
+def _jsonable(obj):
+    """Plain JSON values (tuples -> lists, numpy scalars -> Python); raises for anything else."""
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, (np.floating, np.integer, np.bool_)):
+        return obj.item()
+    if obj is None or isinstance(obj, (bool, int, float, str)):
+        return obj
+    raise SafeWeightsError(f"value {obj!r} of type {type(obj).__name__} cannot be stored in the JSON config")
+
+
+def _check_exportable(policy) -> None:
+    if not isinstance(policy.observation_space, spaces.Box) or len(policy.observation_space.shape) != 1:
+        raise SafeWeightsError(f"observation space must be a 1-D Box, got {policy.observation_space!r}")
+    if not isinstance(policy.action_space, spaces.Box) or len(policy.action_space.shape) != 1:
+        raise SafeWeightsError(f"action space must be a 1-D Box, got {policy.action_space!r}")
+    if not isinstance(getattr(policy, "action_dist", None), DiagGaussianDistribution):
+        raise SafeWeightsError("only a diagonal-Gaussian action distribution is supported (use_sde=False)")
+    if getattr(policy, "squash_output", False):
+        raise SafeWeightsError("squash_output=True policies are not supported")
+    if not isinstance(policy.pi_features_extractor, FlattenExtractor):
+        raise SafeWeightsError(f"only the flatten features extractor is supported, got "
+                               f"{type(policy.pi_features_extractor).__name__}")
+
+
+def _f32(t: torch.Tensor) -> torch.Tensor:
+    return t.detach().cpu().to(torch.float32).contiguous().clone()
+
+
+def policy_tensors(model, vecnormalize=None) -> tuple[dict, dict, dict | None]:
+    """The tensors, architecture and normalisation config of an SB3 on-policy actor-critic policy.
+
+    Args:
+        model: a stable-baselines3 PPO/A2C model (or its ``.policy``) with an MLP policy, a flatten
+            features extractor and a Gaussian (non-state-dependent) Box action.
+        vecnormalize: the ``VecNormalize`` wrapper the model was trained with, or None.
+
+    Returns:
+        (tensors name -> torch tensor, architecture dict, obs-normalisation dict or None).
+    """
+    policy = getattr(model, "policy", model)
+    _check_exportable(policy)
+    tensors: dict[str, torch.Tensor] = {}
+    hidden: list[int] = []
+    act_names: list[str] = []
+    for mod in policy.mlp_extractor.policy_net:
+        if isinstance(mod, nn.Linear):
+            tensors[f"pi.{len(hidden)}.weight"] = _f32(mod.weight)
+            tensors[f"pi.{len(hidden)}.bias"] = _f32(mod.bias)
+            hidden.append(int(mod.out_features))
+        else:
+            act_names.append(_activation_name(mod))
+    if len(act_names) != len(hidden) or len(set(act_names)) > 1:
+        raise SafeWeightsError(f"policy_net must alternate Linear and one kind of activation, got {act_names}")
+    tensors["action.weight"] = _f32(policy.action_net.weight)
+    tensors["action.bias"] = _f32(policy.action_net.bias)
+    tensors["log_std"] = _f32(policy.log_std)
+    arch = {"obs_dim": int(policy.observation_space.shape[0]), "hidden": hidden,
+            "activation": act_names[0] if act_names else "identity", "act_dim": int(policy.action_space.shape[0])}
+    norm = None
+    if vecnormalize is not None and vecnormalize.norm_obs:
+        rms = vecnormalize.obs_rms
+        if isinstance(rms, dict):
+            raise SafeWeightsError("dict observations are not supported")
+        tensors["obs_mean"] = torch.from_numpy(np.asarray(rms.mean, dtype=np.float64).copy())
+        tensors["obs_var"] = torch.from_numpy(np.asarray(rms.var, dtype=np.float64).copy())
+        norm = {"epsilon": float(vecnormalize.epsilon), "clip_obs": float(vecnormalize.clip_obs)}
+    return tensors, arch, norm
+
+
+def export_policy(model, path, *, vecnormalize=None, name: str | None = None, env_id: str = "EHSSTracking-v0",
+                  env_kwargs: dict | None = None, metadata: dict | None = None) -> tuple[str, str]:
+    """Write ``path.safetensors`` and ``path.json`` for an SB3 policy (format: :mod:`ehss_gym.agents.safeweights`).
+
+    Both files are written atomically, the tensors first, so a crash leaves no JSON pointing to a
+    half-written tensor file.
+
+    Args:
+        model: the SB3 model (PPO/A2C with an MLP policy) or its policy.
+        path: output stem (``.json`` / ``.safetensors`` suffixes are stripped); folders are created.
+        vecnormalize: the VecNormalize wrapper whose observation statistics the policy expects, or None.
+        name: model name (default: the stem's file name).
+        env_id: the Gymnasium id of the env the policy acts in.
+        env_kwargs: keyword arguments of ``gym.make(env_id, ...)`` the policy was trained with (JSON values).
+        metadata: free-form JSON-able extras (training config, scores, ...).
+
+    Returns:
+        (safetensors path, json path).
+    """
+    st_path, js_path = model_paths(path)
+    tensors, arch, norm = policy_tensors(model, vecnormalize)
+    policy = getattr(model, "policy", model)
+    blob = save(tensors)
+    config = {
+        "format": FORMAT,
+        "name": name or os.path.basename(st_path[: -len(".safetensors")]),
+        "sha256": sha256(blob),
+        "architecture": arch,
+        "observation_space": _box_to_json(policy.observation_space),
+        "action_space": _box_to_json(policy.action_space),
+        "obs_normalization": norm,
+        "env_id": env_id,
+        "env_kwargs": _jsonable(env_kwargs or {}),
+        "metadata": _jsonable(metadata or {}),
+    }
+    atomic_write(st_path, lambda f: f.write(blob))
+    atomic_write_text(js_path, json.dumps(config, indent=1, sort_keys=True, allow_nan=False) + "\n")
+    return st_path, js_path
+
+
+__all__ = ["export_policy", "policy_tensors", "TORCH_ACTIVATIONS"]

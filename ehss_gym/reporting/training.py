@@ -1,0 +1,251 @@
+"""The training report (``ehss training-report``): ``TRAINING.md`` with its prose in templates/training.md.j2, the
+learning curves, ``episodes.csv`` and ``results.json``; numbers and tables are computed here from the analyses
+of :mod:`ehss_gym.train.analysis`.
+
+    ehss training-report --runs runs/final runs/final_ppo --out reports/training --episodes 48 --ship ehss_gym/models
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import time
+
+import matplotlib
+
+from ehss_gym.agents.specs import AGENTS
+from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.train import analysis as an
+
+from .render import render
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (after choosing the Agg backend: no screen needed)
+
+COMMAND = "ehss training-report"
+EPISODE_COLUMNS = ("task", "suite", "policy", "run", "episode", "score", "rmse", "max_abs_e_friction", "tv_u_rate",
+                   "diverged")
+CURVES = (("score", "validation score (ref. CLF n=2 = 1)"), ("rmse", "RMSE / base law"),
+          ("tv", "control TV / base law"))  # the learning curves' rows: history field (rel_ prefix aside), y label
+
+
+def cell(x, d: int = 3) -> str:
+    """A table cell: None/NaN as "-", floats to ``d`` decimals (``d`` significant digits below 0.01 or from 1e4)."""
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "-"
+    if isinstance(x, float):
+        return f"{x:.{d}g}" if abs(x) < 1e-2 or abs(x) >= 1e4 else f"{x:.{d}f}"
+    return str(x)
+
+
+def cells(rows) -> list[list[str]]:
+    """Every value of ``rows`` through :func:`cell`."""
+    return [[cell(v) for v in row] for row in rows]
+
+
+# ---------------------------------------------------------------------------------------------------
+# Figure
+
+
+def plot_curves(groups: dict, path: str, made_by: str = COMMAND) -> None:
+    """The learning curves (validation score, RMSE and control-TV ratios to the base law against training steps,
+    one line per seed, one column per group) as a PNG."""
+    keys = list(groups)
+    fig, axes = plt.subplots(3, len(keys), figsize=(4.2 * len(keys), 8.0), squeeze=False, sharex="col")
+    for j, k in enumerate(keys):
+        for i, (name, ylabel) in enumerate(CURVES):
+            field = name if name == "score" else f"rel_{name}"
+            ax = axes[i][j]
+            for r in groups[k]:
+                h = r["history"]
+                ax.plot([x["step"] / 1e3 for x in h], [x[field] for x in h], lw=1, marker=".",
+                        label=f"seed {r['config']['seed']}")
+            ax.axhline(1.0, color="k", lw=0.8, ls="--")
+            ax.set_ylabel(ylabel, fontsize=8)
+            if i == 0:
+                ax.set_title(an.label(k), fontsize=9)
+            if i == len(CURVES) - 1:
+                ax.set_xlabel("agent steps [thousands]")
+            ax.tick_params(labelsize=7)
+        axes[0][j].legend(fontsize=6)
+    fig.suptitle(f"Learning curves on the validation scenarios (lower is better); made by: {made_by}", fontsize=8)
+    fig.tight_layout()
+    atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------------------------------
+# The report's numbers and tables
+
+
+def runs_context(groups: dict) -> list[dict]:
+    """Per group: the ``ehss train`` settings that made its runs."""
+    out = []
+    for k, rs in groups.items():
+        c = rs[0]["config"]
+        hp = "".join(f" --hp '{key}={json.dumps(v)}'" for key, v in sorted((c.get("hp") or {}).items()))
+        out.append({"label": an.label(k), "agent": c["agent"], "task": c["task"], "n": c["n"],
+                    "seeds": ",".join(str(r["config"]["seed"]) for r in rs), "timesteps": c["timesteps"],
+                    "eval_freq": c["eval_freq"], "eval_episodes": c["eval_episodes"], "hp": hp})
+    return out
+
+
+def hyperparameter_rows() -> list[list[str]]:
+    """One row per AgentSpec field (the name aside), one column per agent, values as JSON."""
+    fields = [f for f in AGENTS["residual-ppo"].as_dict() if f != "name"]
+    return cells([[f] + [json.dumps(AGENTS[a].as_dict()[f]) for a in AGENTS] for f in fields])
+
+
+def noise_rows(noise: dict) -> list[list[str]]:
+    """The initial-exploration-noise study (``noise_study.json``), one row per candidate log_std_init."""
+    return cells([[r["log_std_init"], r["std_mA"], r["explore_score"],
+                   "; ".join(", ".join(f"{x:.3f}" for x in v) for v in r["early_scores"].values()),
+                   r["mean_early_score"], r["worst_early_score"], "yes" if r["below_base"] else "no"]
+                  for r in noise["rows"]])
+
+
+def cost_rows(groups: dict) -> list[list[str]]:
+    """Training cost per seed: steps, wall time [min] in all and to the kept policy, kept step and its score."""
+    return cells([[an.label(k), r["config"]["seed"], r["summary"]["timesteps"], r["summary"]["wall_s"] / 60,
+                   an.wall_to_best(r) / 60, r["summary"]["best_step"], r["summary"]["best_validation"]["score"]]
+                  for k, rs in groups.items() for r in rs])
+
+
+def summary_rows(res) -> list[list[str]]:
+    """The harness's summary: one row per (suite, policy) with the score's CI over seeds and episodes."""
+    rows = []
+    for d in res.summary:
+        lo = d.get("score_mean_lo_both", d["score_mean_lo"])
+        hi = d.get("score_mean_hi_both", d["score_mean_hi"])
+        rows.append([d["suite"], d["policy"], d["n_runs"], d["n_episodes"], d["score_mean"],
+                     f"[{cell(lo)}, {cell(hi)}]", d["score_iqm"], d["rmse"], d["max_abs_e_friction"], d["tv_u_rate"],
+                     d["divergence_rate"], d["rank"]])
+    return cells(rows)
+
+
+def comparison_rows(res) -> list[list[str]]:
+    """The learned policies against the best CLF law and against their own base law."""
+    return cells([[c["suite"], c["policy"], c["n_runs"], c["score_reference"], c["score_mean"], c["best_clf"],
+                   c["best_clf_score_mean"], c["improvement"], f"[{cell(c['improvement_lo'])}, "
+                   f"{cell(c['improvement_hi'])}]", c["base_law"], c.get("rmse_ratio"), c.get("tv_ratio"),
+                   c.get("friction_peak_ratio")] for c in res.comparisons])
+
+
+def tv_rows(groups: dict, task: str, episodes: int) -> list[list[str]]:
+    """Where each residual group's added control TV comes from (:func:`ehss_gym.train.analysis.tv_sources`)."""
+    rows = []
+    for k, rs in groups.items():
+        if k[1] == task and rs[0]["config"]["env_kwargs"]["mode"] == "residual":
+            ts = an.tv_sources([os.path.join(r["dir"], "best", "policy") for r in rs], episodes)
+            rows.append([an.label(k), ts["policies"], ts["episodes"], ts["tv_ratio"], ts["own_share_of_added"],
+                         ts["own_share_of_total"], ts["crossings_ratio"], ts["rmse_ratio"]])
+    return cells(rows)
+
+
+def task_context(task: str, res, groups: dict, episodes: int, wall_s: float) -> dict:
+    """Everything the report's section on ``task`` shows (its analyses run here)."""
+    return {"task": task, "summary_rows": summary_rows(res), "comparison_rows": comparison_rows(res),
+            "targets": an.residual_targets(res), "seed_rows": cells(an.seed_scores(res)),
+            "diag": an.base_law_diagnostics(res), "eb": an.error_budget(task, episodes),
+            "fa": an.friction_authority(task, episodes), "tv_rows": tv_rows(groups, task, episodes), "wall": wall_s}
+
+
+def shipped_context(groups: dict, shipped: list[str], folder: str) -> dict | None:
+    """The shipped models: the chosen variant per (task, n) with the others' scores, the files and their size."""
+    if not shipped:
+        return None
+    chosen = [{"base": an.label(b + ("",)), "label": an.label(k), "score": an.mean_validation(groups[k]),
+               "others": [{"label": an.label(o), "score": an.mean_validation(groups[o])} for o in groups
+                          if o[:3] == b and o != k]} for b, k in sorted(an.choose_variants(groups).items())]
+    total = sum(os.path.getsize(p + ext) for p in shipped for ext in (".safetensors", ".json"))
+    return {"chosen": chosen, "count": len(shipped), "folder": folder, "kb": total / 1e3,
+            "names": [os.path.basename(p) for p in shipped]}
+
+
+def markdown(command: str, groups: dict, tasks: list[dict], noise: dict | None, shipped: dict | None,
+             figure: str, episodes: int) -> str:
+    """TRAINING.md: the template filled with the numbers and tables above."""
+    return render("training.md.j2", command=command, runs=runs_context(groups), agents=list(AGENTS),
+                  hyperparameter_rows=hyperparameter_rows(), noise=noise,
+                  noise_rows=noise_rows(noise) if noise else [], agent_log_std=AGENTS["residual-ppo"].log_std_init,
+                  has_variants=any("log_std_init" in k[3] for k in groups), cost_rows=cost_rows(groups),
+                  figure=os.path.basename(figure), made_by=COMMAND, tasks=tasks, episodes=episodes,
+                  shipped=shipped, onset_peak=an.ONSET_PEAK, target_improvement=an.TARGET_IMPROVEMENT,
+                  target_seeds=an.TARGET_SEEDS, target_friction=an.TARGET_FRICTION, cell=cell, fmt=format)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Files
+
+
+def episodes_csv(results: dict) -> str:
+    """One row per evaluated episode of every task (:data:`EPISODE_COLUMNS`)."""
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(EPISODE_COLUMNS)
+    for task, res in results.items():
+        for r in res.rows:
+            w.writerow([task] + [r[c] for c in EPISODE_COLUMNS[1:]])
+    return buf.getvalue()
+
+
+def results_json(results: dict) -> str:
+    """The harness's summary and comparisons per task."""
+    summary = {task: {"summary": res.summary, "comparisons": res.comparisons} for task, res in results.items()}
+    return json.dumps(summary, indent=1, default=str) + "\n"
+
+
+def command_line(runs: list[str], out: str, episodes: int, ship: str | None) -> str:
+    """The command that writes the report with these settings (printed at the top of TRAINING.md)."""
+    return (f"{COMMAND} --runs {' '.join(runs)} --out {out} --episodes {episodes}"
+            + (f" --ship {ship}" if ship else ""))
+
+
+def make_report(runs: list[str], out: str, episodes: int = 48, noise: str | None = None, ship: str | None = None,
+                workers: int = 2, progress: bool = True) -> dict:
+    """Evaluate the finished runs under the ``runs`` folders and write the report to ``out``.
+
+    Args:
+        runs: folders of run folders (each run folder as ``ehss train`` writes it).
+        out: output folder (TRAINING.md, learning_curves.png, episodes.csv, results.json).
+        episodes: held-out episodes per task.
+        noise: the noise study's JSON (``python -m ehss_gym.train.noise_study``), or None to leave it out.
+        ship: copy the chosen residual policies' safe weights to this folder (e.g. ``ehss_gym/models``), or None.
+        workers: evaluation worker processes.
+        progress: show progress bars.
+
+    Returns:
+        {"files": the paths written, "shipped": the model stems shipped}.
+
+    Raises:
+        ValueError: a missing ``runs`` folder, runs of one group with different settings, or no finished runs.
+    """
+    groups = an.group_runs([r for folder in runs for r in an.load_runs(folder)])
+    if not groups:
+        raise ValueError(f"no finished runs under {runs}")
+    cmd = command_line(runs, out, episodes, ship)
+    os.makedirs(out, exist_ok=True)
+    figure = os.path.join(out, "learning_curves.png")
+    plot_curves(groups, figure)
+    results, tasks = {}, []
+    for task in sorted({k[1] for k in groups}):
+        t0 = time.perf_counter()
+        results.update(an.evaluate_groups({k: v for k, v in groups.items() if k[1] == task}, episodes, workers,
+                                          progress, COMMAND))
+        tasks.append((task, time.perf_counter() - t0))
+    shipped = an.ship(groups, ship, COMMAND) if ship else []
+    study = an.read_json(noise) if noise and os.path.isfile(noise) else None
+    sections = [task_context(task, results[task], groups, episodes, wall) for task, wall in tasks]
+    files = {"TRAINING.md": markdown(cmd, groups, sections, study, shipped_context(groups, shipped, ship), figure,
+                                     episodes),
+             "episodes.csv": episodes_csv(results), "results.json": results_json(results)}
+    for name, text in files.items():
+        atomic_write_text(os.path.join(out, name), text)
+    return {"files": [figure] + [os.path.join(out, name) for name in files], "shipped": shipped}
+
+
+__all__ = ["COMMAND", "cell", "plot_curves", "markdown", "episodes_csv", "results_json", "command_line",
+           "make_report"]

@@ -1,0 +1,48 @@
+"""The layout's rules, checked on every test run (and so in CI): one-way imports, short functions, few
+function-local imports, a lint-clean tree.
+
+Each check runs the repository's own tool in a subprocess, the way a developer runs it by hand.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+MAX_LOCAL_IMPORTS = 5  # optional heavy dependencies only (matplotlib in render, SB3 loading, ...), each with a reason
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
+
+
+def test_import_layers_hold():
+    """import-linter's contracts in pyproject.toml: cli > reporting > study|train > evaluation > agents|controllers
+    > envs > core, and nothing imports the CLI."""
+    pytest.importorskip("importlinter", reason="import-linter is in the dev extra")
+    p = _run("tools/lint_imports.py")
+    assert p.returncode == 0, p.stdout[-4000:] + p.stderr[-2000:]
+    assert "2 kept, 0 broken" in p.stdout
+
+
+def test_no_long_functions_outside_kernels():
+    p = _run("tools/longest_functions.py", "--limit", "80")
+    assert p.returncode == 0, p.stdout
+
+
+def test_function_local_imports_are_few():
+    p = _run("tools/local_imports.py", "--max", str(MAX_LOCAL_IMPORTS))
+    assert p.returncode == 0, p.stdout
+
+
+def test_the_tree_is_lint_clean():
+    ruff = shutil.which("ruff")
+    if ruff is None:
+        pytest.skip("ruff is in the dev extra")
+    p = subprocess.run([ruff, "check", "."], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout[-4000:]

@@ -1,0 +1,151 @@
+"""The settings of a training run (:class:`Config`) and of a multi-seed launch (:class:`Launch`): the one list of
+options of ``python -m ehss_gym.train.loop`` and ``ehss train`` (:mod:`ehss_gym.train.options` derives the flags
+from the fields and their docstrings).
+
+Light on purpose (no torch, no SB3): every ``ehss`` command imports the CLI module that builds this parser.
+The agent's hyperparameters are :data:`ehss_gym.agents.specs.AGENTS`; a run overrides them with ``--hp``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+from dataclasses import dataclass
+
+from ehss_gym.agents.specs import AGENTS, agent_names, env_kwargs_for, get_spec
+
+from ehss_gym.envs import ENV_ID, EnvConfig
+
+from . import options, runs
+
+# settings that do not change the result: left out of the run-name hash
+NOT_HASHED = ("out", "resume", "progress", "timesteps", "verbose")
+
+
+@dataclass
+class Config:
+    """Everything a training run depends on (the flags of ``python -m ehss_gym.train.loop`` are these fields)."""
+
+    agent: str = "residual-ppo"
+    """agent name: residual-ppo (PPO residual on the Sontag law) or ppo (pure PPO, env mode direct)"""
+    task: str = "velocity"
+    """tracking task: velocity (output x2) or position (output x1)"""
+    n: int = 2
+    """power factor of the base CLF law (even >= 2)"""
+    timesteps: int = 300_000
+    """total agent steps to train for (an agent step is agent_period control periods: 1 ms for both agents)"""
+    seed: int = 0
+    """training seed: torch, NumPy, SB3 and the env scenario draws (sub-env i is seeded seed + i)"""
+    eval_freq: int = 50_000
+    """agent steps between held-out evaluations (rounded up to a rollout boundary)"""
+    eval_episodes: int = 8
+    """validation scenarios per evaluation (held-out seeds, disjoint from training and from the test block)"""
+    eval_seconds: float = 2.0
+    """duration of each validation episode [s] (2 s like the training episodes and the harness's held-out suite)"""
+    checkpoint_freq: int = 50_000
+    """agent steps between checkpoints (rounded up to a rollout boundary)"""
+    n_envs: int | None = None
+    """parallel envs (None = the agent's default)"""
+    hp: dict = dataclasses.field(default_factory=dict)
+    """overrides of the agent's hyperparameters (fields of ehss_gym.agents.specs.AgentSpec) as KEY=JSON, e.g. --hp
+    gamma=0.99 --hp 'env_kwargs={"agent_period": 20}'"""
+    torch_threads: int = 1
+    """torch threads of this process (runs of several seeds go one process per core)"""
+    out: str | None = None
+    """run folder (default runs/<run name>; with --seeds: the parent of the run folders)"""
+    resume: bool = False
+    """continue from the run folder's latest checkpoint"""
+    progress: bool = True
+    """show a tqdm progress bar"""
+    verbose: int = 0
+    """SB3 verbosity"""
+
+    def validate(self) -> Config:
+        """Raise RunError naming a bad field and its accepted range; returns self."""
+        if self.agent not in AGENTS:
+            raise runs.RunError(f"--agent must be one of {agent_names()}, got {self.agent!r}")
+        if self.task not in ("velocity", "position"):
+            raise runs.RunError(f"--task must be one of ['velocity', 'position'], got {self.task!r}")
+        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 2 or self.n % 2:
+            raise runs.RunError(f"--n must be an even integer >= 2, got {self.n!r}")
+        for name, low in (("timesteps", 1), ("eval_freq", 1), ("eval_episodes", 1), ("checkpoint_freq", 1),
+                          ("torch_threads", 1), ("seed", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise runs.RunError(f"{options.flag(name)} must be an integer >= {low}, got {v!r}")
+        if isinstance(self.eval_seconds, bool) or not isinstance(self.eval_seconds, (int, float)) \
+                or not 0.01 <= self.eval_seconds <= 100.0:
+            raise runs.RunError(f"--eval-seconds must be a number in [0.01, 100] (s), got {self.eval_seconds!r}")
+        if self.n_envs is not None and (isinstance(self.n_envs, bool) or not isinstance(self.n_envs, int)
+                                        or self.n_envs < 1):
+            raise runs.RunError(f"--n-envs must be an integer >= 1, got {self.n_envs!r}")
+        try:  # the env's own validation of the kwargs the agent will train with
+            EnvConfig.from_kwargs(env_kwargs_for(self.spec(), self.task, self.n))
+        except ValueError as exc:
+            raise runs.RunError(f"env settings: {exc}") from None
+        return self
+
+    def spec(self):
+        """The agent's :class:`~ehss_gym.agents.specs.AgentSpec` with this run's overrides (``hp``, ``n_envs``)."""
+        over = dict(self.hp)
+        if self.n_envs is not None:
+            over["n_envs"] = self.n_envs
+        try:
+            return get_spec(self.agent, **over)
+        except (TypeError, ValueError) as exc:
+            raise runs.RunError(f"--hp: {exc}") from None
+
+    def full(self) -> dict:
+        """The config plus the agent's hyperparameters and env kwargs: what config.json holds."""
+        spec = self.spec()
+        return {**dataclasses.asdict(self), "agent_spec": spec.as_dict(),
+                "env_kwargs": env_kwargs_for(spec, self.task, self.n), "env_id": ENV_ID}
+
+    def run_name(self) -> str:
+        """``<agent>_<task>_n<n>_s<seed>_<hash8>`` (:func:`ehss_gym.train.runs.run_name`)."""
+        return runs.run_name(self.agent, self.task, self.n, self.seed, self.full(), exclude=NOT_HASHED)
+
+    def run_dir(self) -> str:
+        """The run folder: ``out``, or ``runs/<run name>``."""
+        return self.out or os.path.join("runs", self.run_name())
+
+
+@dataclass
+class Launch:
+    """How ``ehss train`` runs several seeds (its flags besides those of :class:`Config`)."""
+
+    seeds: str | None = None
+    """several seeds, e.g. 0-4 or 0,2,5: one process per seed, at most --jobs at a time; each run goes to <out or
+    runs>/<run name>"""
+    jobs: int | None = None
+    """parallel processes for --seeds (default: the usable cores)"""
+
+    def validate(self) -> Launch:
+        """Raise RunError for a bad --jobs; returns self."""
+        if self.jobs is not None and self.jobs < 1:
+            raise runs.RunError(f"--jobs must be an integer >= 1, got {self.jobs!r}")
+        return self
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None, launch: bool = False) -> argparse.ArgumentParser:
+    """The options of :class:`Config` (and, with ``launch``, of :class:`Launch`) on ``parser`` or a new one."""
+    p = parser or argparse.ArgumentParser(prog="python -m ehss_gym.train.loop",
+                                          description="Train residual PPO (or pure PPO) on EHSSTracking-v0.")
+    options.add_options(p, Config)
+    if launch:
+        options.add_options(p, Launch)
+    return p
+
+
+def config_from_args(args: argparse.Namespace, **overrides) -> Config:
+    """A validated Config from parsed options; ``overrides`` (e.g. ``seed``, ``out``) replace parsed values."""
+    return options.from_namespace(Config, args, **overrides).validate()
+
+
+def launch_from_args(args: argparse.Namespace) -> Launch:
+    """A validated Launch from parsed options (``ehss train``)."""
+    return options.from_namespace(Launch, args).validate()
+
+
+__all__ = ["Config", "Launch", "NOT_HASHED", "build_parser", "config_from_args", "launch_from_args"]
