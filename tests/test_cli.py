@@ -76,3 +76,17 @@ def test_simulate_takes_the_estimator(tmp_path, capsys):
         assert main(["simulate", "--estimator", scheme, "--sigma", "1e5", "--current-limit", "10", "--t-end", "0.05",
                      "--control-period", "3e-5", "--substeps", "1", "--out", str(tmp_path / scheme)]) == 0
         assert f"estimator={scheme}" in capsys.readouterr().out
+
+
+def test_friction_none_disables_friction(tmp_path, capsys):
+    """Issue 16 bug 2: ``--friction none`` (as the help says) runs without friction events."""
+    rc = main(["simulate", "--friction", "none", "--t-end", "0.05", "--out", str(tmp_path / "nf")])
+    assert rc == 0
+    assert np.all(np.load(tmp_path / "nf.npz")["friction"] == 0.0)
+
+
+def test_friction_none_cannot_be_mixed_with_events(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", "--friction", "none", "1.8:8:10", "--out", str(tmp_path / "x")])
+    assert exc.value.code == 2
+    assert "--friction none cannot be combined with events" in capsys.readouterr().err

@@ -9,8 +9,10 @@ from ehss_gym.core.layout import ESTIMATORS
 from ehss_gym.core.sim import PAPER_FRICTION, Scenario
 
 
-def parse_friction(text: str) -> tuple[float, float, float]:
-    """AMP:START:END -> (amplitude [N*m], start [s], end [s])."""
+def parse_friction(text: str) -> tuple[float, float, float] | None:
+    """AMP:START:END -> (amplitude [N*m], start [s], end [s]); 'none' -> None (no friction)."""
+    if text.strip().lower() == "none":
+        return None
     parts = text.split(":")
     try:
         if len(parts) != 3:
@@ -23,6 +25,17 @@ def parse_friction(text: str) -> tuple[float, float, float]:
         raise argparse.ArgumentTypeError(
             f"--friction needs AMP >= 0, START >= 0 and END > START (finite), got {text!r}")
     return a, t0, t1
+
+
+class FrictionAction(argparse.Action):
+    """``--friction``: events AMP:START:END, or ``none`` alone (no friction); stored as a tuple of events."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if any(v is None for v in values):
+            if len(values) > 1:
+                parser.error(f"argument {option_string}: --friction none cannot be combined with events")
+            values = []
+        setattr(namespace, self.dest, tuple(values))
 
 
 def parse_limit(text: str) -> float | None:
@@ -90,6 +103,7 @@ def add_loop_arguments(p: argparse.ArgumentParser, *, t_end: float = 20.0):
     p.add_argument("--current-limit", type=parse_limit, default=None, help="[mA] or 'none' (default none)")
     p.add_argument("--t-end", type=_finite("--t-end", 0.0), default=t_end, help="[s]")
     p.add_argument("--friction", type=parse_friction, nargs="*", default=None, metavar="AMP:START:END",
+                   action=FrictionAction,
                    help="friction events [N*m:s:s]; default the paper's 1.8:8:10; give none to disable")
     p.add_argument("--estimator", choices=ESTIMATORS, default="foh",
                    help="how the reference model and derivative estimator run: foh (default; first-order-hold "
