@@ -8,6 +8,7 @@ import os
 import sys
 from dataclasses import replace
 
+from ehss_gym.core.util import report_folder
 from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, default_specs, evaluate, parse_policies
 from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
 
@@ -40,7 +41,9 @@ def register(sub) -> None:
                    help="worker processes (default: the cores available)")
     p.add_argument("--n-boot", type=int_at_least("--n-boot", 100), default=None, help="bootstrap replicates")
     p.add_argument("--seed", type=int_at_least("--seed", 0), default=0, help="bootstrap seed")
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--out", default=None,
+                   help=f"output folder (default {DEFAULT_OUT}; with --quick runs/quick/comparison, so a quick run "
+                        "never overwrites the shipped report unless --out says so)")
     p.add_argument("--quick", action="store_true",
                    help="small CI form: 8 held-out episodes, 3+2 sweep levels of 1 episode, paper run cut at 12 s")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -64,7 +67,7 @@ def _command_line(args) -> str:
             parts.append(f"{flag} {v}")
     if args.seed:
         parts.append(f"--seed {args.seed}")
-    if args.out != DEFAULT_OUT:
+    if args.out is not None:
         parts.append(f"--out {args.out}")
     if args.quick:
         parts.append("--quick")
@@ -99,7 +102,7 @@ def cmd_evaluate(args) -> int:
     except RuntimeError as exc:  # a policy that misbehaved while running (e.g. a NaN action)
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
-    path = write_report(res, args.out)
+    path = write_report(res, report_folder(args.out, args.quick, DEFAULT_OUT))
     print(f"{len(res.rows)} episodes in {res.wall_time:.1f} s ({res.workers} workers; "
           + ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()) + f"); wrote {path}")
     for suite in SUITES:
