@@ -121,7 +121,15 @@ M_SUM_E2_NOFRIC = 17
 M_STEPS_NOFRIC = 18
 M_SUM_E2_QUIET = 19  # sum e^2 over the quiet samples (I_QUIET)
 M_STEPS_QUIET = 20
-N_METRICS = 21
+M_SUM_E2_SETTLED = 21  # sum e^2 over the steps past the start-up (t >= QUIET_STARTUP) with no friction event
+M_STEPS_SETTLED = 22
+# Lost-track detection (ehss_gym.core.metrics): its bound is a parameter of the accumulator, set when a run is loaded
+M_LOST_BOUND = 23  # bound on the windowed RMS of e [output unit]; inf = detection off
+M_LOST_EMA = 24  # exponential moving mean of e^2 over LOST_TRACK_WINDOW, from t = QUIET_STARTUP on
+M_LOST = 25  # 1 once the windowed RMS of e has exceeded the bound
+M_T_LOST = 26  # time it first did [s]; -1 if never
+N_METRICS = 27
+LOST_TRACK_WINDOW = 0.1  # [s] time constant of the windowed (exponential moving) RMS of e
 
 DIV_NONE = 0
 DIV_NONFINITE = 1

@@ -12,6 +12,14 @@ control period, T the simulated time):
   start-up (t >= 0.2 s) and neither in a friction event nor within 0.2 s after
   one ends (the tracking error itself, without the friction transients that
   dominate ``rmse_nominal`` once the loop tracks to ~1e-5; NaN if no such step).
+- ``rmse_nominal_settled``: the same over the steps past the start-up (t >= 0.2 s) with no friction event
+  active (the nominal RMSE with the start-up excluded; NaN if no such step).
+- ``lost_track``: the loop lost track: once past the start-up (t >= 0.2 s), the RMS of e over a sliding
+  window (an exponential moving mean of e^2, time constant 0.1 s, starting empty at 0.2 s) exceeded the
+  scenario's bound ``Scenario.lost_track`` * the reference's amplitude (1 x by default: an error as large as
+  the signal to track). ``t_lost_track`` [s]: when it first did (None if never). A diverged run stops first
+  and is reported as diverged; a lost track only flags a run that goes on (a saturated oscillation within
+  the state bounds, for instance).
 - ``iae``: sum |e| h;  ``itae``: sum t |e| h.
 - ``max_abs_e``: max |e|; ``max_abs_e_friction``: max |e| while friction is on.
 - ``recovery_on`` / ``recovery_off``: settling time after the first friction
@@ -87,6 +95,10 @@ def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray 
         "t_diverged": float(a[L.M_T_DIVERGED]) if a[L.M_DIVERGED] else None,
         "rmse": float(math.sqrt(a[L.M_SUM_E2] / steps)),
         "rmse_nominal": math.sqrt(a[L.M_SUM_E2_NOFRIC] / max(a[L.M_STEPS_NOFRIC], 1.0)),
+        "rmse_nominal_settled": (math.sqrt(a[L.M_SUM_E2_SETTLED] / a[L.M_STEPS_SETTLED]) if a[L.M_STEPS_SETTLED]
+                                 else math.nan),
+        "lost_track": bool(a[L.M_LOST] > 0.0),
+        "t_lost_track": float(a[L.M_T_LOST]) if a[L.M_LOST] > 0.0 else None,
         "rmse_quiet": math.sqrt(a[L.M_SUM_E2_QUIET] / a[L.M_STEPS_QUIET]) if a[L.M_STEPS_QUIET] else math.nan,
         "iae": float(a[L.M_SUM_ABS_E]),
         "itae": float(a[L.M_SUM_T_ABS_E]),
@@ -112,6 +124,8 @@ def format_summary(m: dict, unit: str) -> str:
     lines = []
     if m["diverged"]:
         lines.append(f"DIVERGED at t = {m['t_diverged']:.6g} s ({m['divergence_reason']}); metrics up to then:")
+    elif m.get("lost_track"):
+        lines.append(f"LOST TRACK at t = {m['t_lost_track']:.6g} s (windowed RMS of e above the lost-track bound)")
     lines += [
         f"  RMSE                  {m['rmse']:.4g} {unit}",
         f"  max |e|               {m['max_abs_e']:.4g} {unit}",

@@ -85,6 +85,20 @@ class Reference:
         out = np.array([reference_value(float(ti), self.spec) for ti in t.ravel()])
         return out.reshape(t.shape)
 
+    @property
+    def amplitude(self) -> float:
+        """The largest |r - offset| the family's parameters allow [output unit] (multi-sine: the sum of the
+        components' amplitudes; a table: half its range)."""
+        kind = int(self.spec[R_KIND])
+        if kind == REF_MULTISINE:
+            return float(sum(abs(self.spec[R_MS0 + 3 * i]) for i in range(MAX_SINES)))
+        return float(abs(self.spec[R_A1]))
+
+    @property
+    def offset(self) -> float:
+        """The constant offset of r [output unit]."""
+        return float(self.spec[R_OFFSET])
+
     def to_dict(self) -> dict:
         return {"family": self.family, "description": self.description, "spec": self.spec.tolist()}
 

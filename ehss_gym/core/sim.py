@@ -83,6 +83,11 @@ class Scenario:
             plant's RK4; the reference). See docs/MODEL.md, "Digital filters".
         omega_max: divergence bound on |x2| [rad/s].
         pressure_bound: divergence bound on |x3| as a multiple of P_s.
+        lost_track: lost-track bound as a multiple of the reference's amplitude (> 0; None = never flagged): the
+            run has lost track once the RMS of e over a sliding window (exponential, time constant
+            ``LOST_TRACK_WINDOW`` = 0.1 s, from t = 0.2 s on) exceeds ``lost_track`` * ``reference.amplitude``
+            (the amplitude's offset if it is 0; off if both are 0). Only reported (``metrics()["lost_track"]``,
+            ``t_lost_track``): the run goes on. See :mod:`ehss_gym.core.metrics`.
     """
 
     task: str = "velocity"
@@ -106,6 +111,7 @@ class Scenario:
     estimator: str = "foh"
     omega_max: float = 1e3
     pressure_bound: float = 1.5
+    lost_track: float | None = 1.0
 
     def __post_init__(self):
         if self.task not in TASKS:
@@ -138,6 +144,8 @@ class Scenario:
             v = getattr(self, name)
             if v is not None and not isinstance(v, PlantParams):
                 raise ValueError(f"{name} must be a PlantParams (use make_plant_params), got {type(v).__name__}")
+        if self.lost_track is not None:
+            object.__setattr__(self, "lost_track", check_positive("lost_track", self.lost_track))
 
     @property
     def order(self) -> int:
@@ -153,6 +161,12 @@ class Scenario:
     def log_every(self) -> int:
         """Control periods per logged sample."""
         return max(1, int(round(self.log_interval / self.control_period)))
+
+    @property
+    def lost_track_bound(self) -> float:
+        """The bound on the windowed RMS of e [output unit] that flags a lost track; inf = detection off."""
+        scale = self.reference.amplitude or abs(self.reference.offset)
+        return math.inf if self.lost_track is None or scale == 0.0 else self.lost_track * scale
 
     def grid(self) -> tuple:
         return (self.control_period, self.substeps, self.n_steps, self.log_every)
@@ -288,6 +302,15 @@ def accumulate(acc, info, h, k):
     if info[L.I_QUIET] > 0.0:
         acc[L.M_STEPS_QUIET] += 1.0
         acc[L.M_SUM_E2_QUIET] += e * e
+    if t >= L.QUIET_STARTUP:
+        if info[L.I_FRIC_ON] == 0.0:
+            acc[L.M_STEPS_SETTLED] += 1.0
+            acc[L.M_SUM_E2_SETTLED] += e * e
+        # lost track: the windowed RMS of e above its bound (from the start-up's end; the window starts empty)
+        acc[L.M_LOST_EMA] += (e * e - acc[L.M_LOST_EMA]) * min(1.0, h / L.LOST_TRACK_WINDOW)
+        if acc[L.M_LOST] == 0.0 and acc[L.M_LOST_EMA] > acc[L.M_LOST_BOUND] * acc[L.M_LOST_BOUND]:
+            acc[L.M_LOST] = 1.0
+            acc[L.M_T_LOST] = t
     u = info[L.I_UAPP]
     if k > 0:
         acc[L.M_TV_U] += abs(u - acc[L.M_LAST_U])
@@ -505,6 +528,11 @@ class Trajectory:
     def t_diverged(self) -> float | None:
         return float(self.acc[L.M_T_DIVERGED]) if self.diverged else None
 
+    @property
+    def lost_track(self) -> bool:
+        """The windowed RMS of e exceeded the scenario's lost-track bound (see :class:`Scenario`)."""
+        return bool(self.acc[L.M_LOST] > 0.0)
+
     def metrics(self) -> dict:
         """Summary metrics; see :func:`ehss_gym.core.metrics.summarize`."""
         return summarize(self)
@@ -521,6 +549,13 @@ class Trajectory:
         for i in range(1, self.scenario.order):
             out[f"y_est_d{i}"] = self.y_est_derivs[:, i]
         return out
+
+
+def init_accumulators(acc: np.ndarray, scenarios: Sequence[Scenario]) -> None:
+    """Set the parameters of fresh (zeroed) metrics accumulators (rows of layout M_*), one per scenario."""
+    for j, s in enumerate(scenarios):
+        acc[j, L.M_LOST_BOUND] = s.lost_track_bound
+        acc[j, L.M_T_LOST] = -1.0
 
 
 def simulate_batch(scenarios: Sequence[Scenario]) -> list[Trajectory]:
@@ -542,6 +577,7 @@ def simulate_batch(scenarios: Sequence[Scenario]) -> list[Trajectory]:
         log = np.zeros((len(group), n_rows, L.N_LOG))
         acc = np.zeros((len(group), L.N_METRICS))
         n_log = np.zeros(len(group), dtype=np.int64)
+        init_accumulators(acc, group)
         z = a.z0.copy()
         if len(group) == 1:  # skip the thread pool for a single run
             run_lanes(z, h, substeps, n_steps, log_every, a.plant, a.model, a.ctrl, a.ref, a.events, a.filt, log,

@@ -51,7 +51,8 @@ from .specs import (
 )
 from .suites import SUITES, SWEEP_WINDOW, TASKS, UNITS, Episode, EvalConfig, build_episodes
 
-ROW_EXTRAS = ("rmse_nominal", "peak_u", "tv_u", "divergence_reason", "t_diverged", "n_clipped")  # beyond METRICS
+# beyond METRICS
+ROW_EXTRAS = ("rmse_nominal", "peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped")
 
 
 @dataclass
