@@ -6,10 +6,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from dataclasses import replace
 
 from ehss_gym.core.util import report_folder
-from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, default_specs, evaluate, parse_policies
+from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, PolicyWarning, default_specs, evaluate, parse_policies
 from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
 
 from .args import int_at_least
@@ -30,7 +31,8 @@ def register(sub) -> None:
                                    "suite and robustness sweeps; write REPORT.md, CSVs and figures.")
     p.add_argument("--policies", nargs="+", default=None, metavar="SPEC",
                    help="comma- or space-separated: clf-n2, clf-n4, clf-n6, pid, residual-ppo:PATH, ppo-direct:PATH, "
-                        "or a shipped model name (default: every shipped policy)")
+                        "sb3:PATH (any SB3 algorithm, its mode from the env spec saved with it), or a shipped model "
+                        "name (default: every shipped policy)")
     p.add_argument("--suite", choices=("paper", "heldout", "robustness", "all"), default="all")
     p.add_argument("--tasks", type=_tasks, default=TASKS, help="comma-separated subset of velocity,position")
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
@@ -93,15 +95,22 @@ def cmd_evaluate(args) -> int:
     """
     prog = "ehss evaluate"
     try:
-        cfg = config_from_args(args)
-        specs = default_specs() if args.policies is None else parse_policies(args.policies)
-        res = evaluate(specs, cfg, workers=args.workers, progress=not args.no_progress, command=_command_line(args))
+        with warnings.catch_warnings(record=True) as caught:  # printed below as the CLI's own warnings
+            warnings.simplefilter("always", PolicyWarning)
+            cfg = config_from_args(args)
+            specs = default_specs() if args.policies is None else parse_policies(args.policies)
+            for w in caught:
+                print(f"{prog}: warning: {w.message}", file=sys.stderr)
+            res = evaluate(specs, cfg, workers=args.workers, progress=not args.no_progress,
+                           command=_command_line(args))
     except ValueError as exc:  # PolicyError, SafeWeightsError, bad settings
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     except RuntimeError as exc:  # a policy that misbehaved while running (e.g. a NaN action)
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
+    for note in res.notes:
+        print(f"{prog}: note: {note}", file=sys.stderr)
     path = write_report(res, report_folder(args.out, args.quick, DEFAULT_OUT))
     print(f"{len(res.rows)} episodes in {res.wall_time:.1f} s ({res.workers} workers; "
           + ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()) + f"); wrote {path}")
