@@ -152,12 +152,15 @@ L_URES = 22
 L_UCMD = 23
 L_UAPP = 24
 L_TF = 25
-N_LOG = 26
+L_UMIN = 26  # smallest applied current [mA] over the control periods the sample stands for (its log interval)
+L_UMAX = 27  # largest
+N_LOG = 28
 
 # --- The envs' per-lane buffers (ehss_gym.envs.lanes) ---------------------------------------------
 # Per-agent-step statistics and reward-weight slots of the kernel.
 S_SUM_E2, S_N, S_SAT, S_TV0 = 0, 1, 2, 3  # S_TV0: the lane's accumulated control TV when the step began
-N_STATS = 4
+S_UMIN, S_UMAX = 4, 5  # smallest and largest applied current [mA] over the step's control periods
+N_STATS = 6
 W_TRACK, W_EFFORT, W_RATE, W_TV, W_TVU, W_DIV, W_INV_E2, W_INV_SCALE = range(8)
 N_WEIGHTS = 8
 

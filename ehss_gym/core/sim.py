@@ -345,6 +345,17 @@ def write_log(row, z, info):
     row[L.L_UCMD] = info[L.I_UCMD]
     row[L.L_UAPP] = info[L.I_UAPP]
     row[L.L_TF] = info[L.I_TF]
+    row[L.L_UMIN] = info[L.I_UAPP]  # the envelope of the sample's log interval starts here
+    row[L.L_UMAX] = info[L.I_UAPP]
+
+
+@jit
+def widen_envelope(row, u):
+    """Widen a log row's applied-current envelope (L_UMIN, L_UMAX) [mA] by one more period's current ``u``."""
+    if u < row[L.L_UMIN]:
+        row[L.L_UMIN] = u
+    if u > row[L.L_UMAX]:
+        row[L.L_UMAX] = u
 
 
 @jit
@@ -453,11 +464,15 @@ def run_lanes(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, event
         if lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
                         zprev, work, lwork, pre, peek) == 0:
             break
-        if k % log_every == 0:
-            for b in range(B):
-                if active[b]:
-                    write_log(log[b, n_log[b]], zprev[b], info[b])
-                    n_log[b] += 1
+        log_now = k % log_every == 0
+        for b in range(B):
+            if not active[b]:
+                continue
+            if log_now:
+                write_log(log[b, n_log[b]], zprev[b], info[b])
+                n_log[b] += 1
+            else:  # between samples: the current's envelope over the log interval (no aliasing of the switching)
+                widen_envelope(log[b, n_log[b] - 1], info[b, L.I_UAPP])
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")
@@ -494,6 +509,10 @@ class Trajectory:
     u_applied = property(lambda self: self.log[:, L.L_UAPP], doc="applied current [mA]")
     u_base = property(lambda self: self.log[:, L.L_UBASE], doc="Sontag current [mA]")
     friction = property(lambda self: self.log[:, L.L_TF], doc="friction torque [N*m]")
+    u_applied_min = property(lambda self: self.log[:, L.L_UMIN],
+                             doc="smallest applied current over each sample's log interval [mA]")
+    u_applied_max = property(lambda self: self.log[:, L.L_UMAX],
+                             doc="largest applied current over each sample's log interval [mA]")
     e = property(lambda self: self.log[:, L.L_E], doc="tracking error y - y_d")
 
     @property
@@ -540,7 +559,8 @@ class Trajectory:
     def arrays(self) -> dict[str, np.ndarray]:
         """Named arrays for saving (npz / csv)."""
         out = {"t": self.t, "y": self.y, "y_ref": self.y_ref, "e": self.e, "u": self.u, "u_applied": self.u_applied,
-               "u_base": self.u_base, "s": self.s, "V": self.V, "friction": self.friction, "r": self.r}
+               "u_base": self.u_base, "s": self.s, "V": self.V, "friction": self.friction, "r": self.r,
+               "u_applied_min": self.u_applied_min, "u_applied_max": self.u_applied_max}
         names = ("theta", "omega", "p_load", "valve_area")
         for i, nm in enumerate(names):
             out[nm] = self.x[:, i]

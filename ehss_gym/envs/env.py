@@ -23,6 +23,9 @@ from .kernels import advance
 from .lanes import Lanes
 from .observation import OBS_BOUND
 
+# what the dashboard records per agent step (at its last control sample; u_min/u_max over its control periods)
+HIST_COLUMNS = ("t", "y", "y_ref", "e", "u_applied", "u_base", "u_residual", "friction", "r", "u_min", "u_max")
+
 
 def parse_action_scalar(action) -> float:
     """A single action value from an array-like of one element; NaN raises ValueError."""
@@ -159,7 +162,9 @@ class EHSSTrackingEnv(gym.Env):
         terminate_on_lost_track: end the episode (``terminated=True``, ``info["lost_track"]=True``,
             ``info["diverged"]=False``, no divergence penalty) at the end of the step in which it lost track
             (default False).
-        render_mode: None or "rgb_array" (a dashboard: reference vs output, error, currents, friction).
+        render_mode: None or "rgb_array" (a dashboard: raw reference r, filtered y_d and output y; error; the
+            applied current on a linear axis with its limit and its min/max envelope over each agent step;
+            friction).
 
     Version history:
         v0 (ehss-gym 0.1): first release. Before release the defaults moved to the reproduction
@@ -269,8 +274,10 @@ class EHSSTrackingEnv(gym.Env):
 
     def _record(self):
         i = self._lanes.info_ok[0]
+        st = self._lanes.stats[0]
+        lo, hi = (st[L.S_UMIN], st[L.S_UMAX]) if st[S_N] > 0 else (i[L.I_UAPP], i[L.I_UAPP])
         self._hist.append((i[L.I_T], i[L.I_YE], i[L.I_YD], i[L.I_E], i[L.I_UAPP], i[L.I_UBASE], i[L.I_URES],
-                           i[L.I_TF]))
+                           i[L.I_TF], i[L.I_R], lo, hi))
 
     def render(self):
         """An RGB dashboard (H, W, 3) uint8 of the episode so far, or None without render_mode."""
@@ -279,7 +286,8 @@ class EHSSTrackingEnv(gym.Env):
             return None
         from .render import render_dashboard  # matplotlib (~0.3 s to import) only for envs that render
 
-        return render_dashboard(np.array(self._hist or [(0.0,) * 8]), self.config, self.scenario)
+        rows = np.array(self._hist or [(0.0,) * len(HIST_COLUMNS)])
+        return render_dashboard(dict(zip(HIST_COLUMNS, rows.T)), self.config, self.scenario)
 
     def close(self):
         self._hist = None
