@@ -7,6 +7,11 @@ Example::
     plot_trajectory(simulate(sigma=1e5, current_limit=10.0, t_end=2.0), "run.png")
 """
 
-from ehss_gym.reporting.plotting import plot_trajectory, trajectory_figure
+from ehss_gym.reporting.plotting import (
+    frequency_response_figure,
+    plot_frequency_response,
+    plot_trajectory,
+    trajectory_figure,
+)
 
-__all__ = ["plot_trajectory", "trajectory_figure"]
+__all__ = ["plot_trajectory", "trajectory_figure", "plot_frequency_response", "frequency_response_figure"]

@@ -70,6 +70,9 @@ REF_SINE = 0
 REF_STEP = 1
 REF_CHIRP = 2
 REF_MULTISINE = 3
+REF_TABLE = 4  # samples (t_i, r_i) interpolated linearly, held outside [t_0, t_last]; past the fixed row:
+R_TAB_N = 4  # number of samples n (a table uses no other slot but R_KIND and R_OFFSET)
+R_TAB0 = N_REF  # t_0..t_(n-1) [s] start here, then r_0..r_(n-1): a table row is N_REF + 2n long
 
 # --- Friction events: rows of (amplitude [N*m], start [s], end [s]) --------
 F_AMP = 0

@@ -35,6 +35,8 @@ control period, T the simulated time):
 - ``peak_u``: max |commanded u|; ``peak_u_applied``; ``rms_u`` [mA].
 - ``saturation``: share of steps on which the current limit was active.
 - ``v_decrease``: share of steps on which V fell from the previous step.
+- with a step reference, ``step_rise_time``, ``step_settling_time``, ``step_overshoot``, ``step_peak_time`` and
+  ``step_steady_state_error`` (:func:`step_summary`).
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ import math
 import numpy as np
 
 from . import layout as L
+from .response import step_metrics
 
 RECOVERY_SHARE = 0.1  # the settling band includes this share of the edge's peak |e| (a 90 % recovery)
 
@@ -77,8 +80,26 @@ def recovery_times(t: np.ndarray, e: np.ndarray, friction) -> tuple[float, float
 
 
 def summarize(traj) -> dict:
-    """The metrics dict of a :class:`~ehss_gym.core.sim.Trajectory` (see module docstring)."""
-    return summarize_acc(traj.acc, traj.scenario, traj.t, traj.e)
+    """The metrics dict of a :class:`~ehss_gym.core.sim.Trajectory` (see module docstring); with a step reference
+    also its step-response metrics (:func:`step_summary`)."""
+    out = summarize_acc(traj.acc, traj.scenario, traj.t, traj.e)
+    if traj.scenario.reference.family == "step":
+        out.update(step_summary(traj))
+    return out
+
+
+def step_summary(traj) -> dict:
+    """Step-response metrics of the output y of a run with a step reference, from the logged trajectory.
+
+    The step is the reference's: from its offset to offset + amplitude at its step time
+    (:func:`ehss_gym.core.response.step_metrics`; the response includes the reference model's lag, as a
+    control engineer measures r -> y). Keys ``step_rise_time`` [s], ``step_settling_time`` [s],
+    ``step_overshoot`` [%], ``step_peak_time`` [s], ``step_steady_state_error`` [output unit].
+    """
+    ref = traj.scenario.reference
+    y0 = ref.offset
+    m = step_metrics(traj.t, traj.y, float(ref.spec[L.R_T0]), y0, y0 + float(ref.spec[L.R_A1]))
+    return {f"step_{k}": v for k, v in m.items() if k != "final_value"}
 
 
 def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray | None = None) -> dict:
@@ -135,4 +156,11 @@ def format_summary(m: dict, unit: str) -> str:
         f"  peak |u| commanded    {m['peak_u']:.4g} mA",
         f"  saturation fraction   {m['saturation']:.4f}",
     ]
+    if "step_rise_time" in m:
+        lines += [
+            f"  step rise time        {m['step_rise_time']:.4g} s  (10-90 %)",
+            f"  step settling time    {m['step_settling_time']:.4g} s  (2 % band)",
+            f"  step overshoot        {m['step_overshoot']:.4g} %",
+            f"  steady-state error    {m['step_steady_state_error']:.4g} {unit}",
+        ]
     return "\n".join(lines)

@@ -241,6 +241,14 @@ def initial_state(sc: Scenario, filt: np.ndarray | None = None) -> np.ndarray:
     return z
 
 
+def _stack_rows(rows: Sequence[np.ndarray]) -> np.ndarray:
+    """Reference spec rows stacked, zero-padded to the longest (a table reference's row is longer)."""
+    out = np.zeros((len(rows), max(len(r) for r in rows)))
+    for i, r in enumerate(rows):
+        out[i, :len(r)] = r
+    return out
+
+
 @dataclass
 class LoopArrays:
     """Stacked per-scenario arrays for the kernels (one row per scenario)."""
@@ -274,7 +282,7 @@ class LoopArrays:
             plant=np.stack([s.plant.as_array() for s in scenarios]),
             model=np.stack([(s.model or s.plant).as_array() for s in scenarios]),
             ctrl=np.stack([ctrl_row(s) for s in scenarios]),
-            ref=np.stack([s.reference.spec for s in scenarios]),
+            ref=_stack_rows([s.reference.spec for s in scenarios]),
             events=events,
             filt=filt,
         )
@@ -555,6 +563,25 @@ class Trajectory:
     def metrics(self) -> dict:
         """Summary metrics; see :func:`ehss_gym.core.metrics.summarize`."""
         return summarize(self)
+
+    def units(self) -> dict[str, str]:
+        """The unit of each of :meth:`arrays` (U = rad/s velocity, rad position; "-" = dimensionless)."""
+        U = UNITS[self.scenario.task]
+        m = self.scenario.order
+        lift = 1 if self.scenario.task == "velocity" else 0  # U = rad/s^lift
+
+        def deriv(i: int) -> str:  # the unit of the i-th time derivative of the output
+            p = i + lift
+            return "rad" if p == 0 else ("rad/s" if p == 1 else f"rad/s^{p}")
+
+        out = {"t": "s", "y": U, "y_ref": U, "e": U, "u": "mA", "u_applied": "mA", "u_base": "mA",
+               "s": deriv(m - 1), "V": "-", "friction": "N*m", "r": U, "u_applied_min": "mA",
+               "u_applied_max": "mA", "theta": "rad", "omega": "rad/s", "p_load": "Pa", "valve_area": "m^2"}
+        for i in range(1, m + 1):
+            out[f"y_ref_d{i}"] = deriv(i)
+        for i in range(1, m):
+            out[f"y_est_d{i}"] = deriv(i)
+        return out
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Named arrays for saving (npz / csv)."""

@@ -145,6 +145,10 @@ class Lanes:
     def load(self, b: int, sc: Scenario) -> None:
         """Put lane b at the start of scenario ``sc`` (rows as :meth:`ehss_gym.core.sim.LoopArrays.build` has them)."""
         cfg = self.cfg
+        if len(sc.reference.spec) != L.N_REF:
+            raise ValueError(f"the env runs the parametric references (sine, step, chirp, multisine), not a "
+                             f"{sc.reference.family!r} reference: its lanes hold fixed-size rows; simulate it with "
+                             "ehss_gym.simulate")
         if len(sc.friction) > self.events.shape[1]:
             ev = self._empty_events(self.B, len(sc.friction))
             ev[:, :self.events.shape[1]] = self.events

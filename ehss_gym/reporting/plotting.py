@@ -6,12 +6,18 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 
 from ehss_gym.core.sim import UNITS  # noqa: E402
 
+COHERENCE_MIN = 0.99  # frequencies with less coherence are drawn faint: the run did not excite them enough
+
 
 def _title(traj) -> str:
-    sc = traj.scenario
+    return _scenario_title(traj.scenario)
+
+
+def _scenario_title(sc) -> str:
     lim = "none" if sc.current_limit is None else f"{sc.current_limit:g} mA"
     return (f"{sc.task}, n={sc.n}, f_r={sc.fr:g} Hz, sigma={sc.sigma:g}, w={sc.smoothing:g}, "
             f"h={sc.control_period:g} s, limit={lim}; {sc.reference.description}")
@@ -100,6 +106,69 @@ def plot_trajectory(traj, path, title: str | None = None, made_by: str | None = 
         ``path``.
     """
     fig = trajectory_figure(traj, title, made_by)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return str(path)
+
+
+def frequency_response_figure(fr, scenario=None, made_by: str | None = None, reference=None):
+    """A Bode plot (magnitude [dB] and phase [deg] against frequency [Hz], log axis) of a frequency response.
+
+    Args:
+        fr: a :class:`~ehss_gym.core.response.FrequencyResponse` (its low-coherence points drawn faint).
+        scenario: the run's Scenario, for the title and the chirp's sweep band (shaded).
+        made_by: the command that made the figure, printed in the footer.
+        reference: optional (freq [Hz], complex H) drawn as a dashed line, e.g. the reference model's response.
+    """
+    fig, (am, ap) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    band = excited_band(fr, scenario)
+    inb = (fr.freq >= band[0]) & (fr.freq <= band[1])
+    good = inb & (fr.coherence >= COHERENCE_MIN)
+    f = fr.freq[good]
+    am.semilogx(f, fr.magnitude_db[good], "C0o-", lw=1.2, ms=2.5, label=f"estimate (coherence >= {COHERENCE_MIN})")
+    ap.semilogx(f, np.degrees(np.unwrap(np.angle(fr.gain[good]))), "C0o-", lw=1.2, ms=2.5, label="estimate")
+    weak = inb & ~good
+    if weak.any():
+        am.semilogx(fr.freq[weak], fr.magnitude_db[weak], "C0x", ms=3, alpha=0.4, label="low coherence")
+    if reference is not None:
+        f, H = reference
+        sel = (f >= band[0]) & (f <= band[1])
+        am.semilogx(f[sel], 20 * np.log10(np.abs(H[sel])), "k--", lw=1, label="reference model (the loop's target)")
+        ap.semilogx(f[sel], np.degrees(np.unwrap(np.angle(H[sel]))), "k--", lw=1)
+    am.set_xlim(*band)
+    am.set_ylabel("|y / r| [dB]")
+    ap.set_ylabel("phase [deg]")
+    ap.set_xlabel("frequency [Hz]")
+    am.legend(fontsize=7, loc="lower left")
+    am.grid(True, which="both", alpha=0.3)
+    ap.grid(True, which="both", alpha=0.3)
+    ttl = "closed-loop frequency response r -> y (Welch H1 estimate)"
+    if scenario is not None:
+        ttl += "\n" + _scenario_title(scenario)
+    fig.suptitle(ttl, fontsize=9)
+    if made_by:
+        fig.text(0.01, 0.005, f"made by: {made_by}", fontsize=7, color="gray")
+    fig.tight_layout(rect=(0, 0.02, 1, 1))
+    return fig
+
+
+def excited_band(fr, scenario=None) -> tuple[float, float]:
+    """The frequencies [Hz] a run's reference excited: a chirp's sweep, a multi-sine's lowest to highest line
+    (each with a 20 % margin), else all of ``fr``."""
+    if scenario is not None and scenario.reference.family in ("chirp", "multisine"):
+        spec = scenario.reference.spec
+        if scenario.reference.family == "chirp":
+            w = (spec[5], spec[7])
+        else:
+            w = [spec[9 + 3 * i] for i in range(4) if spec[8 + 3 * i] != 0.0]
+        lo, hi = min(w) / (2 * np.pi), max(w) / (2 * np.pi)
+        return max(lo / 1.2, float(fr.freq[0])), hi * 1.2
+    return float(fr.freq[0]), float(fr.freq[-1])
+
+
+def plot_frequency_response(fr, path, scenario=None, made_by: str | None = None, reference=None) -> str:
+    """Write :func:`frequency_response_figure` as a PNG; returns ``path``."""
+    fig = frequency_response_figure(fr, scenario, made_by, reference)
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return str(path)
