@@ -179,7 +179,7 @@ def step(amplitude: float = 1.0, t_step: float = 0.1, offset: float = 0.0) -> Re
 
 def chirp(amplitude: float = 1.0, omega_start: float = 1.0, omega_end: float = 20.0, t_start: float = 0.0,
           t_end: float = 20.0, phase: float = 0.0, offset: float = 0.0) -> Reference:
-    """Linear chirp from omega_start to omega_end [rad/s] over [t_start, t_end] [s], plus ``offset``.
+    """Linear chirp from omega_start to omega_end [rad/s] between t_start and t_end [s], plus ``offset``.
 
     Holds omega_end after t_end, omega_start before t_start.
     """

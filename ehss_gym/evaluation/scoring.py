@@ -114,7 +114,9 @@ def matrix(rows: list, policy: str, suite: str, task: str, key: str = "score", e
 
     Args:
         rows: per-episode rows.
-        policy, suite, task: which rows.
+        policy: the policy's name.
+        suite: the suite.
+        task: the task.
         key: the row field.
         episodes: episode ids in column order (default: their order in ``rows``).
 
