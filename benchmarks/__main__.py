@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 import traceback
@@ -28,17 +29,22 @@ def build_parser(prog: str = "python -m benchmarks") -> argparse.ArgumentParser:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true",
                    help="shrunken problems (CI, well under a minute); checks the benchmarks run, asserts no speed")
-    p.add_argument("--out", default="reports/perf", help="output folder for PERF.md and the CSV files")
+    p.add_argument("--out", default=None, help="output folder for PERF.md and the CSV files (default reports/perf; "
+                                               "with --quick runs/quick/perf, so a quick run never overwrites the "
+                                               "shipped one)")
     p.add_argument("--only", type=_sections, default=list(SECTIONS),
                    help=f"comma-separated subset of {','.join(SECTIONS)} (default: all)")
 
 
 def run(args, command: str) -> int:
+    from ehss_gym.core.util import report_folder
+
     from . import bench_compile, bench_env, bench_memory, bench_sim, bench_train, report
     from .common import Section, load_average, log, machine, versions
 
     modules = {"sim": bench_sim, "env": bench_env, "train": bench_train, "memory": bench_memory,
                "compile": bench_compile}
+    args.out = report_folder(args.out, args.quick, os.path.join("reports", "perf"))
     t0 = time.perf_counter()
     meta = {"command": command, "date": report.now(), "quick": args.quick, "machine": machine(),
             "versions": versions(), "load_start": load_average()}

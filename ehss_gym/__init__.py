@@ -10,7 +10,7 @@ Quick start::
 
 from ._version import __version__
 from .core.params import PlantParams, make_plant_params
-from .core.signals import Reference, chirp, multisine, paper_reference, sine, step
+from .core.signals import Reference, chirp, from_array, from_function, multisine, paper_reference, sine, step
 from .core.sim import PAPER_FRICTION, TASKS, Scenario, Trajectory, simulate, simulate_batch
 
 __all__ = [
@@ -21,6 +21,8 @@ __all__ = [
     "step",
     "chirp",
     "multisine",
+    "from_array",
+    "from_function",
     "paper_reference",
     "Scenario",
     "Trajectory",

@@ -21,15 +21,16 @@ def test_simulate_writes_png_npz_csv_and_summary(tmp_path, capsys):
     for name in ("t", "y", "y_ref", "e", "u", "u_applied", "s"):
         assert name in data and len(data[name]) == 500
     header = open(f"{out}.csv").readline().strip().split(",")
-    assert header[:7] == ["t", "y", "y_ref", "e", "u", "u_applied", "u_base"]
+    assert header[:7] == ["t [s]", "y [rad/s]", "y_ref [rad/s]", "e [rad/s]", "u [mA]", "u_applied [mA]",
+                          "u_base [mA]"]  # issue 16: the CSV header carries units
     csv = np.loadtxt(f"{out}.csv", delimiter=",", skiprows=1)
-    np.testing.assert_allclose(csv[:, header.index("e")], data["e"], rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(csv[:, header.index("e [rad/s]")], data["e"], rtol=1e-9, atol=1e-15)
     assert (tmp_path / "run.png").stat().st_size > 10_000
 
 
 def test_simulate_reports_divergence(tmp_path, capsys):
-    rc = main(["simulate", "--t-end", "0.05", "--out", str(tmp_path / "d")])
-    assert rc == 0
+    rc = main(["simulate", "--preset", "paper", "--t-end", "0.05", "--out", str(tmp_path / "d")])
+    assert rc == 3  # the documented exit code of a diverged run
     assert "DIVERGED at t =" in capsys.readouterr().out
     assert np.all(np.isfinite(np.load(tmp_path / "d.npz")["y"]))
 
@@ -61,7 +62,7 @@ def test_bad_arguments_exit_2_and_name_the_parameter(tmp_path, args, needle, cap
 
 
 def test_t_end_shorter_than_control_period_is_a_cli_error(tmp_path, capsys):
-    rc = main(["simulate", "--t-end", "1e-5", "--out", str(tmp_path / "x")])
+    rc = main(["simulate", "--preset", "paper", "--t-end", "1e-5", "--out", str(tmp_path / "x")])
     assert rc == 2
     assert "t_end must be >= control_period" in capsys.readouterr().err
 
@@ -76,3 +77,17 @@ def test_simulate_takes_the_estimator(tmp_path, capsys):
         assert main(["simulate", "--estimator", scheme, "--sigma", "1e5", "--current-limit", "10", "--t-end", "0.05",
                      "--control-period", "3e-5", "--substeps", "1", "--out", str(tmp_path / scheme)]) == 0
         assert f"estimator={scheme}" in capsys.readouterr().out
+
+
+def test_friction_none_disables_friction(tmp_path, capsys):
+    """Issue 16 bug 2: ``--friction none`` (as the help says) runs without friction events."""
+    rc = main(["simulate", "--friction", "none", "--t-end", "0.05", "--out", str(tmp_path / "nf")])
+    assert rc == 0
+    assert np.all(np.load(tmp_path / "nf.npz")["friction"] == 0.0)
+
+
+def test_friction_none_cannot_be_mixed_with_events(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", "--friction", "none", "1.8:8:10", "--out", str(tmp_path / "x")])
+    assert exc.value.code == 2
+    assert "--friction none cannot be combined with events" in capsys.readouterr().err

@@ -8,6 +8,7 @@ Bad arguments exit with code 2 and a message that names the parameter and the ac
 from __future__ import annotations
 
 import argparse
+import sys
 
 from ehss_gym._version import __version__
 
@@ -27,5 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
+    args.argv = argv  # the command line, for the made-by lines of figures
     return int(args.func(args) or 0)

@@ -13,6 +13,10 @@ import importlib
 import os
 import sys
 
+from ehss_gym.core.util import report_folder
+
+SHIPPED = os.path.join("reports", "perf")
+
 
 def _benchmarks_module():
     """The ``benchmarks.__main__`` module of the source checkout holding this package, or None."""
@@ -31,8 +35,8 @@ def cmd_bench(args) -> int:
               "a source checkout of ehss-gym (pip install -e .), or `python -m benchmarks` in its root",
               file=sys.stderr)
         return 2
-    argv = ["--out", args.out] + (["--quick"] if args.quick else []) + (["--only", ",".join(args.only)]
-                                                                       if args.only else [])
+    argv = ["--out", report_folder(args.out, args.quick, SHIPPED)] + (["--quick"] if args.quick else [])
+    argv += ["--only", ",".join(args.only)] if args.only else []
     # the benchmark children run `python -m benchmarks...` from the checkout root
     return mod.run(mod.build_parser().parse_args(argv), "ehss bench " + " ".join(argv))
 
@@ -41,7 +45,9 @@ def register(sub):
     p = sub.add_parser("bench", help="run the performance benchmarks (source checkout) and write PERF.md + CSV")
     p.add_argument("--quick", action="store_true",
                    help="shrunken problems (CI, well under a minute); checks the benchmarks run, asserts no speed")
-    p.add_argument("--out", default="reports/perf", help="output folder for PERF.md and the CSV files")
+    p.add_argument("--out", default=None, help="output folder for PERF.md and the CSV files (default reports/perf; "
+                                               "with --quick runs/quick/perf, so a quick run never overwrites the "
+                                               "shipped one)")
     p.add_argument("--only", default=None, type=_only, help="comma-separated subset of sim,env,train,memory,compile")
     p.set_defaults(func=cmd_bench)
 

@@ -6,9 +6,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import warnings
 from dataclasses import replace
 
-from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, default_specs, evaluate, parse_policies
+from ehss_gym.core.util import report_folder
+from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, PolicyWarning, default_specs, evaluate, parse_policies
 from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
 
 from .args import int_at_least
@@ -29,7 +31,8 @@ def register(sub) -> None:
                                    "suite and robustness sweeps; write REPORT.md, CSVs and figures.")
     p.add_argument("--policies", nargs="+", default=None, metavar="SPEC",
                    help="comma- or space-separated: clf-n2, clf-n4, clf-n6, pid, residual-ppo:PATH, ppo-direct:PATH, "
-                        "or a shipped model name (default: every shipped policy)")
+                        "sb3:PATH (any SB3 algorithm, its mode from the env spec saved with it), or a shipped model "
+                        "name (default: every shipped policy)")
     p.add_argument("--suite", choices=("paper", "heldout", "robustness", "all"), default="all")
     p.add_argument("--tasks", type=_tasks, default=TASKS, help="comma-separated subset of velocity,position")
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
@@ -40,7 +43,9 @@ def register(sub) -> None:
                    help="worker processes (default: the cores available)")
     p.add_argument("--n-boot", type=int_at_least("--n-boot", 100), default=None, help="bootstrap replicates")
     p.add_argument("--seed", type=int_at_least("--seed", 0), default=0, help="bootstrap seed")
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
+    p.add_argument("--out", default=None,
+                   help=f"output folder (default {DEFAULT_OUT}; with --quick runs/quick/comparison, so a quick run "
+                        "never overwrites the shipped report unless --out says so)")
     p.add_argument("--quick", action="store_true",
                    help="small CI form: 8 held-out episodes, 3+2 sweep levels of 1 episode, paper run cut at 12 s")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -64,7 +69,7 @@ def _command_line(args) -> str:
             parts.append(f"{flag} {v}")
     if args.seed:
         parts.append(f"--seed {args.seed}")
-    if args.out != DEFAULT_OUT:
+    if args.out is not None:
         parts.append(f"--out {args.out}")
     if args.quick:
         parts.append("--quick")
@@ -90,16 +95,23 @@ def cmd_evaluate(args) -> int:
     """
     prog = "ehss evaluate"
     try:
-        cfg = config_from_args(args)
-        specs = default_specs() if args.policies is None else parse_policies(args.policies)
-        res = evaluate(specs, cfg, workers=args.workers, progress=not args.no_progress, command=_command_line(args))
+        with warnings.catch_warnings(record=True) as caught:  # printed below as the CLI's own warnings
+            warnings.simplefilter("always", PolicyWarning)
+            cfg = config_from_args(args)
+            specs = default_specs() if args.policies is None else parse_policies(args.policies)
+            for w in caught:
+                print(f"{prog}: warning: {w.message}", file=sys.stderr)
+            res = evaluate(specs, cfg, workers=args.workers, progress=not args.no_progress,
+                           command=_command_line(args))
     except ValueError as exc:  # PolicyError, SafeWeightsError, bad settings
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     except RuntimeError as exc:  # a policy that misbehaved while running (e.g. a NaN action)
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
-    path = write_report(res, args.out)
+    for note in res.notes:
+        print(f"{prog}: note: {note}", file=sys.stderr)
+    path = write_report(res, report_folder(args.out, args.quick, DEFAULT_OUT))
     print(f"{len(res.rows)} episodes in {res.wall_time:.1f} s ({res.workers} workers; "
           + ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()) + f"); wrote {path}")
     for suite in SUITES:

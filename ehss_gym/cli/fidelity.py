@@ -6,7 +6,7 @@ import argparse
 import os
 import sys
 
-from ehss_gym.core.util import atomic_write_text
+from ehss_gym.core.util import atomic_write_text, report_folder
 from ehss_gym.reporting.fidelity import docs_block, replace_block, write_report
 from ehss_gym.study.fidelity import PROG, run_all
 
@@ -32,11 +32,15 @@ def run(out: str = "reports/fidelity", docs: str | None = "docs/MODEL.md", quick
     return path
 
 
+SHIPPED = os.path.join("reports", "fidelity")
+SHIPPED_DOCS = os.path.join("docs", "MODEL.md")
+
+
 def _cmdline(prog: str, args) -> str:
     parts = [prog]
-    if args.out != "reports/fidelity":
+    if args.out is not None:
         parts += ["--out", args.out]
-    if args.docs != "docs/MODEL.md":
+    if args.docs is not None:
         parts += ["--docs", args.docs]
     if args.quick:
         parts.append("--quick")
@@ -44,10 +48,11 @@ def _cmdline(prog: str, args) -> str:
 
 
 def _add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", default="reports/fidelity", help="report folder (default reports/fidelity)")
-    p.add_argument("--docs", default="docs/MODEL.md",
-                   help="markdown file whose fidelity-table block gets the main table (default docs/MODEL.md; "
-                        "'none' leaves docs alone)")
+    p.add_argument("--out", default=None, help="report folder (default reports/fidelity; with --quick "
+                                               "runs/quick/fidelity, so a quick run never overwrites the shipped one)")
+    p.add_argument("--docs", default=None,
+                   help="markdown file whose fidelity-table block gets the main table (default docs/MODEL.md, "
+                        "with --quick none; 'none' leaves docs alone)")
     p.add_argument("--quick", action="store_true",
                    help="closed loop at 30 and 10 us for 2 s only (a smoke test; seconds)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -55,6 +60,10 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _run_args(args, prog: str) -> int:
     name = prog.split()[-1] if prog.startswith("ehss") else prog
+    cmd = _cmdline(prog, args)
+    args.out = report_folder(args.out, args.quick, SHIPPED)
+    if args.docs is None:
+        args.docs = "none" if args.quick else SHIPPED_DOCS
     if not str(args.out).strip():
         print(f"{name}: error: --out must be a non-empty folder path", file=sys.stderr)
         return 2
@@ -69,7 +78,7 @@ def _run_args(args, prog: str) -> int:
         except (OSError, ValueError) as exc:
             print(f"{name}: error: --docs {docs!r}: {exc}", file=sys.stderr)
             return 2
-    path = run(args.out, docs, quick=args.quick, progress=not args.no_progress, cmd=_cmdline(prog, args))
+    path = run(args.out, docs, quick=args.quick, progress=not args.no_progress, cmd=cmd)
     print(f"wrote {path}" + (f" and the table in {docs}" if docs else ""))
     return 0
 

@@ -15,6 +15,7 @@ import os
 import sys
 import time
 
+from ehss_gym.core.util import report_folder
 from ehss_gym.reporting.paper import write_report
 from ehss_gym.study.config import StudyConfig
 from ehss_gym.study.stages import run_study
@@ -29,8 +30,11 @@ def main_reproduce(out: str, quick: bool = False, progress: bool = True, cmd: st
     return write_report(st, out, cmd, t_start=t0)
 
 
+SHIPPED = os.path.join("reports", "paper")
+
+
 def cmd_reproduce(args) -> int:
-    out = args.out
+    out = report_folder(args.out, args.quick, SHIPPED)
     if not out or not str(out).strip():
         print("ehss reproduce: error: --out must be a non-empty folder path", file=sys.stderr)
         return 2
@@ -45,7 +49,8 @@ def cmd_reproduce(args) -> int:
 def register(sub):
     p = sub.add_parser("reproduce", help="regenerate the paper's study (Figs. 5-13, claims C1-C7, sweeps, "
                                          "lost-track checks, smoothing, recommended defaults) into a report folder")
-    p.add_argument("--out", default="reports/paper", help="output folder (default reports/paper)")
+    p.add_argument("--out", default=None, help="output folder (default reports/paper; with --quick runs/quick/paper, "
+                                               "so a quick run never overwrites the shipped report)")
     p.add_argument("--quick", action="store_true",
                    help="tiny grids and durations (CI smoke run; numbers not meaningful)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")

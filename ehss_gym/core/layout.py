@@ -70,6 +70,9 @@ REF_SINE = 0
 REF_STEP = 1
 REF_CHIRP = 2
 REF_MULTISINE = 3
+REF_TABLE = 4  # samples (t_i, r_i) interpolated linearly, held outside [t_0, t_last]; past the fixed row:
+R_TAB_N = 4  # number of samples n (a table uses no other slot but R_KIND and R_OFFSET)
+R_TAB0 = N_REF  # t_0..t_(n-1) [s] start here, then r_0..r_(n-1): a table row is N_REF + 2n long
 
 # --- Friction events: rows of (amplitude [N*m], start [s], end [s]) --------
 F_AMP = 0
@@ -121,7 +124,15 @@ M_SUM_E2_NOFRIC = 17
 M_STEPS_NOFRIC = 18
 M_SUM_E2_QUIET = 19  # sum e^2 over the quiet samples (I_QUIET)
 M_STEPS_QUIET = 20
-N_METRICS = 21
+M_SUM_E2_SETTLED = 21  # sum e^2 over the steps past the start-up (t >= QUIET_STARTUP) with no friction event
+M_STEPS_SETTLED = 22
+# Lost-track detection (ehss_gym.core.metrics): its bound is a parameter of the accumulator, set when a run is loaded
+M_LOST_BOUND = 23  # bound on the windowed RMS of e [output unit]; inf = detection off
+M_LOST_EMA = 24  # exponential moving mean of e^2 over LOST_TRACK_WINDOW, from t = QUIET_STARTUP on
+M_LOST = 25  # 1 once the windowed RMS of e has exceeded the bound
+M_T_LOST = 26  # time it first did [s]; -1 if never
+N_METRICS = 27
+LOST_TRACK_WINDOW = 0.1  # [s] time constant of the windowed (exponential moving) RMS of e
 
 DIV_NONE = 0
 DIV_NONFINITE = 1
@@ -144,12 +155,15 @@ L_URES = 22
 L_UCMD = 23
 L_UAPP = 24
 L_TF = 25
-N_LOG = 26
+L_UMIN = 26  # smallest applied current [mA] over the control periods the sample stands for (its log interval)
+L_UMAX = 27  # largest
+N_LOG = 28
 
 # --- The envs' per-lane buffers (ehss_gym.envs.lanes) ---------------------------------------------
 # Per-agent-step statistics and reward-weight slots of the kernel.
 S_SUM_E2, S_N, S_SAT, S_TV0 = 0, 1, 2, 3  # S_TV0: the lane's accumulated control TV when the step began
-N_STATS = 4
+S_UMIN, S_UMAX = 4, 5  # smallest and largest applied current [mA] over the step's control periods
+N_STATS = 6
 W_TRACK, W_EFFORT, W_RATE, W_TV, W_TVU, W_DIV, W_INV_E2, W_INV_SCALE = range(8)
 N_WEIGHTS = 8
 

@@ -12,6 +12,14 @@ control period, T the simulated time):
   start-up (t >= 0.2 s) and neither in a friction event nor within 0.2 s after
   one ends (the tracking error itself, without the friction transients that
   dominate ``rmse_nominal`` once the loop tracks to ~1e-5; NaN if no such step).
+- ``rmse_nominal_settled``: the same over the steps past the start-up (t >= 0.2 s) with no friction event
+  active (the nominal RMSE with the start-up excluded; NaN if no such step).
+- ``lost_track``: the loop lost track: once past the start-up (t >= 0.2 s), the RMS of e over a sliding
+  window (an exponential moving mean of e^2, time constant 0.1 s, starting empty at 0.2 s) exceeded the
+  scenario's bound ``Scenario.lost_track`` * the reference's amplitude (1 x by default: an error as large as
+  the signal to track). ``t_lost_track`` [s]: when it first did (None if never). A diverged run stops first
+  and is reported as diverged; a lost track only flags a run that goes on (a saturated oscillation within
+  the state bounds, for instance).
 - ``iae``: sum |e| h;  ``itae``: sum t |e| h.
 - ``max_abs_e``: max |e|; ``max_abs_e_friction``: max |e| while friction is on.
 - ``recovery_on`` / ``recovery_off``: settling time after the first friction
@@ -27,6 +35,8 @@ control period, T the simulated time):
 - ``peak_u``: max |commanded u|; ``peak_u_applied``; ``rms_u`` [mA].
 - ``saturation``: share of steps on which the current limit was active.
 - ``v_decrease``: share of steps on which V fell from the previous step.
+- with a step reference, ``step_rise_time``, ``step_settling_time``, ``step_overshoot``, ``step_peak_time`` and
+  ``step_steady_state_error`` (:func:`step_summary`).
 """
 
 from __future__ import annotations
@@ -36,6 +46,7 @@ import math
 import numpy as np
 
 from . import layout as L
+from .response import step_metrics
 
 RECOVERY_SHARE = 0.1  # the settling band includes this share of the edge's peak |e| (a 90 % recovery)
 
@@ -69,8 +80,26 @@ def recovery_times(t: np.ndarray, e: np.ndarray, friction) -> tuple[float, float
 
 
 def summarize(traj) -> dict:
-    """The metrics dict of a :class:`~ehss_gym.core.sim.Trajectory` (see module docstring)."""
-    return summarize_acc(traj.acc, traj.scenario, traj.t, traj.e)
+    """The metrics dict of a :class:`~ehss_gym.core.sim.Trajectory` (see module docstring); with a step reference
+    also its step-response metrics (:func:`step_summary`)."""
+    out = summarize_acc(traj.acc, traj.scenario, traj.t, traj.e)
+    if traj.scenario.reference.family == "step":
+        out.update(step_summary(traj))
+    return out
+
+
+def step_summary(traj) -> dict:
+    """Step-response metrics of the output y of a run with a step reference, from the logged trajectory.
+
+    The step is the reference's: from its offset to offset + amplitude at its step time
+    (:func:`ehss_gym.core.response.step_metrics`; the response includes the reference model's lag, as a
+    control engineer measures r -> y). Keys ``step_rise_time`` [s], ``step_settling_time`` [s],
+    ``step_overshoot`` [%], ``step_peak_time`` [s], ``step_steady_state_error`` [output unit].
+    """
+    ref = traj.scenario.reference
+    y0 = ref.offset
+    m = step_metrics(traj.t, traj.y, float(ref.spec[L.R_T0]), y0, y0 + float(ref.spec[L.R_A1]))
+    return {f"step_{k}": v for k, v in m.items() if k != "final_value"}
 
 
 def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray | None = None) -> dict:
@@ -87,6 +116,10 @@ def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray 
         "t_diverged": float(a[L.M_T_DIVERGED]) if a[L.M_DIVERGED] else None,
         "rmse": float(math.sqrt(a[L.M_SUM_E2] / steps)),
         "rmse_nominal": math.sqrt(a[L.M_SUM_E2_NOFRIC] / max(a[L.M_STEPS_NOFRIC], 1.0)),
+        "rmse_nominal_settled": (math.sqrt(a[L.M_SUM_E2_SETTLED] / a[L.M_STEPS_SETTLED]) if a[L.M_STEPS_SETTLED]
+                                 else math.nan),
+        "lost_track": bool(a[L.M_LOST] > 0.0),
+        "t_lost_track": float(a[L.M_T_LOST]) if a[L.M_LOST] > 0.0 else None,
         "rmse_quiet": math.sqrt(a[L.M_SUM_E2_QUIET] / a[L.M_STEPS_QUIET]) if a[L.M_STEPS_QUIET] else math.nan,
         "iae": float(a[L.M_SUM_ABS_E]),
         "itae": float(a[L.M_SUM_T_ABS_E]),
@@ -112,6 +145,8 @@ def format_summary(m: dict, unit: str) -> str:
     lines = []
     if m["diverged"]:
         lines.append(f"DIVERGED at t = {m['t_diverged']:.6g} s ({m['divergence_reason']}); metrics up to then:")
+    elif m.get("lost_track"):
+        lines.append(f"LOST TRACK at t = {m['t_lost_track']:.6g} s (windowed RMS of e above the lost-track bound)")
     lines += [
         f"  RMSE                  {m['rmse']:.4g} {unit}",
         f"  max |e|               {m['max_abs_e']:.4g} {unit}",
@@ -121,4 +156,11 @@ def format_summary(m: dict, unit: str) -> str:
         f"  peak |u| commanded    {m['peak_u']:.4g} mA",
         f"  saturation fraction   {m['saturation']:.4f}",
     ]
+    if "step_rise_time" in m:
+        lines += [
+            f"  step rise time        {m['step_rise_time']:.4g} s  (10-90 %)",
+            f"  step settling time    {m['step_settling_time']:.4g} s  (2 % band)",
+            f"  step overshoot        {m['step_overshoot']:.4g} %",
+            f"  steady-state error    {m['step_steady_state_error']:.4g} {unit}",
+        ]
     return "\n".join(lines)

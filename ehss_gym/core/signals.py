@@ -1,7 +1,10 @@
-"""Reference signals r(t): the paper's sine, plus step, chirp and multi-sine.
+"""Reference signals r(t): the paper's sine, plus step, chirp and multi-sine, and any signal given as samples
+(:func:`from_array`) or as a Python function (:func:`from_function`).
 
 Each reference is a flat float64 spec row (layout ``R_*``) evaluated by one
-compiled function, so a batch of scenarios can mix families.
+compiled function, so a batch of scenarios can mix families. A sampled ("table") reference carries its samples
+in its row, so its row is longer: :func:`~ehss_gym.core.sim.simulate` and
+:func:`~ehss_gym.core.sim.simulate_batch` run it; the env, whose lanes hold fixed-size rows, does not.
 """
 
 from __future__ import annotations
@@ -21,17 +24,21 @@ from .layout import (
     R_P1,
     R_T0,
     R_T1,
+    R_TAB0,
+    R_TAB_N,
     R_W1,
     R_W_END,
     REF_CHIRP,
     REF_MULTISINE,
     REF_SINE,
     REF_STEP,
+    REF_TABLE,
 )
 from .physics import jit
 from .validate import check_finite
 
-FAMILIES = ("sine", "step", "chirp", "multisine")
+FAMILIES = ("sine", "step", "chirp", "multisine")  # the parametric families (the env's and the CLI's)
+MAX_TABLE = 1_000_000  # samples of a table reference
 
 
 @jit
@@ -58,6 +65,8 @@ def reference_value(t, spec):
         else:
             ph = 0.5 * (w0 + w1) * (t1 - t0) + w1 * (t - t1)
         r += spec[R_A1] * math.sin(ph + spec[R_P1])
+    elif kind == REF_TABLE:
+        r += _table_value(t, spec)
     else:
         for i in range(MAX_SINES):
             j = R_MS0 + 3 * i
@@ -65,12 +74,35 @@ def reference_value(t, spec):
     return r
 
 
+@jit
+def _table_value(t, spec):
+    """Linear interpolation in a table row's samples (layout R_TAB*); the end values are held outside them."""
+    n = int(spec[R_TAB_N])
+    t0 = R_TAB0
+    r0 = R_TAB0 + n
+    if t <= spec[t0]:
+        return spec[r0]
+    if t >= spec[t0 + n - 1]:
+        return spec[r0 + n - 1]
+    lo = 0
+    hi = n - 1
+    while hi - lo > 1:  # bisection: spec[t0 + lo] <= t < spec[t0 + hi]
+        mid = (lo + hi) // 2
+        if spec[t0 + mid] <= t:
+            lo = mid
+        else:
+            hi = mid
+    w = (t - spec[t0 + lo]) / (spec[t0 + hi] - spec[t0 + lo])
+    return spec[r0 + lo] + w * (spec[r0 + hi] - spec[r0 + lo])
+
+
 @dataclass(frozen=True)
 class Reference:
-    """A reference signal r(t). Build with :func:`sine`, :func:`step`, :func:`chirp`, :func:`multisine`.
+    """A reference signal r(t). Build with :func:`sine`, :func:`step`, :func:`chirp`, :func:`multisine`,
+    :func:`from_array` or :func:`from_function`.
 
     Attributes:
-        family: "sine", "step", "chirp" or "multisine".
+        family: "sine", "step", "chirp", "multisine" or "table".
         spec: the flat parameter row read by the compiled kernels.
         description: human-readable parameters.
     """
@@ -84,6 +116,24 @@ class Reference:
         t = np.asarray(t, dtype=np.float64)
         out = np.array([reference_value(float(ti), self.spec) for ti in t.ravel()])
         return out.reshape(t.shape)
+
+    @property
+    def amplitude(self) -> float:
+        """The largest |r - offset| the family's parameters allow [output unit] (multi-sine: the sum of the
+        components' amplitudes; a table: half its range)."""
+        kind = int(self.spec[R_KIND])
+        if kind == REF_TABLE:
+            n = int(self.spec[R_TAB_N])
+            r = self.spec[R_TAB0 + n:R_TAB0 + 2 * n]
+            return float(0.5 * (r.max() - r.min()))
+        if kind == REF_MULTISINE:
+            return float(sum(abs(self.spec[R_MS0 + 3 * i]) for i in range(MAX_SINES)))
+        return float(abs(self.spec[R_A1]))
+
+    @property
+    def offset(self) -> float:
+        """The constant offset of r [output unit]."""
+        return float(self.spec[R_OFFSET])
 
     def to_dict(self) -> dict:
         return {"family": self.family, "description": self.description, "spec": self.spec.tolist()}
@@ -128,12 +178,13 @@ def step(amplitude: float = 1.0, t_step: float = 0.1, offset: float = 0.0) -> Re
 
 
 def chirp(amplitude: float = 1.0, omega_start: float = 1.0, omega_end: float = 20.0, t_start: float = 0.0,
-          t_end: float = 20.0, phase: float = 0.0) -> Reference:
-    """Linear chirp from omega_start to omega_end [rad/s] over [t_start, t_end] [s].
+          t_end: float = 20.0, phase: float = 0.0, offset: float = 0.0) -> Reference:
+    """Linear chirp from omega_start to omega_end [rad/s] between t_start and t_end [s], plus ``offset``.
 
     Holds omega_end after t_end, omega_start before t_start.
     """
     row = _row(REF_CHIRP)
+    row[R_OFFSET] = check_finite("offset", offset)
     row[R_A1] = check_finite("amplitude", amplitude)
     row[R_W1] = check_finite("omega_start", omega_start, low=0.0)
     row[R_W_END] = check_finite("omega_end", omega_end, low=0.0)
@@ -162,9 +213,68 @@ def multisine(amplitudes, omegas, phases=None, offset: float = 0.0) -> Reference
     return Reference("multisine", row, f"multisine {desc}")
 
 
+def from_array(t, values, description: str | None = None) -> Reference:
+    """A reference given by samples: r interpolated linearly between them, held at the first and last value
+    outside them.
+
+    Args:
+        t: sample times [s], strictly increasing, at least 2, at most :data:`MAX_TABLE`.
+        values: r at those times [output unit: rad/s velocity, rad position], finite.
+        description: label (default: the number of samples and the time span).
+
+    Raises:
+        ValueError: naming ``t`` or ``values`` and what they must be.
+    """
+    t = np.asarray(t, dtype=np.float64).ravel()
+    v = np.asarray(values, dtype=np.float64).ravel()
+    if not 2 <= t.size <= MAX_TABLE:
+        raise ValueError(f"t must hold 2 to {MAX_TABLE} sample times, got {t.size}")
+    if v.size != t.size:
+        raise ValueError(f"values must have one entry per sample time ({t.size}), got {v.size}")
+    if not (np.all(np.isfinite(t)) and np.all(np.diff(t) > 0.0)):
+        raise ValueError("t must be finite and strictly increasing [s]")
+    if not np.all(np.isfinite(v)):
+        raise ValueError("values must be finite numbers [output unit]")
+    row = np.zeros(R_TAB0 + 2 * t.size)
+    row[R_KIND] = REF_TABLE
+    row[R_TAB_N] = t.size
+    row[R_TAB0:R_TAB0 + t.size] = t
+    row[R_TAB0 + t.size:] = v
+    return Reference("table", row, description or f"table of {t.size} samples, {t[0]:g}..{t[-1]:g} s")
+
+
+def from_function(fn, t_end: float, dt: float = 1e-4, description: str | None = None) -> Reference:
+    """A reference from a Python function r = fn(t), sampled every ``dt`` over [0, t_end] (:func:`from_array`).
+
+    ``fn`` gets a NumPy array of times [s] (or, if that fails, one float at a time) and returns r [output unit].
+    Sampling at 1e-4 s (the default) resolves what the reference model (20 Hz) passes on.
+
+    Args:
+        fn: the function.
+        t_end: last sample time [s] (> 0).
+        dt: sampling interval [s] (> 0, at most t_end).
+        description: label (default: the function's name).
+    """
+    t_end = check_finite("t_end", t_end, low=0.0, low_open=True)
+    dt = check_finite("dt", dt, low=0.0, high=t_end, low_open=True)
+    n = int(math.floor(t_end / dt + 1e-9)) + 1
+    if n > MAX_TABLE:
+        raise ValueError(f"t_end / dt gives {n} samples, more than {MAX_TABLE}; raise dt")
+    t = np.arange(n) * dt
+    try:
+        v = np.asarray(fn(t), dtype=np.float64)
+        if v.shape != t.shape:
+            raise ValueError
+    except Exception:  # a scalar function: one call per sample
+        v = np.array([float(fn(float(ti))) for ti in t])
+    name = getattr(fn, "__name__", type(fn).__name__)
+    return from_array(t, v, description or f"function {name} sampled every {dt:g} s")
+
+
 def paper_reference() -> Reference:
     """The paper's input: amplitude 1, 2 rad/s sine (Section IV)."""
     return sine(1.0, 2.0)
 
 
-__all__ = ["Reference", "sine", "step", "chirp", "multisine", "paper_reference", "reference_value", "FAMILIES"]
+__all__ = ["Reference", "sine", "step", "chirp", "multisine", "from_array", "from_function", "paper_reference",
+           "reference_value", "FAMILIES"]

@@ -83,6 +83,11 @@ class Scenario:
             plant's RK4; the reference). See docs/MODEL.md, "Digital filters".
         omega_max: divergence bound on |x2| [rad/s].
         pressure_bound: divergence bound on |x3| as a multiple of P_s.
+        lost_track: lost-track bound as a multiple of the reference's amplitude (> 0; None = never flagged): the
+            run has lost track once the RMS of e over a sliding window (exponential, time constant
+            ``LOST_TRACK_WINDOW`` = 0.1 s, from t = 0.2 s on) exceeds ``lost_track`` * ``reference.amplitude``
+            (the amplitude's offset if it is 0; off if both are 0). Only reported (``metrics()["lost_track"]``,
+            ``t_lost_track``): the run goes on. See :mod:`ehss_gym.core.metrics`.
     """
 
     task: str = "velocity"
@@ -106,6 +111,7 @@ class Scenario:
     estimator: str = "foh"
     omega_max: float = 1e3
     pressure_bound: float = 1.5
+    lost_track: float | None = 1.0
 
     def __post_init__(self):
         if self.task not in TASKS:
@@ -138,6 +144,8 @@ class Scenario:
             v = getattr(self, name)
             if v is not None and not isinstance(v, PlantParams):
                 raise ValueError(f"{name} must be a PlantParams (use make_plant_params), got {type(v).__name__}")
+        if self.lost_track is not None:
+            object.__setattr__(self, "lost_track", check_positive("lost_track", self.lost_track))
 
     @property
     def order(self) -> int:
@@ -153,6 +161,12 @@ class Scenario:
     def log_every(self) -> int:
         """Control periods per logged sample."""
         return max(1, int(round(self.log_interval / self.control_period)))
+
+    @property
+    def lost_track_bound(self) -> float:
+        """The bound on the windowed RMS of e [output unit] that flags a lost track; inf = detection off."""
+        scale = self.reference.amplitude or abs(self.reference.offset)
+        return math.inf if self.lost_track is None or scale == 0.0 else self.lost_track * scale
 
     def grid(self) -> tuple:
         return (self.control_period, self.substeps, self.n_steps, self.log_every)
@@ -227,6 +241,14 @@ def initial_state(sc: Scenario, filt: np.ndarray | None = None) -> np.ndarray:
     return z
 
 
+def _stack_rows(rows: Sequence[np.ndarray]) -> np.ndarray:
+    """Reference spec rows stacked, zero-padded to the longest (a table reference's row is longer)."""
+    out = np.zeros((len(rows), max(len(r) for r in rows)))
+    for i, r in enumerate(rows):
+        out[i, :len(r)] = r
+    return out
+
+
 @dataclass
 class LoopArrays:
     """Stacked per-scenario arrays for the kernels (one row per scenario)."""
@@ -260,7 +282,7 @@ class LoopArrays:
             plant=np.stack([s.plant.as_array() for s in scenarios]),
             model=np.stack([(s.model or s.plant).as_array() for s in scenarios]),
             ctrl=np.stack([ctrl_row(s) for s in scenarios]),
-            ref=np.stack([s.reference.spec for s in scenarios]),
+            ref=_stack_rows([s.reference.spec for s in scenarios]),
             events=events,
             filt=filt,
         )
@@ -288,6 +310,15 @@ def accumulate(acc, info, h, k):
     if info[L.I_QUIET] > 0.0:
         acc[L.M_STEPS_QUIET] += 1.0
         acc[L.M_SUM_E2_QUIET] += e * e
+    if t >= L.QUIET_STARTUP:
+        if info[L.I_FRIC_ON] == 0.0:
+            acc[L.M_STEPS_SETTLED] += 1.0
+            acc[L.M_SUM_E2_SETTLED] += e * e
+        # lost track: the windowed RMS of e above its bound (from the start-up's end; the window starts empty)
+        acc[L.M_LOST_EMA] += (e * e - acc[L.M_LOST_EMA]) * min(1.0, h / L.LOST_TRACK_WINDOW)
+        if acc[L.M_LOST] == 0.0 and acc[L.M_LOST_EMA] > acc[L.M_LOST_BOUND] * acc[L.M_LOST_BOUND]:
+            acc[L.M_LOST] = 1.0
+            acc[L.M_T_LOST] = t
     u = info[L.I_UAPP]
     if k > 0:
         acc[L.M_TV_U] += abs(u - acc[L.M_LAST_U])
@@ -322,6 +353,17 @@ def write_log(row, z, info):
     row[L.L_UCMD] = info[L.I_UCMD]
     row[L.L_UAPP] = info[L.I_UAPP]
     row[L.L_TF] = info[L.I_TF]
+    row[L.L_UMIN] = info[L.I_UAPP]  # the envelope of the sample's log interval starts here
+    row[L.L_UMAX] = info[L.I_UAPP]
+
+
+@jit
+def widen_envelope(row, u):
+    """Widen a log row's applied-current envelope (L_UMIN, L_UMAX) [mA] by one more period's current ``u``."""
+    if u < row[L.L_UMIN]:
+        row[L.L_UMIN] = u
+    if u > row[L.L_UMAX]:
+        row[L.L_UMAX] = u
 
 
 @jit
@@ -430,11 +472,15 @@ def run_lanes(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, event
         if lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
                         zprev, work, lwork, pre, peek) == 0:
             break
-        if k % log_every == 0:
-            for b in range(B):
-                if active[b]:
-                    write_log(log[b, n_log[b]], zprev[b], info[b])
-                    n_log[b] += 1
+        log_now = k % log_every == 0
+        for b in range(B):
+            if not active[b]:
+                continue
+            if log_now:
+                write_log(log[b, n_log[b]], zprev[b], info[b])
+                n_log[b] += 1
+            else:  # between samples: the current's envelope over the log interval (no aliasing of the switching)
+                widen_envelope(log[b, n_log[b] - 1], info[b, L.I_UAPP])
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")
@@ -471,6 +517,10 @@ class Trajectory:
     u_applied = property(lambda self: self.log[:, L.L_UAPP], doc="applied current [mA]")
     u_base = property(lambda self: self.log[:, L.L_UBASE], doc="Sontag current [mA]")
     friction = property(lambda self: self.log[:, L.L_TF], doc="friction torque [N*m]")
+    u_applied_min = property(lambda self: self.log[:, L.L_UMIN],
+                             doc="smallest applied current over each sample's log interval [mA]")
+    u_applied_max = property(lambda self: self.log[:, L.L_UMAX],
+                             doc="largest applied current over each sample's log interval [mA]")
     e = property(lambda self: self.log[:, L.L_E], doc="tracking error y - y_d")
 
     @property
@@ -505,14 +555,39 @@ class Trajectory:
     def t_diverged(self) -> float | None:
         return float(self.acc[L.M_T_DIVERGED]) if self.diverged else None
 
+    @property
+    def lost_track(self) -> bool:
+        """The windowed RMS of e exceeded the scenario's lost-track bound (see :class:`Scenario`)."""
+        return bool(self.acc[L.M_LOST] > 0.0)
+
     def metrics(self) -> dict:
         """Summary metrics; see :func:`ehss_gym.core.metrics.summarize`."""
         return summarize(self)
 
+    def units(self) -> dict[str, str]:
+        """The unit of each of :meth:`arrays` (U = rad/s velocity, rad position; "-" = dimensionless)."""
+        U = UNITS[self.scenario.task]
+        m = self.scenario.order
+        lift = 1 if self.scenario.task == "velocity" else 0  # U = rad/s^lift
+
+        def deriv(i: int) -> str:  # the unit of the i-th time derivative of the output
+            p = i + lift
+            return "rad" if p == 0 else ("rad/s" if p == 1 else f"rad/s^{p}")
+
+        out = {"t": "s", "y": U, "y_ref": U, "e": U, "u": "mA", "u_applied": "mA", "u_base": "mA",
+               "s": deriv(m - 1), "V": "-", "friction": "N*m", "r": U, "u_applied_min": "mA",
+               "u_applied_max": "mA", "theta": "rad", "omega": "rad/s", "p_load": "Pa", "valve_area": "m^2"}
+        for i in range(1, m + 1):
+            out[f"y_ref_d{i}"] = deriv(i)
+        for i in range(1, m):
+            out[f"y_est_d{i}"] = deriv(i)
+        return out
+
     def arrays(self) -> dict[str, np.ndarray]:
         """Named arrays for saving (npz / csv)."""
         out = {"t": self.t, "y": self.y, "y_ref": self.y_ref, "e": self.e, "u": self.u, "u_applied": self.u_applied,
-               "u_base": self.u_base, "s": self.s, "V": self.V, "friction": self.friction, "r": self.r}
+               "u_base": self.u_base, "s": self.s, "V": self.V, "friction": self.friction, "r": self.r,
+               "u_applied_min": self.u_applied_min, "u_applied_max": self.u_applied_max}
         names = ("theta", "omega", "p_load", "valve_area")
         for i, nm in enumerate(names):
             out[nm] = self.x[:, i]
@@ -521,6 +596,13 @@ class Trajectory:
         for i in range(1, self.scenario.order):
             out[f"y_est_d{i}"] = self.y_est_derivs[:, i]
         return out
+
+
+def init_accumulators(acc: np.ndarray, scenarios: Sequence[Scenario]) -> None:
+    """Set the parameters of fresh (zeroed) metrics accumulators (rows of layout M_*), one per scenario."""
+    for j, s in enumerate(scenarios):
+        acc[j, L.M_LOST_BOUND] = s.lost_track_bound
+        acc[j, L.M_T_LOST] = -1.0
 
 
 def simulate_batch(scenarios: Sequence[Scenario]) -> list[Trajectory]:
@@ -542,6 +624,7 @@ def simulate_batch(scenarios: Sequence[Scenario]) -> list[Trajectory]:
         log = np.zeros((len(group), n_rows, L.N_LOG))
         acc = np.zeros((len(group), L.N_METRICS))
         n_log = np.zeros(len(group), dtype=np.int64)
+        init_accumulators(acc, group)
         z = a.z0.copy()
         if len(group) == 1:  # skip the thread pool for a single run
             run_lanes(z, h, substeps, n_steps, log_every, a.plant, a.model, a.ctrl, a.ref, a.events, a.filt, log,

@@ -6,6 +6,22 @@ import os
 import tempfile
 from collections.abc import Callable
 
+QUICK_ROOT = os.path.join("runs", "quick")  # where quick (smoke) runs write by default: never a shipped report
+
+
+def report_folder(out: str | None, quick: bool, shipped: str) -> str:
+    """The output folder of a report command: ``out`` if given, else ``shipped`` (full run) or, for a quick
+    run, ``runs/quick/<last part of shipped>``, so a quick run never overwrites a committed report unless asked.
+
+    Args:
+        out: the ``--out`` value (None = not given).
+        quick: the run is a quick (smoke) run.
+        shipped: the committed report folder of a full run, e.g. ``reports/comparison``.
+    """
+    if out is not None:
+        return out
+    return os.path.join(QUICK_ROOT, os.path.basename(os.path.normpath(shipped))) if quick else shipped
+
 
 def out_paths(prefix: str) -> str:
     """Strip a known extension from an output prefix and create its folder."""

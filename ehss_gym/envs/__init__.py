@@ -1,7 +1,8 @@
 """``EHSSTracking-v0``: the single env, the native vector env, their configuration and the one rollout loop.
 
-Importing this package registers ``EHSSTracking-v0`` with Gymnasium (``gymnasium.make`` also finds it
-through the ``gymnasium.envs`` plugin entry point, without importing ehss_gym first).
+Importing this package (or ``ehss_gym``) registers ``EHSSTracking-v0`` with Gymnasium. Gymnasium 1.x loads no
+plugin entry points, so in a fresh interpreter use its ``"module:EnvId"`` form,
+``gymnasium.make("ehss_gym:EHSSTracking-v0")``, which imports ``ehss_gym`` first.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ ENV_ID = "EHSSTracking-v0"
 
 
 def register_envs() -> None:
-    """Register ``EHSSTracking-v0`` (idempotent); the ``gymnasium.envs`` entry point of the package."""
+    """Register ``EHSSTracking-v0`` and its vector entry point with Gymnasium (idempotent; run on import)."""
     if ENV_ID not in gym.registry:
         gym.register(ENV_ID, entry_point="ehss_gym.envs.env:EHSSTrackingEnv",
                      vector_entry_point="ehss_gym.envs.vector:EHSSTrackingVectorEnv")

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from ehss_gym.core import layout as L
 from ehss_gym.core.scenarios import PHYSICAL_FIELDS, controller_mismatch, paper_scenario
 from ehss_gym.core.sim import TASKS, Scenario
@@ -48,6 +50,8 @@ class EnvDefaults:
         estimator: filter scheme of the reference model and the derivative estimator ("foh", "zoh", "analog").
         scenario: "random" or "paper".
         reward_weights: track, effort, rate, tv, tv_u, divergence weights.
+        lost_track: lost-track bound as a multiple of the reference's amplitude (see ``Scenario.lost_track``).
+        terminate_on_lost_track: end an episode (``terminated=True``) once it has lost track.
         velocity, position: per-task defaults.
     """
 
@@ -62,6 +66,8 @@ class EnvDefaults:
     scenario: str = "random"
     reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("tv_u", 0.0),
                              ("divergence", 10.0))
+    lost_track: float = 1.0
+    terminate_on_lost_track: bool = False
     velocity: TaskDefaults = field(default_factory=lambda: TaskDefaults(
         fr=60.0, sigma=1e5, smoothing=1e3, estimator_hz=1000.0, error_scale=1e-2))
     position: TaskDefaults = field(default_factory=lambda: TaskDefaults(
@@ -97,10 +103,12 @@ class EnvConfig:
     reward_weights: dict
     error_scale: float
     episode_seconds: float | None
+    lost_track: float | None = DEFAULTS.lost_track
+    terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track
 
     KEYS = ("task", "n", "fr", "sigma", "smoothing", "mode", "residual_scale", "agent_period", "control_period",
             "substeps", "current_limit", "estimator_hz", "estimator", "scenario", "reward_weights", "error_scale",
-            "episode_seconds")
+            "episode_seconds", "lost_track", "terminate_on_lost_track")
 
     @classmethod
     def from_kwargs(cls, kwargs: dict) -> EnvConfig:
@@ -145,10 +153,16 @@ class EnvConfig:
         eps = kwargs.get("episode_seconds")
         if eps is not None:
             eps = check_finite("episode_seconds", eps, low=h * agent_period)
+        lost = kwargs.get("lost_track", d.lost_track)
+        if lost is not None:
+            lost = check_positive("lost_track", lost)
+        stop_lost = kwargs.get("terminate_on_lost_track", d.terminate_on_lost_track)
+        if not isinstance(stop_lost, (bool, np.bool_)):
+            raise ValueError(f"terminate_on_lost_track must be True or False, got {stop_lost!r}")
         cfg = cls(task=task, n=int(n), fr=fr, sigma=sigma, smoothing=smoothing, mode=mode, residual_scale=scale,
                   agent_period=agent_period, control_period=h, substeps=substeps, current_limit=limit,
                   estimator_hz=est, estimator=scheme, scenario=scenario, reward_weights=rw, error_scale=err,
-                  episode_seconds=eps)
+                  episode_seconds=eps, lost_track=lost, terminate_on_lost_track=bool(stop_lost))
         if isinstance(scenario, Scenario):
             cfg.check_pinned(scenario)
         return cfg
@@ -167,7 +181,8 @@ class EnvConfig:
         return paper_scenario(Scenario(task=self.task, n=self.n, fr=self.fr, sigma=self.sigma,
                                        smoothing=self.smoothing, current_limit=self.current_limit,
                                        control_period=self.control_period, substeps=self.substeps,
-                                       estimator_hz=self.estimator_hz, estimator=self.estimator))
+                                       estimator_hz=self.estimator_hz, estimator=self.estimator,
+                                       lost_track=self.lost_track))
 
     def check_pinned(self, sc: Scenario) -> None:
         """A pinned Scenario must carry exactly these controller settings."""

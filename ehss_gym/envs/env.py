@@ -23,6 +23,9 @@ from .kernels import advance
 from .lanes import Lanes
 from .observation import OBS_BOUND
 
+# what the dashboard records per agent step (at its last control sample; u_min/u_max over its control periods)
+HIST_COLUMNS = ("t", "y", "y_ref", "e", "u_applied", "u_base", "u_residual", "friction", "r", "u_min", "u_max")
+
 
 def parse_action_scalar(action) -> float:
     """A single action value from an array-like of one element; NaN raises ValueError."""
@@ -110,14 +113,17 @@ class EHSSTrackingEnv(gym.Env):
 
     **Termination and truncation.** Divergence (non-finite value, |x2| > omega_max, |x3| > 1.5 P_s;
     see :mod:`ehss_gym.core.sim`) ends the episode with ``terminated=True``, ``info["diverged"]=True`` and
-    ``info["divergence_reason"]``; the observation and info show the last finite state. The episode
+    ``info["divergence_reason"]``; the observation and info show the last finite state. With
+    ``terminate_on_lost_track=True`` an episode that has lost track (``lost_track``) ends too, with
+    ``terminated=True``, ``info["lost_track"]=True`` and ``info["diverged"]=False``. The episode
     ends after floor(t_end / (agent_period h)) agent steps with ``truncated=True``. At either end,
     ``info["metrics"]`` holds the core metrics summary (:func:`ehss_gym.core.metrics.summarize_acc`, at the
     full control rate; recovery times from the agent-rate error log).
 
     **info** each step (values at the last control sample of the step): t [s], e, s, V, u_base,
     u_residual, u_applied [mA], saturated (limit active at that sample), sat_fraction (share of this
-    step's control periods at the limit), friction_torque [N*m], clipped, n_clipped, diverged.
+    step's control periods at the limit), friction_torque [N*m], clipped, n_clipped, diverged, lost_track
+    (the episode has lost track at or before this step; see ``lost_track``).
     ``reset`` returns the drawn scenario (``info["scenario"]``, ``info["scenario_name"]``, and
     ``info["scenario_seed"]`` for random draws).
 
@@ -149,7 +155,16 @@ class EHSSTrackingEnv(gym.Env):
         error_scale: error scale of reward and observation [output unit] (default 0.01).
         episode_seconds: episode duration [s] for "random" and "paper" (default None: 2 s random,
             20 s paper; a pinned Scenario keeps its t_end).
-        render_mode: None or "rgb_array" (a dashboard: reference vs output, error, currents, friction).
+        lost_track: lost-track bound as a multiple of the reference's amplitude (default 1; None = never
+            flagged): an episode has lost track once, past 0.2 s, the RMS of e over a 0.1 s sliding window
+            exceeds it (``Scenario.lost_track``; a saturated oscillation within the state bounds, which is
+            not a divergence). Reported every step as ``info["lost_track"]``.
+        terminate_on_lost_track: end the episode (``terminated=True``, ``info["lost_track"]=True``,
+            ``info["diverged"]=False``, no divergence penalty) at the end of the step in which it lost track
+            (default False).
+        render_mode: None or "rgb_array" (a dashboard: raw reference r, filtered y_d and output y; error; the
+            applied current on a linear axis with its limit and its min/max envelope over each agent step;
+            friction).
 
     Version history:
         v0 (ehss-gym 0.1): first release. Before release the defaults moved to the reproduction
@@ -170,7 +185,9 @@ class EHSSTrackingEnv(gym.Env):
                  estimator_hz: float | None = None, agent_period: int = DEFAULTS.agent_period,
                  residual_scale: float | None = None, scenario: str | Scenario = DEFAULTS.scenario,
                  reward_weights: dict | None = None, error_scale: float | None = None,
-                 episode_seconds: float | None = None, render_mode: str | None = None, **unknown):
+                 episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,
+                 terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track, render_mode: str | None = None,
+                 **unknown):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got "
                              f"{render_mode!r}")
@@ -230,7 +247,9 @@ class EHSSTrackingEnv(gym.Env):
         lanes.u_res[0] = v * self._scale
         advance(*lanes._args)
         self._steps += 1
-        terminated = not lanes.run[0]
+        lost = lanes.acc0.item(L.M_LOST) > 0.0
+        diverged = not lanes.run[0]
+        terminated = diverged or (lost and self.config.terminate_on_lost_track)
         truncated = not terminated and self._steps >= self._T
         # Python floats in two list conversions of pre-made row views (numpy scalar reads cost ~0.1 us each)
         i = lanes.info_ok0.tolist()
@@ -239,12 +258,12 @@ class EHSSTrackingEnv(gym.Env):
         info = {"t": i[L.I_T], "e": i[L.I_E], "s": i[L.I_S], "V": i[L.I_V], "u_base": i[L.I_UBASE],
                 "u_residual": i[L.I_URES], "u_applied": i[L.I_UAPP], "saturated": i[L.I_SAT] > 0.0,
                 "sat_fraction": st[S_SAT] / n if n > 0 else 0.0, "friction_torque": i[L.I_TF],
-                "clipped": clipped, "n_clipped": self._n_clipped, "diverged": terminated}
+                "clipped": clipped, "n_clipped": self._n_clipped, "diverged": diverged, "lost_track": lost}
         if terminated or truncated:
             self._ready = False
             m = lanes.metrics(0)
             info["metrics"] = m
-            if terminated:
+            if diverged:
                 info["divergence_reason"] = m["divergence_reason"]
                 info["t_diverged"] = m["t_diverged"]
         if self._hist is not None:
@@ -255,8 +274,10 @@ class EHSSTrackingEnv(gym.Env):
 
     def _record(self):
         i = self._lanes.info_ok[0]
+        st = self._lanes.stats[0]
+        lo, hi = (st[L.S_UMIN], st[L.S_UMAX]) if st[S_N] > 0 else (i[L.I_UAPP], i[L.I_UAPP])
         self._hist.append((i[L.I_T], i[L.I_YE], i[L.I_YD], i[L.I_E], i[L.I_UAPP], i[L.I_UBASE], i[L.I_URES],
-                           i[L.I_TF]))
+                           i[L.I_TF], i[L.I_R], lo, hi))
 
     def render(self):
         """An RGB dashboard (H, W, 3) uint8 of the episode so far, or None without render_mode."""
@@ -265,7 +286,8 @@ class EHSSTrackingEnv(gym.Env):
             return None
         from .render import render_dashboard  # matplotlib (~0.3 s to import) only for envs that render
 
-        return render_dashboard(np.array(self._hist or [(0.0,) * 8]), self.config, self.scenario)
+        rows = np.array(self._hist or [(0.0,) * len(HIST_COLUMNS)])
+        return render_dashboard(dict(zip(HIST_COLUMNS, rows.T)), self.config, self.scenario)
 
     def close(self):
         self._hist = None

@@ -44,6 +44,8 @@ from ehss_gym.core.layout import (
     S_SAT,
     S_SUM_E2,
     S_TV0,
+    S_UMAX,
+    S_UMIN,
     W_DIV,
     W_EFFORT,
     W_INV_E2,
@@ -199,6 +201,11 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
                     F[b, F_STATS + S_SUM_E2] += e * e
                     F[b, F_STATS + S_N] += 1.0
                     F[b, F_STATS + S_SAT] += inf[b, L.I_SAT]
+                    u = inf[b, L.I_UAPP]
+                    if j == 0 or u < F[b, F_STATS + S_UMIN]:
+                        F[b, F_STATS + S_UMIN] = u
+                    if j == 0 or u > F[b, F_STATS + S_UMAX]:
+                        F[b, F_STATS + S_UMAX] = u
             if n_act == 0:
                 break
         for b in range(B):

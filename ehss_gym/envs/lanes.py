@@ -94,6 +94,7 @@ class Lanes:
         self.rew = self.F[:, F_REW]
         # lane 0's rows, pre-made for the single env's step: stats (N_STATS), residual and reward in one view
         self.info_ok0 = self.info_ok[0]
+        self.acc0 = self.acc[0]
         self.tail0 = self.F[0, F_STATS:F_REW + 1]
         self.k = self.IB[:, IB_K]
         self.nstep = self.IB[:, IB_NSTEP]
@@ -144,6 +145,10 @@ class Lanes:
     def load(self, b: int, sc: Scenario) -> None:
         """Put lane b at the start of scenario ``sc`` (rows as :meth:`ehss_gym.core.sim.LoopArrays.build` has them)."""
         cfg = self.cfg
+        if len(sc.reference.spec) != L.N_REF:
+            raise ValueError(f"the env runs the parametric references (sine, step, chirp, multisine), not a "
+                             f"{sc.reference.family!r} reference: its lanes hold fixed-size rows; simulate it with "
+                             "ehss_gym.simulate")
         if len(sc.friction) > self.events.shape[1]:
             ev = self._empty_events(self.B, len(sc.friction))
             ev[:, :self.events.shape[1]] = self.events
@@ -167,6 +172,8 @@ class Lanes:
         lane_constants(self.plant[b:b + 1].copy(), self.tmp_c)
         self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
         self.acc[b, L.M_T_DIVERGED] = -1.0
+        self.acc[b, L.M_LOST_BOUND] = sc.lost_track_bound
+        self.acc[b, L.M_T_LOST] = -1.0
         self.IB[b] = 0
         self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
         self.run[b] = True

@@ -18,7 +18,7 @@ Conventions (Gymnasium 1.x):
   info stay those of its last step, its actions are ignored) until ``reset`` (e.g. with a ``reset_mask``);
   this is what :func:`ehss_gym.envs.rollout.rollout` uses to run a fixed set of episodes.
 - ``infos`` is a dict of arrays (with ``_key`` masks): t, e, s, V, u_base, u_residual, u_applied,
-  saturated, sat_fraction, friction_torque, clipped, n_clipped, diverged every step; ``metrics``
+  saturated, sat_fraction, friction_torque, clipped, n_clipped, diverged, lost_track every step; ``metrics``
   (and ``divergence_reason``) for sub-envs whose episode ended this step.
 - Rendering is not supported (``render_mode`` must be None); render a single env instead.
 """
@@ -179,6 +179,10 @@ class EHSSTrackingVectorEnv(VectorEnv):
         stepped[resetting] = False
         stepped[idle] = False
         run = lanes.run[:N]
+        diverged = stepped & ~run
+        lost = lanes.acc[:N, L.M_LOST] > 0.0
+        if self.config.terminate_on_lost_track:
+            run &= ~(stepped & lost)  # the lane stops here, as a diverged one does
         terminated = stepped & ~run
         self._steps[stepped] += 1
         truncated = stepped & run & (self._steps >= lanes.T[:N])
@@ -192,7 +196,8 @@ class EHSSTrackingVectorEnv(VectorEnv):
         step_info = {"t": i[:, L.I_T], "e": i[:, L.I_E], "s": i[:, L.I_S], "V": i[:, L.I_V],
                      "u_base": i[:, L.I_UBASE], "u_residual": i[:, L.I_URES], "u_applied": i[:, L.I_UAPP],
                      "saturated": i[:, L.I_SAT] > 0.0, "sat_fraction": satf, "friction_torque": i[:, L.I_TF],
-                     "clipped": clipped, "n_clipped": self._n_clipped.copy(), "diverged": terminated}
+                     "clipped": clipped, "n_clipped": self._n_clipped.copy(), "diverged": diverged,
+                     "lost_track": lost}
         mask = np.ones(N, dtype=np.bool_)
         for key, v in step_info.items():
             infos[key] = np.array(v, copy=True)
@@ -201,7 +206,7 @@ class EHSSTrackingVectorEnv(VectorEnv):
         for b in ended:
             m = lanes.metrics(int(b))
             extra = {"metrics": m}
-            if terminated[b]:
+            if diverged[b]:
                 extra["divergence_reason"] = m["divergence_reason"]
             infos = self._add_info(infos, extra, int(b))
         if self.metadata["autoreset_mode"] == AutoresetMode.DISABLED:

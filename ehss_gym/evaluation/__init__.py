@@ -45,9 +45,10 @@ from .harness import (
     scripted_spec,
     shipped_specs,
 )
-from .specs import parse_policies, valid_forms
+from .specs import PolicyWarning, parse_policies, saved_env_kwargs, valid_forms
 
-__all__ = ["EvalConfig", "PolicySpec", "PolicyError", "Episode", "Results", "evaluate", "parse_policy",
+__all__ = ["EvalConfig", "PolicySpec", "PolicyError", "PolicyWarning", "saved_env_kwargs",
+           "Episode", "Results", "evaluate", "parse_policy",
            "parse_policies", "valid_forms", "scripted_spec", "learned_spec", "object_spec", "shipped_specs",
            "default_specs", "primary_score", "build_episodes", "rollout", "check_fit", "REFERENCE_POLICY",
            "SCRIPTED_DEFAULT", "SCORE_CAP", "METRICS", "TASKS", "SUITES", "UNITS", "SWEEP_WINDOW"]

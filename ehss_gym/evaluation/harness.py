@@ -51,7 +51,8 @@ from .specs import (
 )
 from .suites import SUITES, SWEEP_WINDOW, TASKS, UNITS, Episode, EvalConfig, build_episodes
 
-ROW_EXTRAS = ("rmse_nominal", "peak_u", "tv_u", "divergence_reason", "t_diverged", "n_clipped")  # beyond METRICS
+# beyond METRICS
+ROW_EXTRAS = ("rmse_nominal", "peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped")
 
 
 @dataclass
@@ -249,6 +250,19 @@ def _complete_specs(specs: list, cfg: EvalConfig, notes: list) -> list:
     return specs
 
 
+def _check_tasks(specs: list, cfg: EvalConfig, named: set, notes: list) -> None:
+    """PolicyError for a policy the caller named that acts on none of the evaluated tasks (it would vanish from
+    the report); a note for such a default policy (a shipped model of the task left out)."""
+    for spec in specs:
+        if any(t in cfg.tasks for t in spec.tasks):
+            continue
+        if spec.name in named:
+            raise PolicyError(f"policy {spec.name!r} acts on task(s) {', '.join(spec.tasks)} only, and the evaluated "
+                              f"tasks are {', '.join(cfg.tasks)} (--tasks): it would not be evaluated; add its task "
+                              "or leave it out")
+        notes.append(f"{spec.name} acts on task {spec.tasks[0]!r} only, which is not evaluated; skipped.")
+
+
 def _load_runs(specs: list, cfg: EvalConfig, notes: list) -> dict:
     """Load every run on every evaluated task once and check that it fits the env; (policy, run, task) -> object.
 
@@ -257,8 +271,6 @@ def _load_runs(specs: list, cfg: EvalConfig, notes: list) -> dict:
     loaded = {}
     for spec in specs:
         run_tasks = [t for t in spec.tasks if t in cfg.tasks]
-        if not run_tasks:
-            notes.append(f"{spec.name} acts on task {spec.tasks[0]!r} only, which is not evaluated; skipped.")
         for task in run_tasks:
             for r, run in enumerate(spec.runs):
                 try:
@@ -322,12 +334,15 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
         command: the command line recorded in the report.
 
     Raises:
-        PolicyError: a policy that cannot be loaded or whose shapes do not fit the env.
+        PolicyError: a policy that cannot be loaded, whose shapes do not fit the env, or (among ``specs``) that acts
+            on none of ``cfg.tasks``.
     """
     t_start = time.perf_counter()
     cfg = cfg or EvalConfig()
     notes: list = []
+    named = set() if specs is None else {s.name for s in specs}
     specs = _complete_specs(list(default_specs() if specs is None else specs), cfg, notes)
+    _check_tasks(specs, cfg, named, notes)
     loaded = _load_runs(specs, cfg, notes)
     specs = [replace(s, tasks=tuple(t for t in s.tasks if t in cfg.tasks)) for s in specs]
     specs = [s for s in specs if s.tasks]

@@ -6,7 +6,8 @@ A run is what :attr:`ehss_gym.evaluation.specs.PolicySpec.runs` holds per traini
 - a dict describing a scripted law (``{"kind": "clf", "n": n}`` or ``{"kind": "pid", "gains": ...}``), built
   for the task it acts on (cheap: no file is read);
 - a model path: a safe-weights stem (``PATH.safetensors`` + ``PATH.json``, :mod:`ehss_gym.agents.safeweights`)
-  or an SB3 ``.zip`` (with a VecNormalize ``.pkl`` next to it if there is one);
+  or an SB3 ``.zip`` of any stable-baselines3 or sb3-contrib algorithm (read from the policy class it saved;
+  with a VecNormalize ``.pkl`` next to it if there is one);
 - any object with ``predict``, used as it is.
 
 Safe-weights models are loaded once per process (:func:`load_safe` remembers them by the identity of their two
@@ -18,16 +19,17 @@ object cannot be pickled, and then load it at most once each.
 from __future__ import annotations
 
 import functools
+import importlib
+import json
 import os
 import pickle
+import zipfile
 
 import numpy as np
 
 from ehss_gym.agents.safeweights import SafePolicy, load_policy, model_paths
 from ehss_gym.controllers import CLFPolicy, PIDPolicy
 from ehss_gym.envs import EHSSTrackingEnv, EnvConfig
-
-SB3_ALGOS = ("PPO", "A2C", "SAC", "TD3", "DDPG")
 
 
 class PolicyError(ValueError):
@@ -98,19 +100,50 @@ def _load_vecnormalize(zip_path: str):
     return None
 
 
-def _load_zip(path: str):
-    """An SB3 model .zip (PPO, A2C, SAC, TD3 or DDPG), with a VecNormalize .pkl next to it if there is one."""
-    import stable_baselines3 as sb3  # heavy (about 2 s) and only needed for a user's .zip: imported on first use
+# the sub-package of an algorithm (the module of its policy class) -> its class, where the name differs from upper case
+_ALGO_CLASSES = {"ppo_recurrent": "RecurrentPPO", "ppo_mask": "MaskablePPO", "qrdqn": "QRDQN", "crossq": "CrossQ"}
 
-    model, errors = None, []
-    for algo in SB3_ALGOS:
-        try:
-            model = getattr(sb3, algo).load(path, device="cpu")
-            break
-        except Exception as exc:  # the file records its policy class, not its algorithm: try each in turn
-            errors.append(f"{algo}: {type(exc).__name__}: {str(exc)[:120]}")
-    if model is None:
-        raise PolicyError(f"{path} is not a loadable stable-baselines3 model ({'; '.join(errors)})")
+
+def sb3_algorithm(path: str) -> tuple[str, str]:
+    """(package, algorithm class) of an SB3 or sb3-contrib model .zip, read from its saved policy class.
+
+    Raises:
+        PolicyError: the file is not an SB3 model (not a zip, or no readable ``data`` entry naming the policy).
+    """
+    try:
+        with zipfile.ZipFile(path) as z:
+            data = json.loads(z.read("data"))
+        module = data["policy_class"]["__module__"]
+    except (OSError, zipfile.BadZipFile, KeyError, TypeError, ValueError) as exc:
+        raise PolicyError(f"{path} is not a loadable stable-baselines3 model (a .zip whose 'data' entry names its "
+                          f"policy class): {type(exc).__name__}: {exc}") from None
+    parts = module.split(".")
+    if len(parts) < 2 or parts[0] not in ("stable_baselines3", "sb3_contrib"):
+        raise PolicyError(f"{path}: the policy class comes from {module!r}, not from stable_baselines3 or sb3_contrib")
+    sub = parts[1]
+    if sub == "common" and parts[0] == "sb3_contrib":  # sb3_contrib.common.{recurrent,maskable}.policies
+        return parts[0], "RecurrentPPO" if "recurrent" in parts else "MaskablePPO"
+    if sub == "common":  # ActorCriticPolicy: PPO or A2C; PPO saves a clip range
+        return parts[0], "PPO" if "clip_range" in data else "A2C"
+    return parts[0], _ALGO_CLASSES.get(sub, sub.upper())
+
+
+def _load_zip(path: str):
+    """An SB3 (or sb3-contrib) model .zip of any algorithm, with a VecNormalize .pkl next to it if there is one."""
+    package, algo = sb3_algorithm(path)
+    try:  # heavy (about 2 s) and only needed for a user's .zip: imported on first use
+        lib = importlib.import_module(package)
+    except ImportError:
+        raise PolicyError(f"{path} is a {package}.{algo} model; install {package.replace('_', '-')} to load it") \
+            from None
+    cls = getattr(lib, algo, None)
+    if cls is None:
+        raise PolicyError(f"{path}: {package} has no algorithm {algo!r} (saved with another version?)")
+    try:
+        model = cls.load(path, device="cpu")
+    except Exception as exc:  # a damaged or incompatible file: reported with its cause
+        raise PolicyError(f"{path} is not a loadable stable-baselines3 model ({algo}: {type(exc).__name__}: "
+                          f"{str(exc)[:200]})") from None
     vn = _load_vecnormalize(path)
     if vn is not None and getattr(vn, "norm_obs", False):
         return _Normalized(model, vn.obs_rms.mean, vn.obs_rms.var, vn.epsilon, vn.clip_obs)
@@ -181,4 +214,4 @@ def make_env(env_kwargs: dict) -> EHSSTrackingEnv:
     return EHSSTrackingEnv(**env_kwargs)
 
 
-__all__ = ["PolicyError", "SB3_ALGOS", "load_safe", "load_run", "portable", "restore", "make_env"]
+__all__ = ["PolicyError", "sb3_algorithm", "load_safe", "load_run", "portable", "restore", "make_env"]

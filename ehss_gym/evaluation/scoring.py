@@ -51,8 +51,12 @@ METRICS = (
     ("v_decrease", "V decrease", "-", "share of control steps on which the CLF value V = (s/sigma)^n/n fell"),
     ("diverged", "divergence rate", "-",
      "share of episodes stopped by a non-finite value, |x2| > omega_max or |x3| > 1.5 P_s"),
+    ("lost_track", "lost-track rate", "-",
+     "share of episodes that lost track without diverging: past the start-up (0.2 s), the RMS of e over a "
+     "0.1 s sliding window exceeded the reference's amplitude (a saturated oscillation, for instance)"),
 )
 METRIC_KEYS = tuple(m[0] for m in METRICS)
+RATE_KEYS = {"diverged": "divergence_rate", "lost_track": "lost_track_rate"}  # per-episode flag -> summary rate
 RATIOS = (("rmse", "rmse_ratio"), ("tv_u_rate", "tv_ratio"), ("max_abs_e_friction", "friction_peak_ratio"))
 
 
@@ -110,7 +114,9 @@ def matrix(rows: list, policy: str, suite: str, task: str, key: str = "score", e
 
     Args:
         rows: per-episode rows.
-        policy, suite, task: which rows.
+        policy: the policy's name.
+        suite: the suite.
+        task: the task.
         key: the row field.
         episodes: episode ids in column order (default: their order in ``rows``).
 
@@ -154,12 +160,12 @@ def _finite_mean(v) -> float:
 
 def _mean_metrics(sel: list) -> dict:
     """Means of every metric over the non-diverged rows ``sel`` (recovery: plus the count that never recovered),
-    and the divergence rate over all of them."""
+    and the divergence and lost-track rates over all of them."""
     d = {}
     ok = [r for r in sel if not r["diverged"]]
     for key in METRIC_KEYS:
-        if key == "diverged":
-            d["divergence_rate"] = float(np.mean([r["diverged"] for r in sel]))
+        if key in ("diverged", "lost_track"):
+            d[RATE_KEYS[key]] = float(np.mean([bool(r[key]) for r in sel]))
         elif key.startswith("recovery"):
             vals = [r[key] for r in ok if not math.isnan(r[key])]
             d[key] = _finite_mean(vals)

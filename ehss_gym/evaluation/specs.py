@@ -5,8 +5,12 @@ A :class:`PolicySpec` names a policy, its kind, the env settings it acts in and 
 entry (:func:`parse_policy`):
 
 - ``clf-n<even n>`` and ``pid``: the scripted laws of :mod:`ehss_gym.controllers` (both tasks);
+- ``sb3:PATH``: a model of any stable-baselines3 (or sb3-contrib) algorithm, its algorithm read from the .zip and
+  its env settings, the mode included, from the env spec saved with it (:func:`saved_env_kwargs`; an error
+  without one);
 - ``residual-ppo:PATH`` and ``ppo-direct:PATH``: a model file (safe-weights stem or SB3 .zip) or a glob of
-  several training seeds, checked against the mode it was trained in;
+  several training seeds, checked against the mode it was trained in (a .zip with no saved env spec is scored
+  in the prefix's mode at the env's defaults, with a printed :class:`PolicyWarning`);
 - the name of a model shipped in ``ehss_gym/models`` (``-seed<k>`` files grouped into one spec).
 
 Learned policies trained at controller settings other than the env's defaults get the CLF laws at *their*
@@ -19,10 +23,12 @@ import glob
 import json
 import os
 import re
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import yaml
 
 from ehss_gym.agents.safeweights import shipped_models
 from ehss_gym.envs import ENV_ID, EnvConfig
@@ -32,7 +38,8 @@ from .suites import TASKS
 
 REFERENCE_POLICY = "clf-n2"  # the law the primary score is normalised by
 SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "pid")
-LEARNED_KINDS = ("residual-ppo", "ppo-direct")
+LEARNED_KINDS = ("residual-ppo", "ppo-direct", "sb3")  # sb3: any algorithm, its mode from the saved env spec
+ZOO_ARGS = "args.yml"  # rl-zoo3 saves its command line (env_kwargs included) in <run>/<env id>/args.yml
 CONTROLLER_KEYS = ("fr", "sigma", "smoothing", "current_limit", "control_period", "substeps", "estimator_hz")
 CLF_RE = re.compile(r"^clf-n(\d+)$")
 _SEED_RE = re.compile(r"^(.*?)[-_](?:seed|s)(\d+)$")
@@ -46,7 +53,7 @@ class PolicySpec:
 
     Attributes:
         name: label in the report (unique).
-        kind: "clf", "pid", "residual-ppo", "ppo-direct" or "object".
+        kind: "clf", "pid", "residual-ppo", "ppo-direct", "sb3" or "object".
         runs: per training seed, what :func:`ehss_gym.evaluation.loading.load_run` loads: a model path (str) or
             an object with ``predict`` (scripted policies: a dict describing them).
         env_kwargs: keyword arguments of the env the policy acts in (without ``task`` for scripted
@@ -83,9 +90,10 @@ def valid_forms() -> str:
     """Every accepted form of a ``--policies`` entry, with the shipped model names (for error messages)."""
     names = sorted(shipped_models())
     shipped = ", ".join(names) if names else "none shipped yet"
-    return ("clf-n<even n >= 2> (e.g. clf-n2, clf-n4, clf-n6), pid, residual-ppo:PATH, ppo-direct:PATH "
-            "(PATH = an SB3 .zip, a safe-weights stem PATH with PATH.safetensors + PATH.json, or a glob "
-            f"matching several training seeds), or a shipped model name ({shipped})")
+    return ("clf-n<even n >= 2> (e.g. clf-n2, clf-n4, clf-n6), pid, residual-ppo:PATH, ppo-direct:PATH, sb3:PATH "
+            "(any SB3 algorithm, the mode from its saved env spec; PATH = an SB3 .zip, a safe-weights stem PATH "
+            f"with PATH.safetensors + PATH.json, or a glob matching several training seeds), or a shipped model name "
+            f"({shipped})")
 
 
 def scripted_spec(name: str, label: str | None = None, env_overrides: dict | None = None,
@@ -123,21 +131,58 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
     raise PolicyError(f"unknown policy {name!r}; valid: {valid_forms()}")
 
 
-def _sidecar_env_kwargs(zip_path: str) -> dict | None:
-    """env_kwargs recorded next to an SB3 .zip (``STEM.json`` or the run folder's config.json), if any."""
+class PolicyWarning(UserWarning):
+    """A policy that is evaluated on an assumption the harness could not check (printed, not an error)."""
+
+
+class _ZooLoader(yaml.SafeLoader):
+    """yaml's safe loader plus the one tag rl-zoo3's ``args.yml`` uses (an OrderedDict, as [key, value] pairs)."""
+
+
+_ZooLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict",
+                           lambda loader, node: dict(loader.construct_sequence(node.value[0], deep=True)))
+
+
+def _read_record(path: str) -> dict | None:
+    """The env settings a record file holds, or None: ``{"env_kwargs": ...}`` (ehss-gym's sidecar and run
+    config.json), a Gymnasium EnvSpec JSON (``env.spec.to_json()``: ``{"id": ..., "kwargs": ...}``) or rl-zoo3's
+    args.yml (``env`` and ``env_kwargs``).
+
+    Raises:
+        PolicyError: a record of another env.
+    """
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = yaml.load(f, Loader=_ZooLoader) if path.endswith(".yml") else json.load(f)
+    except (OSError, ValueError, yaml.YAMLError):
+        return None
+    if not isinstance(d, dict):
+        return None
+    env_id = d.get("env_id", d.get("id", d.get("env")))
+    kw = d.get("env_kwargs", d.get("kwargs") if "id" in d else None)
+    if env_id is not None and str(env_id).split(":")[-1] != ENV_ID:
+        raise PolicyError(f"the env spec saved in {path} is of {env_id!r}, not {ENV_ID!r}")
+    if kw is None and path.endswith(".yml") and env_id is not None:
+        kw = {}  # rl-zoo3 without --env-kwargs: the env's defaults
+    return dict(kw) if isinstance(kw, dict) else None
+
+
+def saved_env_kwargs(zip_path: str) -> tuple[dict | None, str | None]:
+    """The env settings saved with an SB3 .zip, and the file that holds them; (None, None) if there is none.
+
+    Looked for, in this order: ``STEM.json`` next to the .zip (``{"env_kwargs": {...}}`` or a Gymnasium EnvSpec
+    JSON, ``env.unwrapped.spec.to_json()``); ``config.json`` of its folder or the folder above (an ``ehss
+    train`` run); rl-zoo3's ``<folder>/EHSSTracking-v0/args.yml``.
+    """
     stem = zip_path[:-4]
     folder = os.path.dirname(os.path.abspath(zip_path))
-    for cand in (stem + ".json", os.path.join(folder, "config.json"), os.path.join(os.path.dirname(folder),
-                                                                                    "config.json")):
+    for cand in (stem + ".json", os.path.join(folder, "config.json"),
+                 os.path.join(os.path.dirname(folder), "config.json"), os.path.join(folder, ENV_ID, ZOO_ARGS)):
         if os.path.isfile(cand):
-            try:
-                with open(cand, encoding="utf-8") as f:
-                    d = json.load(f)
-            except (OSError, ValueError):
-                continue
-            if isinstance(d, dict) and isinstance(d.get("env_kwargs"), dict):
-                return dict(d["env_kwargs"])
-    return None
+            kw = _read_record(cand)
+            if kw is not None:
+                return kw, cand
+    return None, None
 
 
 def _existing_model(p: str) -> str | None:
@@ -165,27 +210,56 @@ def _model_files(pattern: str, spec_text: str) -> list[str]:
         safe_dirs = {os.path.dirname(p) for p in out if not p.endswith(".zip")}
         out = [p for p in out if not (p.endswith(".zip") and os.path.dirname(p) in safe_dirs)]
     if not out:
-        what = "no file matches the pattern" if has_glob else "file not found"
+        if has_glob:
+            what = "no file matches the pattern"
+        elif os.path.isdir(pattern):
+            what = "is a folder, not a model (name the model inside it, e.g. a run's best/policy):"
+        elif os.path.exists(pattern):
+            what = "is not a model file:"
+        else:
+            what = "file not found"
         raise PolicyError(f"policy {spec_text!r}: {what} {pattern!r}; PATH must be an SB3 .zip or a safe-weights "
                           "stem with PATH.safetensors + PATH.json")
     return sorted(out)
 
 
+def _zip_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
+    """The env settings of an SB3 .zip from its saved env spec; without one, an error (``sb3:``) or the prefix's
+    mode at the env's defaults with a :class:`PolicyWarning`."""
+    kw, src = saved_env_kwargs(path)
+    if kw is not None:
+        return kw
+    if kind == "sb3":
+        raise PolicyError(f"policy {spec_text!r}: no env spec saved with {path!r} (looked for {path[:-4]}.json, "
+                          f"config.json and rl-zoo3's {ENV_ID}/{ZOO_ARGS}), so its mode and settings are unknown; "
+                          f"save one (json.dump({{'env_kwargs': env_kwargs}}, ...) or env.unwrapped.spec.to_json() "
+                          f"to {os.path.basename(path[:-4])}.json) or name the mode: residual-ppo:PATH or "
+                          "ppo-direct:PATH")
+    mode = "residual" if kind == "residual-ppo" else "direct"
+    warnings.warn(f"policy {spec_text!r}: no env spec saved with {path!r}; scored in mode {mode!r} (from the "
+                  f"{kind}: prefix) at the env's default settings. If it was trained otherwise its score is wrong: "
+                  f"save its env settings to {os.path.basename(path[:-4])}.json and use sb3:PATH",
+                  PolicyWarning, stacklevel=3)
+    return {"mode": mode}
+
+
 def _run_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
-    """The env kwargs a model was trained with, checked against the spec's mode."""
-    want_mode = "residual" if kind == "residual-ppo" else "direct"
+    """The env kwargs a model was trained with, checked against the spec's mode (``sb3``: the saved mode)."""
     if path.endswith(".zip"):
-        kw = _sidecar_env_kwargs(path) or {}
+        kw = _zip_env_kwargs(path, kind, spec_text)
     else:
         pol = load_safe(path)
         if pol.env_id != ENV_ID:
             raise PolicyError(f"policy {spec_text!r}: model {path!r} was trained on {pol.env_id!r}, not {ENV_ID!r}")
         kw = dict(pol.env_kwargs)
     mode = kw.get("mode", "residual")
-    if "mode" in kw and mode != want_mode:
-        raise PolicyError(f"policy {spec_text!r}: model {path!r} was trained with mode={mode!r}; name it "
-                          f"{_kind_of_mode(mode)}:{path} (residual-ppo = mode 'residual', ppo-direct = mode 'direct')")
-    kw["mode"] = want_mode
+    if kind != "sb3":
+        want_mode = "residual" if kind == "residual-ppo" else "direct"
+        if mode != want_mode:
+            raise PolicyError(f"policy {spec_text!r}: model {path!r} was trained with mode={mode!r}; name it "
+                              f"{_kind_of_mode(mode)}:{path} (residual-ppo = mode 'residual', ppo-direct = mode "
+                              "'direct'), or sb3:PATH (the mode read from the saved env spec)")
+    kw["mode"] = mode
     for k in _NOT_ENV:
         kw.pop(k, None)
     return kw
@@ -219,13 +293,15 @@ def learned_spec(kind: str, pattern: str, spec_text: str | None = None, name: st
     """A learned policy from one model file or a glob of several training seeds.
 
     Args:
-        kind: "residual-ppo" or "ppo-direct" (must match the mode the models were trained in).
+        kind: "residual-ppo" or "ppo-direct" (must match the mode the models were trained in), or "sb3" (any
+            algorithm; the mode is read from the saved env spec).
         pattern: a model path (safe-weights stem or SB3 .zip) or a glob of several.
         spec_text: the ``--policies`` entry, for error messages (default ``kind:pattern``).
         name: report name (default: derived from the file names).
 
     Raises:
-        PolicyError: no model file, a mode that does not match, or seeds trained with different settings.
+        PolicyError: no model file, a mode that does not match, no saved env spec for ``sb3``, or seeds trained
+            with different settings.
     """
     spec_text = spec_text or f"{kind}:{pattern}"
     paths = _model_files(pattern, spec_text)
@@ -236,7 +312,11 @@ def learned_spec(kind: str, pattern: str, spec_text: str | None = None, name: st
             raise PolicyError(f"policy {spec_text!r}: the training seeds were trained with different env settings "
                               f"({paths[0]}: {first}; {p}: {kw}); evaluate them as separate policies")
     tasks = (first["task"],) if "task" in first else ("velocity",)
-    return PolicySpec(name=name or _learned_name(kind, paths), kind=kind, runs=list(paths), env_kwargs=first,
+    if name is None:
+        name = _learned_name(kind, paths)
+        if kind == "sb3":  # the mode came from the saved spec: show it
+            name = name.replace(" (sb3 zip)", "") + f" ({first['mode']})"
+    return PolicySpec(name=name, kind=kind, runs=list(paths), env_kwargs=first,
                       tasks=tasks, source=", ".join(os.path.relpath(p) if not os.path.isabs(p) else p for p in paths))
 
 
@@ -434,6 +514,7 @@ def check_fit(spec: PolicySpec, policy, task: str) -> None:
             f"{'; '.join(_fitting_observations(kw))}; action {want_act} in [-1, 1].")
 
 
-__all__ = ["REFERENCE_POLICY", "SCRIPTED_DEFAULT", "PolicySpec", "PolicyError", "valid_forms", "scripted_spec",
+__all__ = ["REFERENCE_POLICY", "SCRIPTED_DEFAULT", "PolicySpec", "PolicyError", "PolicyWarning", "saved_env_kwargs",
+           "valid_forms", "scripted_spec",
            "learned_spec", "shipped_specs", "parse_policy", "parse_policies", "object_spec", "default_specs",
            "controller_settings", "matched_clf_specs", "check_fit"]

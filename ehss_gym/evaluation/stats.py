@@ -186,7 +186,8 @@ def probability_of_improvement(x, y, lower_is_better: bool = True) -> float:
     over tasks. With one run each it is the share of episodes on which X is better (ties count 1/2).
 
     Args:
-        x, y: (n_runs, n_tasks) or (n_tasks,) scores on the *same* tasks (same column order).
+        x: (n_runs, n_tasks) or (n_tasks,) scores of X.
+        y: the same of Y, on the *same* tasks (same column order).
         lower_is_better: direction of the score (True for the primary score of the harness).
     """
     a = _as_matrix(x, "x")
@@ -233,7 +234,8 @@ def relative_improvement_ci(x, y, n_boot: int = 2000, confidence: float = 0.95,
     and the runs (rows) of each policy independently. Returns (point estimate, lower, upper).
 
     Args:
-        x, y: (n_runs, n_tasks) or (n_tasks,) positive scores on the same tasks.
+        x: (n_runs, n_tasks) or (n_tasks,) positive scores of X.
+        y: the same of Y, on the same tasks.
     """
     _check_common(n_boot, confidence, seed)
     a = _as_matrix(x, "x")

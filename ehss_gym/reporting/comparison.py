@@ -20,7 +20,7 @@ from ehss_gym._version import __version__
 from ehss_gym.core.util import atomic_write_text
 from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.harness import Results
-from ehss_gym.evaluation.scoring import METRIC_KEYS, METRICS, SCORE_CAP
+from ehss_gym.evaluation.scoring import METRIC_KEYS, METRICS, RATE_KEYS, SCORE_CAP
 from ehss_gym.evaluation.specs import REFERENCE_POLICY
 from ehss_gym.evaluation.suites import (
     ROBUST_SEED_START,
@@ -38,7 +38,7 @@ DEFAULT_OUT = os.path.join("reports", "comparison")
 TEMPLATE = "comparison.md.j2"
 EPISODE_COLUMNS = ("suite", "task", "policy", "run", "episode", "sweep", "level", "scenario_seed", "t_end", "score",
                    "score_normaliser") + METRIC_KEYS + ("peak_u", "tv_u", "divergence_reason", "t_diverged",
-                                                        "n_clipped")
+                                                        "t_lost_track", "n_clipped")
 
 
 def fmt(x, digits: int = 3) -> str:
@@ -120,7 +120,7 @@ def _ranking_row(d: dict) -> list:
     poi = "-" if math.isnan(d["poi_vs_best_clf"]) else \
         f"{d['poi_vs_best_clf']:.2f} [{d['poi_lo']:.2f}, {d['poi_hi']:.2f}]"
     return [d["rank"], d["policy"], ci, iq, poi, fmt(d["rmse"]), fmt(d["max_abs_e_friction"]), fmt(d["tv_u_rate"]),
-            fmt(d["saturation"]), f"{d['divergence_rate']:.0%}"]
+            fmt(d["saturation"]), f"{d['divergence_rate']:.0%}", f"{d['lost_track_rate']:.0%}"]
 
 
 def _ranking_blocks(res: Results) -> list[dict]:
@@ -136,8 +136,10 @@ def _ranking_blocks(res: Results) -> list[dict]:
 
 
 def _metric_table(res: Results) -> tuple[list, list]:
-    """(header, rows) of the all-metrics table: means over the non-diverged episodes and the divergence rate."""
-    hdr = ["suite", "task", "policy"] + [k for k in METRIC_KEYS if k != "diverged"] + ["divergence_rate"]
+    """(header, rows) of the all-metrics table: means over the non-diverged episodes, the divergence and lost-track
+    rates."""
+    hdr = (["suite", "task", "policy"] + [k for k in METRIC_KEYS if k not in RATE_KEYS]
+           + [RATE_KEYS[k] for k in METRIC_KEYS if k in RATE_KEYS])
     rows = []
     for d in res.summary:
         vals = [d["suite"], d["task"], d["policy"]]

@@ -8,7 +8,6 @@ import math
 import os
 from collections.abc import Sequence
 
-import matplotlib
 import numpy as np
 
 from ehss_gym._version import __version__
@@ -41,10 +40,32 @@ def _finish(fig, res: Results, folder: str, name: str, bottom: float) -> str:
     return os.path.join("figures", name)
 
 
+# 18 colours that stay apart from each other (tab10, then darker and lighter hues that tab10 lacks); the policies
+# past them repeat a colour with another line style, so every policy has its own look in every figure
+PALETTE = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
+           "#17becf", "#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173", "#3182bd", "#31a354", "#000000")
+LINESTYLES = ("-", "--", ":", "-.")
+MARKERS = ("o", "s", "^", "v", "D", "P", "X", "*")
+
+
 def _colors(names: Sequence[str]) -> dict:
-    """One tab10 colour per policy name, in spec order (the same colour in every figure)."""
-    cmap = matplotlib.colormaps["tab10"]
-    return {n: cmap(i % 10) for i, n in enumerate(names)}
+    """One colour per policy name, in spec order (the same colour in every figure); distinct for up to
+    len(PALETTE) policies."""
+    return {n: PALETTE[i % len(PALETTE)] for i, n in enumerate(names)}
+
+
+def _styles(names: Sequence[str]) -> dict:
+    """Per policy name: (colour, line style, marker), unique for every policy (spec order)."""
+    return {n: (PALETTE[i % len(PALETTE)], LINESTYLES[(i // len(PALETTE)) % len(LINESTYLES)], MARKERS[i % len(MARKERS)])
+            for i, n in enumerate(names)}
+
+
+def _legend_outside(fig, ax, ncol: int = 1) -> None:
+    """The legend of ``ax``'s lines to the right of the axes, off the data."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        ax.legend(handles, labels, fontsize=7, ncol=ncol, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+                  borderaxespad=0.0, frameon=False)
 
 
 def _score_bars(res: Results, folder: str, col: dict, suite: str):
@@ -127,15 +148,17 @@ def _paper_traces(res: Results, folder: str, col: dict, task: str):
     fr = [ev for ev in ep.physical["friction"] if ev[0] > 0]
     t_on = fr[0][1] if fr else 0.0
     zoom = (max(0.0, t_on - ZOOM_BEFORE), t_on + ZOOM_AFTER) if fr else (0.0, ep.t_end)
-    fig, ax = plt.subplots(4, 1, figsize=(10, 11))
+    fig, ax = plt.subplots(4, 1, figsize=(12, 11))
     first = next(iter(tr.values()))
-    ax[0].plot(first["t"], first["y_ref"], "k--", lw=1.2, label="reference $y_d$")
+    sty = _styles(names)
+    ax[0].plot(first["t"], first["y_ref"], color="0.2", ls=(0, (1, 1)), lw=1.6, label="reference $y_d$")
     for n, d in tr.items():
-        ax[0].plot(d["t"], d["y"], lw=0.8, color=col[n], label=n)
-        ax[1].plot(d["t"], d["e"], lw=0.7, color=col[n], label=n)
+        c, ls, _ = sty[n]
+        ax[0].plot(d["t"], d["y"], lw=0.8, color=c, ls=ls, label=n)
+        ax[1].plot(d["t"], d["e"], lw=0.7, color=c, ls=ls, label=n)
         sel = (d["t"] >= zoom[0]) & (d["t"] <= zoom[1])
-        ax[2].plot(d["t"][sel], d["e"][sel], lw=0.8, color=col[n], label=n)
-        ax[3].plot(d["t"][sel], d["u"][sel], lw=0.6, color=col[n], label=n)
+        ax[2].plot(d["t"][sel], d["e"][sel], lw=0.8, color=c, ls=ls, label=n)
+        ax[3].plot(d["t"][sel], d["u"][sel], lw=0.6, color=c, ls=ls, label=n)
     ax[0].set_ylabel(f"output [{unit}]")
     ax[1].set_ylabel(f"error e [{unit}]")
     ax[2].set_ylabel(f"e [{unit}] (zoom)")
@@ -145,7 +168,7 @@ def _paper_traces(res: Results, folder: str, col: dict, task: str):
         for ev in fr:
             a.axvspan(ev[1], ev[2], color="orange", alpha=0.12)
     ax[1].axhline(0, color="gray", lw=0.5)
-    ax[0].legend(fontsize=7, ncol=3, loc="upper right")
+    _legend_outside(fig, ax[0])
     fig.suptitle(f"Paper scenario, {task} task: every policy overlaid (first training seed); friction shaded",
                  fontsize=9)
     return _finish(fig, res, folder, f"paper_traces_{task}.png", 0.02), task
@@ -181,22 +204,29 @@ def _robustness(res: Results, folder: str, col: dict, task: str):
               ("friction", "rmse", "friction amplitude [N m]", f"RMSE [{u}]"),
               ("mismatch", "rmse", "plant-parameter mismatch [+-]", f"RMSE [{u}]"),
               ("mismatch", "tv_u_rate", "plant-parameter mismatch [+-]", "control TV [mA/s]"))
-    fig, axes = plt.subplots(2, 2, figsize=(11, 8))
+    names = [s.name for s in res.specs]
+    sty = _styles(names)
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8))
     for ax, (sweep, key, xl, yl) in zip(axes.ravel(), panels):
-        for n in [s.name for s in res.specs]:
+        levels = sorted({r["level"] for r in rr if r["sweep"] == sweep})
+        step = min(np.diff(levels)) if len(levels) > 1 else 1.0
+        for i, n in enumerate(names):
             pr = [r for r in rr if r["policy"] == n and r["sweep"] == sweep]
             if not pr:
                 continue
             xs, ms, los, his = _sweep_curve(res, pr, key)
-            if xs:
-                ax.plot(xs, ms, "o-", color=col[n], lw=1.2, ms=3, label=n)
-                ax.fill_between(xs, los, his, color=col[n], alpha=0.15)
+            if xs:  # dodged sideways (a 1/3 of a level step shared by all) so the CI bars do not hide each other
+                x = np.asarray(xs) + step * (i / max(len(names) - 1, 1) - 0.5) / 3.0
+                c, ls, mk = sty[n]
+                ax.errorbar(x, ms, yerr=[np.subtract(ms, los), np.subtract(his, ms)], color=c, ls=ls, marker=mk,
+                            lw=1.0, ms=3.5, elinewidth=0.7, capsize=1.5, label=n)
+        ax.set_xticks(levels)
         ax.set_xlabel(xl)
         ax.set_ylabel(yl)
         ax.set_yscale("log")
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle(f"Robustness, {task}: mean over {res.cfg.sweep_episodes} episodes per level (band: 95 % bootstrap "
-                 "CI; diverged episodes left out)", fontsize=9)
+    _legend_outside(fig, axes[0, 1])
+    fig.suptitle(f"Robustness, {task}: mean over {res.cfg.sweep_episodes} episodes per level (bars: 95 % bootstrap "
+                 "CI, policies side by side at each level; diverged episodes left out)", fontsize=9)
     return _finish(fig, res, folder, f"robustness_{task}.png", 0.02), task
 
 
