@@ -7,6 +7,9 @@ import sys
 import time
 import traceback
 
+from . import bench_compile, bench_env, bench_memory, bench_sim, bench_train, report
+from .common import Section, load_average, log, machine, versions
+
 SECTIONS = ("sim", "env", "train", "memory", "compile")
 
 
@@ -34,9 +37,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args, command: str) -> int:
-    from . import bench_compile, bench_env, bench_memory, bench_sim, bench_train, report
-    from .common import Section, load_average, log, machine, versions
-
     modules = {"sim": bench_sim, "env": bench_env, "train": bench_train, "memory": bench_memory,
                "compile": bench_compile}
     t0 = time.perf_counter()
