@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 import numba as nb
+import numpy as np
 
 from ehss_gym.core import layout as L
 from ehss_gym.core.control import controller_update
@@ -40,6 +41,7 @@ from ehss_gym.core.layout import (
     LAY_SRC,
     N_PARAM,
     N_STATS,
+    N_WEIGHTS,
     S_N,
     S_SAT,
     S_SUM_E2,
@@ -112,6 +114,23 @@ def observe(h, F, IB, BB, events, filt, work, obs, lay):
         F[b, F_INFO_OK:F_INFO_OK + L.N_INFO] = 0.0
         _peek(F, BB, b, IB[b, IB_K], h, events, filt, work)
         _write_obs(obs[b], F[b, F_PEEK:F_PEEK + L.N_INFO], F[b, F_INFO_OK:F_INFO_OK + L.N_INFO], lay)
+
+
+def reward_weights(weights: dict, error_scale: float, residual_scale: float) -> np.ndarray:
+    """The ``wts`` vector :func:`agent_reward` reads (W_* slots), from the env's reward weights.
+
+    Args:
+        weights: the env's ``reward_weights`` (track, effort, rate, tv, tv_u, divergence) [-].
+        error_scale: the tracking error that costs 1 per step [output unit].
+        residual_scale: the current of a unit action [mA].
+    """
+    wts = np.zeros(N_WEIGHTS)
+    for slot, key in ((W_TRACK, "track"), (W_EFFORT, "effort"), (W_RATE, "rate"), (W_TV, "tv"), (W_TVU, "tv_u"),
+                      (W_DIV, "divergence")):
+        wts[slot] = weights[key]
+    wts[W_INV_E2] = 1.0 / error_scale**2
+    wts[W_INV_SCALE] = 1.0 / residual_scale
+    return wts
 
 
 @jit
