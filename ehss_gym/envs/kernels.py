@@ -173,7 +173,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
         IB: per-lane int64 buffer (B, N_IB): step index, agent steps taken, scratch.
         BB: per-lane bool buffer (B, N_BB): run flag (cleared on divergence), scratch.
         events: friction events (B, E, 3); filt: filter blocks (B, 3, 4, 4).
-        c, X, U, work, lwork: lane scratch (see :class:`ehss_gym.core.sim.LaneScratch`).
+        c, X, U, work, lwork: lane scratch (made by :class:`ehss_gym.envs.lanes.Lanes`).
         obs: (B, D) float32 observations (output); lay: observation layout (3, D).
         elog: (B, T) float32 error at the last sample of each agent step.
         wts: reward weights (N_WEIGHTS,).
