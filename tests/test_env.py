@@ -446,7 +446,8 @@ def test_constructor_signature_is_the_config_record():
     named = {k: p for k, p in params.items() if k not in ("self", "unknown")}
     assert set(named) == set(EnvConfig.KEYS) | {"render_mode"}
     assert all(p.kind is inspect.Parameter.KEYWORD_ONLY for p in named.values())
-    for key in ("mode", "n", "current_limit", "control_period", "substeps", "estimator", "agent_period", "scenario"):
+    for key in ("mode", "n", "current_limit", "control_period", "substeps", "agent_period", "pressure_domain",
+                "scenario"):
         assert named[key].default == getattr(DEFAULTS, key), key
     for key in TASK_DEPENDENT:
         assert named[key].default is None, key
