@@ -11,9 +11,9 @@ import argparse
 
 from ehss_gym._version import __version__
 
-from . import bench, evaluate, fidelity, reproduce, simulate, train
+from . import bench, evaluate, fidelity, noise, reproduce, simulate, train
 
-COMMANDS = (simulate, reproduce, evaluate, train, bench, fidelity)  # each exposes register(subparsers)
+COMMANDS = (simulate, reproduce, noise, evaluate, train, bench, fidelity)  # each exposes register(subparsers)
 
 
 def build_parser() -> argparse.ArgumentParser:

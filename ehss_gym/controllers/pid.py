@@ -167,12 +167,12 @@ PID_RELAY: dict[tuple[str, str], tuple[float, float]] = {
 }
 
 
-def default_pid_gains(cfg: EnvConfig) -> tuple[float, float, float]:
+def default_pid_gains(cfg: EnvConfig, progress: bool = True) -> tuple[float, float, float]:
     """Stored gains when ``cfg`` has the default settings of its task and mode, else :func:`tune_pid`."""
     key = (cfg.task, cfg.mode)
     if key in PID_GAINS and _is_default(cfg):
         return PID_GAINS[key]
-    return tune_pid(cfg)["gains"]
+    return tune_pid(cfg, progress=progress)["gains"]
 
 
 def _is_default(cfg: EnvConfig) -> bool:
