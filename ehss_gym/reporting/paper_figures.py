@@ -140,74 +140,83 @@ def plot_sweep_maps(records: Sequence[Record], row: str, col: str, path: str, ti
     fig, ax = plt.subplots(nm, 4, figsize=(4 + 1.0 * len(cols) * 2.2, 2.0 + 0.34 * len(rows) * nm),
                            squeeze=False)
     for i, (key, label, logscale) in enumerate(MAP_METRICS):
-        vals = [c[n].get(key) for c in cells.values() for n in c if not c[n].get("diverged", False)]
-        vals = [v for v in vals if v is not None and math.isfinite(v) and (v > 0 or not logscale)]
-        if logscale:
-            lo, hi = (min(vals), max(vals)) if vals else (1e-3, 1.0)
-            hi = max(hi, lo * 10)
-            norm = colors.LogNorm(vmin=lo, vmax=hi)
-        else:
-            norm = colors.Normalize(vmin=0.0, vmax=1.0)
-        cmap = plt.get_cmap("viridis").copy()
-        cmap.set_bad("#dddddd")
+        norm = _metric_norm(cells, key, logscale)
         for j, n in enumerate(NS):
-            Z = np.full((len(rows), len(cols)), np.nan)
-            txt = {}
-            for (rv, cv), c in cells.items():
-                a, b = rows.index(rv), cols.index(cv)
-                r = c.get(n)
-                if r is None:
-                    continue
-                if r.get("diverged", False):
-                    txt[(a, b)] = ("D", "w")
-                    Z[a, b] = np.nan
-                    continue
-                v = r.get(key)
-                if v is None or not math.isfinite(v):
-                    txt[(a, b)] = ("inf" if v is not None and math.isinf(v) else "nan", "r")
-                    continue
-                Z[a, b] = max(v, norm.vmin) if logscale else v
-                txt[(a, b)] = (f"{v:.1g}" if logscale else f"{v:.2f}", "w")
-            axx = ax[i, j]
-            axx.imshow(np.ma.masked_invalid(Z), cmap=cmap, norm=norm, aspect="auto", origin="lower")
-            for (a, b), (s, colr) in txt.items():
-                if s == "D":
-                    axx.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, color="k"))
-                axx.text(b, a, s, ha="center", va="center", fontsize=6, color=colr)
-            axx.set_title(f"n = {n}: {label}", fontsize=8)
-            _ticks(axx, rows, cols, row_label if j == 0 else "", col_label, starred)
-        # spread column
-        Z = np.full((len(rows), len(cols)), np.nan)
-        axx = ax[i, 3]
-        for (rv, cv), c in cells.items():
-            if len(c) < 2:
-                continue
-            a, b = rows.index(rv), cols.index(cv)
-            eff = n_effect(c)
-            sp, matters = eff[key]
-            if eff["diverged"][1]:
-                axx.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, color="#b2182b"))
-                axx.text(b, a, "D≠", ha="center", va="center", fontsize=6, color="w")
-                continue
-            if eff["diverged"][0] == len(c):
-                axx.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, color="k"))
-                axx.text(b, a, "D", ha="center", va="center", fontsize=6, color="w")
-                continue
-            if sp is None or math.isnan(sp):
-                continue
-            Z[a, b] = 1.0 if matters else 0.0
-            s = (f"{sp:.2f}" if key == "saturation" else "inf" if math.isinf(sp) else
-                 (f"{sp:.2f}s" if key == "recovery_on" else f"x{sp:.1f}"))
-            axx.text(b, a, s, ha="center", va="center", fontsize=6, color="k")
-        axx.imshow(np.ma.masked_invalid(Z), cmap=colors.ListedColormap(["#d9f0d3", "#fdb863"]),
-                   vmin=0, vmax=1, aspect="auto", origin="lower")
-        axx.set_title("spread over n (orange: n matters)", fontsize=8)
-        _ticks(axx, rows, cols, "", col_label, starred)
+            _map_panel(ax[i, j], cells, rows, cols, n, key, norm, logscale)
+            ax[i, j].set_title(f"n = {n}: {label}", fontsize=8)
+            _ticks(ax[i, j], rows, cols, row_label if j == 0 else "", col_label, starred)
+        _spread_panel(ax[i, 3], cells, rows, cols, key)
+        _ticks(ax[i, 3], rows, cols, "", col_label, starred)
     fig.suptitle(title, fontsize=10)
     fig.text(0.01, 0.003, _made_by(cmd), fontsize=7, color="gray")
     fig.tight_layout(rect=(0, 0.012, 1, 0.985))
     fig.savefig(path, dpi=75)
     plt.close(fig)
+
+
+def _metric_norm(cells, key: str, logscale: bool):
+    """Colour scale of one metric over every non-diverged run of the map (log: its finite positive range)."""
+    vals = [c[n].get(key) for c in cells.values() for n in c if not c[n].get("diverged", False)]
+    vals = [v for v in vals if v is not None and math.isfinite(v) and (v > 0 or not logscale)]
+    if not logscale:
+        return colors.Normalize(vmin=0.0, vmax=1.0)
+    lo, hi = (min(vals), max(vals)) if vals else (1e-3, 1.0)
+    return colors.LogNorm(vmin=lo, vmax=max(hi, lo * 10))
+
+
+def _map_panel(axx, cells, rows, cols, n: int, key: str, norm, logscale: bool) -> None:
+    """One metric's heat map for one n: values written in the cells, diverged runs black with 'D'."""
+    cmap = plt.get_cmap("viridis").copy()
+    cmap.set_bad("#dddddd")
+    Z = np.full((len(rows), len(cols)), np.nan)
+    txt = {}
+    for (rv, cv), c in cells.items():
+        a, b = rows.index(rv), cols.index(cv)
+        r = c.get(n)
+        if r is None:
+            continue
+        if r.get("diverged", False):
+            txt[(a, b)] = ("D", "w")
+            continue
+        v = r.get(key)
+        if v is None or not math.isfinite(v):
+            txt[(a, b)] = ("inf" if v is not None and math.isinf(v) else "nan", "r")
+            continue
+        Z[a, b] = max(v, norm.vmin) if logscale else v
+        txt[(a, b)] = (f"{v:.1g}" if logscale else f"{v:.2f}", "w")
+    axx.imshow(np.ma.masked_invalid(Z), cmap=cmap, norm=norm, aspect="auto", origin="lower")
+    for (a, b), (s, colr) in txt.items():
+        if s == "D":
+            axx.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, color="k"))
+        axx.text(b, a, s, ha="center", va="center", fontsize=6, color=colr)
+
+
+def _spread_panel(axx, cells, rows, cols, key: str) -> None:
+    """The spread of one metric over n per cell; orange where n matters, red 'D≠' where only some n diverge."""
+    Z = np.full((len(rows), len(cols)), np.nan)
+    for (rv, cv), c in cells.items():
+        if len(c) < 2:
+            continue
+        a, b = rows.index(rv), cols.index(cv)
+        eff = n_effect(c)
+        sp, matters = eff[key]
+        if eff["diverged"][1]:
+            axx.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, color="#b2182b"))
+            axx.text(b, a, "D≠", ha="center", va="center", fontsize=6, color="w")
+            continue
+        if eff["diverged"][0] == len(c):
+            axx.add_patch(plt.Rectangle((b - 0.5, a - 0.5), 1, 1, color="k"))
+            axx.text(b, a, "D", ha="center", va="center", fontsize=6, color="w")
+            continue
+        if sp is None or math.isnan(sp):
+            continue
+        Z[a, b] = 1.0 if matters else 0.0
+        s = (f"{sp:.2f}" if key == "saturation" else "inf" if math.isinf(sp) else
+             (f"{sp:.2f}s" if key == "recovery_on" else f"x{sp:.1f}"))
+        axx.text(b, a, s, ha="center", va="center", fontsize=6, color="k")
+    axx.imshow(np.ma.masked_invalid(Z), cmap=colors.ListedColormap(["#d9f0d3", "#fdb863"]),
+               vmin=0, vmax=1, aspect="auto", origin="lower")
+    axx.set_title("spread over n (orange: n matters)", fontsize=8)
 
 
 def _ticks(axx, rows, cols, row_label, col_label, starred=()):
