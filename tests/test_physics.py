@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 from reference import lie_reference, plant_rhs_np, sontag_reference
 
-from ehss_gym.core.control import sontag
+from ehss_gym.core.control import integrate_lanes, plant_only_arrays, sontag
 from ehss_gym.core.params import PlantParams
-from ehss_gym.core.control import integrate_lanes, plant_only_arrays
 from ehss_gym.core.physics import (
     N_LANE_CONST,
     gaussian,

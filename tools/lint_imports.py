@@ -16,6 +16,7 @@ import pathlib
 import subprocess
 import sys
 import tempfile
+
 import tomllib
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]

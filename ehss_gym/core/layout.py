@@ -176,7 +176,9 @@ L_URES = 22
 L_UCMD = 23
 L_UAPP = 24
 L_TF = 25
-N_LOG = 26
+L_W = 26  # boundary-layer width in use
+L_RM = 27  # the reference model's input (r, or the shaped reference)
+N_LOG = 28
 
 # --- The envs' per-lane buffers (ehss_gym.envs.lanes) ---------------------------------------------
 # Per-agent-step statistics and reward-weight slots of the kernel.

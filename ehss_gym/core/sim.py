@@ -383,6 +383,8 @@ def write_log(row, z, info):
     row[L.L_UCMD] = info[L.I_UCMD]
     row[L.L_UAPP] = info[L.I_UAPP]
     row[L.L_TF] = info[L.I_TF]
+    row[L.L_W] = info[L.I_W]
+    row[L.L_RM] = info[L.I_RM]
 
 
 @jit
@@ -532,6 +534,8 @@ class Trajectory:
     u_applied = property(lambda self: self.log[:, L.L_UAPP], doc="applied current [mA]")
     u_base = property(lambda self: self.log[:, L.L_UBASE], doc="Sontag current [mA]")
     friction = property(lambda self: self.log[:, L.L_TF], doc="friction torque [N*m]")
+    width = property(lambda self: self.log[:, L.L_W], doc="boundary-layer width in use [unit of s]")
+    r_model = property(lambda self: self.log[:, L.L_RM], doc="the reference model's input (r, or the shaped r)")
     e = property(lambda self: self.log[:, L.L_E], doc="tracking error y - y_d")
 
     @property
