@@ -131,8 +131,8 @@ COMMON_ENV = {"control_period": 5e-5, "smoothing": 0.0, "agent_period": 20, "rew
 # Settings pinned when a policy is exported (its JSON records them all), so that later changes of the env's
 # defaults cannot silently change the loop a shipped policy acts in.
 PINNED_ENV_KEYS = ("task", "n", "mode", "fr", "sigma", "smoothing", "residual_scale", "agent_period",
-                   "control_period", "substeps", "current_limit", "estimator_hz", "estimator", "reward_weights",
-                   "error_scale")
+                   "control_period", "substeps", "current_limit", "estimator_hz", "estimator", "observer_hz", "law",
+                   "layer_gain", "bumpless", "ref_accel", "pressure_domain", "reward_weights", "error_scale")
 
 AGENTS: dict[str, AgentSpec] = {
     # Residual: gamma 0.98 (a 50-step, 50 ms horizon: several plant time constants; the reward is the

@@ -6,7 +6,7 @@ import math
 import mpmath as mp
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from ehss_gym import Scenario, simulate
@@ -96,6 +96,7 @@ def test_v_decreases_where_lin_sontags_formula_says_it_must(psi, G, s, n, sigma,
 
 @settings(max_examples=400, deadline=None)
 @given(psi=SIGNED, G=SIGNED, s=SIGNED, n=N, sigma=SIGMA, U=LIMIT)
+@example(psi=-1e8, G=-1.0, s=1.0, n=2, sigma=1.0, U=1.0)  # |rho| = 1e8 beta_U: the unrationalised form gave 0
 def test_lin_sontag_is_lin_and_sontags_formula(psi, G, s, n, sigma, U):
     """The kernel's rearranged form against the formula as published (unit ball, v = u/U), in exact arithmetic:
 

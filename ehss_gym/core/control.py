@@ -233,7 +233,19 @@ def lin_sontag(psi, G, s, n, sigma, smoothing, ulim):
     rs = rho / big
     bs = bu / big
     ib = 1.0 / big
-    num = rs + sgg * math.hypot(rs, bs)
+    hyp = math.hypot(rs, bs)
+    if sgg * rs < 0.0:
+        # rs + sgg hyp cancels where |rho| >> beta_U (all digits lost at |rho| ~ 1e8 beta_U): rationalised,
+        # rs + sgg hyp = sign(sgg) (sg^2 bs^2 - (1 - sg^2) rs^2) / (|sgg| hyp + |rs|), 1 - sg^2 = w^2/(s^2 + w^2)
+        c = 0.0
+        if smoothing > 0.0:
+            r = s / smoothing
+            c = 1.0 / (1.0 + r * r)
+        num = (sg * sg * bs * bs - c * rs * rs) / (abs(sgg) * hyp + abs(rs))
+        if sgg < 0.0:
+            num = -num
+    else:
+        num = rs + sgg * hyp
     den = ib + abs(sg) * math.hypot(ib, bs)
     v = -num / den
     if v > 1.0:

@@ -83,14 +83,17 @@ class EnvDefaults:
     scenario: str = "random"
     reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("tv_u", 0.0),
                              ("divergence", 10.0))
+    # Per task, the noise study's choice (reports/noise/recommended.json; tests/test_noise.py checks it): velocity the
+    # paper's SVF with Sontag and the adaptive layer, position the 1 kHz observer with Sontag, the adaptive layer and
+    # the 100 rad/s^2 reference shaper; no bumpless start (it removes no lost episode, the start-up rule's criterion).
     velocity: TaskDefaults = field(default_factory=lambda: TaskDefaults(
-        fr=60.0, sigma=1e5, smoothing=1e3, estimator_hz=1000.0, error_scale=1e-2, estimator="eso", law="sontag",
-        sigma_by_law=(("sontag", 1e5), ("lin-sontag", 1e6)), observer_hz=200.0, layer_gain=0.0, bumpless=True,
+        fr=60.0, sigma=1e5, smoothing=1e3, estimator_hz=1000.0, error_scale=1e-2, estimator="foh", law="sontag",
+        sigma_by_law=(("sontag", 1e5), ("lin-sontag", 3e6)), observer_hz=200.0, layer_gain=3.0, bumpless=False,
         ref_accel=0.0))
     position: TaskDefaults = field(default_factory=lambda: TaskDefaults(
         fr=20.0, sigma=1e6, smoothing=100.0, estimator_hz=1000.0, error_scale=1e-2, estimator="eso", law="sontag",
-        sigma_by_law=(("sontag", 1e6), ("lin-sontag", 1e7)), observer_hz=200.0, layer_gain=0.0, bumpless=True,
-        ref_accel=300.0))
+        sigma_by_law=(("sontag", 1e6), ("lin-sontag", 1e7)), observer_hz=1000.0, layer_gain=3.0, bumpless=False,
+        ref_accel=100.0))
 
 
 DEFAULTS = EnvDefaults()
@@ -104,6 +107,12 @@ TASK_DEPENDENT = ("fr", "sigma", "smoothing", "estimator_hz", "error_scale", "re
 # The settings issue 14 added, at the values that reproduce the loop before them (a policy trained before them, whose
 # recorded env_kwargs lack them, acts in its own loop with these; the estimator was already recorded).
 PRE_ISSUE14_ENV = {"law": "sontag", "layer_gain": 0.0, "bumpless": False, "ref_accel": 0.0, "pressure_domain": None}
+
+
+def recorded_loop(env_kwargs: dict) -> dict:
+    """The env settings a recorded policy acts in: ``env_kwargs`` with issue 14's settings it lacks (it was trained
+    before them) at :data:`PRE_ISSUE14_ENV`, so that a change of the env's defaults does not change its loop."""
+    return {**PRE_ISSUE14_ENV, **env_kwargs}
 
 
 @dataclass(frozen=True)

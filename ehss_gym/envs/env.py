@@ -139,19 +139,20 @@ class EHSSTrackingEnv(gym.Env):
         substeps: RK4 plant steps per control period, >= 1 (default 1).
         current_limit: |u| limit [mA] or None = unlimited (default 10).
         estimator_hz: cutoff of the paper's state-variable filter (SVF) [Hz] (default 1000, the paper's).
-        estimator: how the output derivatives are estimated (default "eso" for both tasks): "foh" (the paper's SVF,
-            first-order-hold discretisation, O(h^2) to its continuous filters), "zoh" (wave 1's zero-order hold,
-            biased by O(h)), "analog" (continuous filters integrated with the plant), "state" (the model's Lie
-            derivatives of the measured state) or "eso" (an extended-state observer of the velocity and a lumped
-            disturbance acceleration). See docs/MODEL.md, "Digital filters" and "Estimators".
-        observer_hz: error bandwidth of the "eso" observer [Hz] (default 200).
+        estimator: how the output derivatives are estimated (default "foh" velocity, "eso" position): "foh"
+            (the paper's SVF, first-order-hold discretisation, O(h^2) to its continuous filters), "zoh" (wave 1's
+            zero-order hold, biased by O(h)), "analog" (continuous filters integrated with the plant), "state"
+            (the model's Lie derivatives of the measured state) or "eso" (an extended-state observer of the
+            velocity and a lumped disturbance acceleration). See docs/MODEL.md, "Digital filters" and "Estimators".
+        observer_hz: error bandwidth of the "eso" observer [Hz] (default 200 velocity, where it is unused, 1000
+            position).
         law: "sontag" (default, both tasks; Sontag's universal formula, the paper's) or "lin-sontag" (Lin &
             Sontag's formula for controls bounded by current_limit). Without ``sigma`` each law gets its own
             default sigma (:attr:`TaskDefaults.sigma_by_law`). See docs/MODEL.md, "Laws".
         layer_gain: adaptive boundary layer: width max(smoothing, layer_gain * running noise std of s), in
-            [0, 100] (default 0: the fixed width ``smoothing``).
-        bumpless: the reference model starts at the measured output instead of at r(0) (default True).
-        ref_accel: position task: the reference shaper's acceleration bound [rad/s^2], 0 = none (default 300
+            [0, 100] (default 3 both tasks; 0: the fixed width ``smoothing``).
+        bumpless: the reference model starts at the measured output instead of at r(0) (default False).
+        ref_accel: position task: the reference shaper's acceleration bound [rad/s^2], 0 = none (default 100
             position, 0 velocity). See docs/MODEL.md, "Reference shaper".
         pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (default 0.95;
             None = at the measured pressure as is, the loop before issue 14).

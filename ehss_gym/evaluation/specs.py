@@ -29,7 +29,7 @@ import numpy as np
 from ehss_gym.agents.safeweights import shipped_models
 from ehss_gym.controllers import parse_scripted
 from ehss_gym.envs import ENV_ID, EnvConfig
-from ehss_gym.envs.config import PRE_ISSUE14_ENV
+from ehss_gym.envs.config import recorded_loop
 
 from .loading import PolicyError, load_safe, make_env
 from .suites import TASKS
@@ -195,9 +195,7 @@ def _run_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
         raise PolicyError(f"policy {spec_text!r}: model {path!r} was trained with mode={mode!r}; name it "
                           f"{_kind_of_mode(mode)}:{path} (residual-ppo = mode 'residual', ppo-direct = mode 'direct')")
     kw["mode"] = want_mode
-    # a model recorded without issue 14's settings was trained in the loop before them: it acts in that loop
-    for k, v in PRE_ISSUE14_ENV.items():
-        kw.setdefault(k, v)
+    kw = recorded_loop(kw)  # a model recorded without issue 14's settings acts in the loop before them
     for k in _NOT_ENV:
         kw.pop(k, None)
     return kw

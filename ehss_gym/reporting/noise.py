@@ -313,6 +313,19 @@ def final_context(st: NoiseStudy) -> dict:
         "lost_new": {t: nums[(t, "new", "heldout")]["lost"] for t in TASKS},
         "lost_new_random": {t: nums[(t, "new", "random")]["lost"] for t in TASKS},
     }
+    low = nums.get(("velocity", "lowest-tv", "heldout"))
+    if low is not None:  # what the rule's tracking tolerance costs: the admissible pair with the lowest TV
+        must["low"] = {"pair": st.rec["lowtv_velocity"], "tv_ratio": v_old["tv_noisy"] / max(low["tv_noisy"], 1e-12),
+                       "v": low, "rmse_noisy_rel": low["rmse_noisy"] / v_old["rmse_noisy"] - 1.0,
+                       "rmse_clean_rel": low["rmse_clean"] / v_old["rmse_clean"] - 1.0}
+        q = grid_cells(st, "velocity")
+        ch = st.rec["choice_velocity"]
+        must["low"]["quiet0_ratio"] = q[st.rec["lowtv_velocity"]]["0x"]["rmse_quiet"] / q[ch]["0x"]["rmse_quiet"]
+        must["low"]["quiet1_ratio"] = q[st.rec["lowtv_velocity"]]["1x"]["rmse_quiet"] / q[ch]["1x"]["rmse_quiet"]
+    must["kept_svf_only"] = all(dict(cfg.estimators)[k[0]][0] == ("estimator", "foh") for k in
+                                st.rec["kept_velocity"]) if st.rec["kept_velocity"] else False
+    must["v_rmse_rel"] = v_new["rmse_noisy"] / v_old["rmse_noisy"] - 1.0
+    must["v_clean_rel"] = v_new["rmse_clean"] / v_old["rmse_clean"] - 1.0
     must["tv_met"] = must["tv_ratio"] >= 100.0
     must["v_rmse_met"] = v_new["rmse_noisy"] <= v_old["rmse_noisy"]
     must["v_clean_met"] = v_new["rmse_clean"] <= v_old["rmse_clean"] and v_new["tv_clean"] <= v_old["tv_clean"]
@@ -349,9 +362,31 @@ def nmatters_context(st: NoiseStudy) -> dict:
                         "at_default": at_default}
     def_rows = [[task, r] + [_f(counts[task]["at_default"][r][k], ".3g") for k in ("rmse_quiet", "fric", "tv")]
                 for task in TASKS for r in _rows(st)]
-    return {"n_table": md_table(hdr, rows), "n_counts": counts, "n_spread": spread,
+    return {"n_table": md_table(hdr, rows), "n_counts": counts, "n_spread": spread, "n_plain": n_plain(st),
             "n_default_table": md_table(["task", "noise", "quiet RMSE max/min over n", "friction peak max/min",
                                          "TV max/min"], def_rows)}
+
+
+N_METRICS = (("rmse_quiet", "quiet RMSE"), ("fric", "friction peak"), ("tv", "control TV"), ("rmse", "RMSE"))
+
+
+def n_plain(st: NoiseStudy) -> dict:
+    """Per task, at the new defaults on the randomised scenarios: each metric's ratio n = 4 and n = 6 over n = 2,
+    which metrics n changes by >= MATTERS (either way), and the n with the lowest quiet RMSE."""
+    out = {}
+    for task in TASKS:
+        c = {n: st.cell(f"nmat|{task}|{n}|random") for n in NS}
+        ratios = {k: {n: c[n][k] / c[2][k] if c[2][k] > 0 else math.nan for n in NS if n != 2} for k, _ in N_METRICS}
+        moved = [(label, ratios[k]) for k, label in N_METRICS
+                 if any(math.isfinite(v) and (v >= MATTERS or v <= 1.0 / MATTERS) for v in ratios[k].values())]
+        best = min(NS, key=lambda n: (c[n]["rmse_quiet"], n))
+        paper = [st.group(f"nmat|{task}|{n}|paper")[0] for n in NS]
+        spreads = [_spread([p.get(k) for p in paper]) for k in ("rmse_quiet_true", "max_abs_e_friction_true",
+                                                                  "tv_u_rate")]
+        spreads = [v for v in spreads if math.isfinite(v)]
+        out[task] = {"moved": moved, "best_quiet": best, "lost": {n: c[n]["n_lost"] for n in NS},
+                     "paper_spread": max(spreads) if spreads else math.nan}
+    return out
 
 
 def bias_context(st: NoiseStudy) -> dict:
@@ -363,7 +398,14 @@ def bias_context(st: NoiseStudy) -> dict:
            "b2: rel. RMS", "b_s: rel. RMS", "mean b_s in friction (derived)", "e predicted -b_s/l0",
            "e measured (friction, mean)"]
     worst = max(b["bs_agree"] for b in st.rec["bias"].values())
-    return {"bias_table": md_table(hdr, rows), "bias_worst": worst}
+    # the quasi-static reading e = -b_s/lambda_0, per task: the worst ratio of measured to predicted friction offset
+    quasi = {}
+    for task in TASKS:
+        rs = [b["e_fric"] / b["e_pred_fric"] for (t, _), b in st.rec["bias"].items()
+              if t == task and math.isfinite(b["e_pred_fric"]) and b["e_pred_fric"] != 0.0]
+        quasi[task] = {"ratio_lo": min(rs) if rs else math.nan, "ratio_hi": max(rs) if rs else math.nan,
+                       "holds": bool(rs) and all(0.5 <= r <= 2.0 for r in rs)}
+    return {"bias_table": md_table(hdr, rows), "bias_worst": worst, "bias_quasi": quasi}
 
 
 def recommendation_json(st: NoiseStudy) -> dict:
@@ -377,7 +419,8 @@ def recommendation_json(st: NoiseStudy) -> dict:
                      "law": tm.law, "sigma": tm.sigma, "layer_gain": tm.layer_gain, "bumpless": tm.bumpless,
                      "ref_accel": tm.ref_accel, "choice": list(st.rec[f"choice_{task}"]),
                      "rule_met": st.rec[f"rule_met_{task}"],
-                     "sigma_by_law": {"sontag": old_template(task).sigma, "lin-sontag": st.rec[f"ls_sigma_{task}"]}}
+                     "sigma_by_law": {"sontag": old_template(task).sigma, "lin-sontag": st.rec[f"ls_sigma_{task}"]},
+                     "pid_direct_gains": list(st.rec["pid"][(task, "new", "gains")])}
     return out
 
 
