@@ -11,6 +11,7 @@ import re
 import pytest
 
 from ehss_gym.cli import main
+from ehss_gym.core.control import lin_sontag, sontag
 from ehss_gym.core.sim import simulate_batch
 from ehss_gym.envs import DEFAULTS
 from ehss_gym.study.noise import bias_check, bias_scenarios, ls_sigma0
@@ -79,8 +80,6 @@ def test_choose_estimator_law_each_side():
 
 def test_ls_sigma0_matches_the_gains_near_zero():
     """sigma_LS = sigma (U^2/2)^(1/n): at it Lin-Sontag's small-s gain equals Sontag's (docs/MODEL.md, "Laws")."""
-    from ehss_gym.core.control import lin_sontag, sontag  # noqa: PLC0415 - kernels only for this check
-
     for n in (2, 4, 6):
         sl = ls_sigma0(1e5, 10.0, n)
         s, G = 1e-3, 2.0
