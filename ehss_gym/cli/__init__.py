@@ -12,9 +12,9 @@ import sys
 
 from ehss_gym._version import __version__
 
-from . import bench, evaluate, fidelity, reproduce, simulate, train, training_report
+from . import bench, evaluate, fidelity, noise, reproduce, simulate, train, training_report
 
-COMMANDS = (simulate, reproduce, evaluate, train, training_report, bench, fidelity)  # each exposes register(subparsers)
+COMMANDS = (simulate, reproduce, noise, evaluate, train, training_report, bench, fidelity)  # each: register(subparsers)
 
 
 def build_parser() -> argparse.ArgumentParser:

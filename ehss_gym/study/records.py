@@ -36,7 +36,9 @@ class Record:
 def params_of(sc: Scenario) -> dict:
     return {"task": sc.task, "fr": sc.fr, "n": sc.n, "sigma": sc.sigma, "smoothing": sc.smoothing,
             "limit": sc.current_limit, "h": sc.control_period, "substeps": sc.substeps, "t_end": sc.t_end,
-            "estimator_hz": sc.estimator_hz, "estimator": sc.estimator}
+            "estimator_hz": sc.estimator_hz, "estimator": sc.estimator, "observer_hz": sc.observer_hz, "law": sc.law,
+            "layer_gain": sc.layer_gain, "bumpless": sc.bumpless, "ref_accel": sc.ref_accel,
+            "pressure_domain": sc.pressure_domain, "noisy": any(v > 0 for v in sc.noise_std)}
 
 
 @nb.njit(cache=True)
@@ -164,9 +166,9 @@ def probe_summary(r: Record) -> Record:
 class Runner:
     """Batches scenarios by time grid into ``simulate_batch`` calls, with one tqdm bar over batches."""
 
-    def __init__(self, max_batch: int = 64, progress: bool = True):
+    def __init__(self, max_batch: int = 64, progress: bool = True, desc: str = "ehss reproduce"):
         self.max_batch = max_batch
-        self.bar = tqdm(total=0, desc="ehss reproduce", unit="batch", disable=not progress, file=sys.stderr)
+        self.bar = tqdm(total=0, desc=desc, unit="batch", disable=not progress, file=sys.stderr)
         self.n_runs = 0
         self.sim_seconds = 0.0
         self.by_group: dict[str, float] = {}  # wall time [s] per study part (a batch is timed under its first run)
