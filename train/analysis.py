@@ -32,6 +32,7 @@ from ehss_gym.core.scenarios import heldout_scenarios
 from ehss_gym.core.sim import simulate_batch
 from ehss_gym.core.util import atomic_write, atomic_write_text
 from ehss_gym.envs import EHSSTrackingEnv
+from ehss_gym.envs.config import recorded_loop
 from ehss_gym.evaluation import harness as ev
 
 ONSET_PEAK = 0.01  # [s] a friction-window peak this soon after the switch-on is the torque step's transient
@@ -202,8 +203,15 @@ def base_law_diagnostics(results) -> dict:
 
 
 def agent_env_kwargs(task: str) -> dict:
-    """The residual agent's env settings for ``task`` (n = 2): the loop its diagnostics must be measured in."""
-    return env_kwargs_for(get_spec("residual-ppo"), task, 2)
+    """The residual agent's env settings for ``task`` (n = 2) in the loop the shipped runs were trained in: the
+    loop its diagnostics must be measured in.
+
+    The runs this report reads predate issue 14's loop settings (law, layer, estimator defaults), so, as when
+    their policies are loaded (:func:`ehss_gym.envs.config.recorded_loop`), the settings the agent spec leaves to
+    the env are those before issue 14, not today's env defaults.
+    """
+    # (the paper's SVF, "foh", was every task's estimator before issue 14; safe weights pin theirs)
+    return recorded_loop({"estimator": "foh", **env_kwargs_for(get_spec("residual-ppo"), task, 2)})
 
 
 def agent_heldout_scenarios(task: str, episodes: int) -> list:
