@@ -43,7 +43,7 @@ def object_job(config, seed, context):
 def test_encode_round_trips_plain_data_exactly():
     data = {"f": 0.1 + 0.2, "nan": math.nan, "inf": -math.inf, "t": (1, "a", None), "l": [True, 2.5e-300],
             "a32": np.linspace(0, 1, 5, dtype=np.float32), "i8": np.arange(6, dtype=np.int8).reshape(2, 3),
-            "s": np.float64(1 / 3), "n": np.int64(7), 3: "int key", "__x": 1}
+            "s": np.float64(1 / 3), "n": np.int64(7), 3: "int key", "__x": 1, "b": b"\x00\xffweights"}
     back = decode(json.loads(json.dumps(encode(data))))
     assert back.keys() == data.keys()
     assert back["f"] == data["f"] and math.isnan(back["nan"]) and back["inf"] == -math.inf
@@ -51,6 +51,7 @@ def test_encode_round_trips_plain_data_exactly():
     for k in ("a32", "i8"):
         assert back[k].dtype == data[k].dtype and back[k].shape == data[k].shape and (back[k] == data[k]).all()
     assert type(back["s"]) is np.float64 and back["s"] == data["s"] and type(back["n"]) is np.int64
+    assert back["b"] == data["b"] and back[3] == "int key" and back["__x"] == 1
 
 
 @pytest.mark.parametrize("bad", [object(), {"x": [1, {2, 3}]}, np.array([None, 1], dtype=object)])

@@ -20,7 +20,7 @@ from ehss_gym.core.util import atomic_write
 
 from . import runs
 from .config import Config
-from .loop import train
+from .loop import describe, train
 
 WEIGHT_FILES = tuple(f"{kind}/policy.{ext}" for kind in ("best", "final") for ext in ("safetensors", "json"))
 # what does not change a run's result: left out of its job's content address (resume is decided by the job)
@@ -47,6 +47,7 @@ def train_job(config: dict, seed: int, context) -> dict:
     with open(os.path.join(cfg.out, "train.log"), "a", encoding="utf-8") as log, \
             contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
         summary = train(cfg)
+        print(describe(summary))  # what python -m ehss_gym.train.loop prints at the end
     weights = {}
     for rel in WEIGHT_FILES:
         with open(os.path.join(cfg.out, rel), "rb") as f:

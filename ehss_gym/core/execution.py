@@ -3,8 +3,8 @@
 A :class:`Job` is a pure function of (config, seed): ``fn(config, seed, context) -> result``, where ``fn`` is a
 module-level function (importable on every node), ``config`` and ``seed`` say everything the result depends on,
 and ``context`` is data shared by the jobs of one call (e.g. the policies an evaluation scores), sent once per
-worker. The result is **plain data** (dicts, lists, tuples, str, int, float, bool, None, NumPy arrays and scalars;
-no pickled objects), encoded as JSON by :func:`dumps` in the worker and decoded by :func:`loads` where it is
+worker. The result is **plain data** (dicts, lists, tuples, str, int, float, bool, None, bytes, NumPy arrays and
+scalars; no pickled objects), encoded as JSON by :func:`dumps` in the worker and decoded by :func:`loads` where it is
 used, on every backend (so both backends hand back the very same values).
 
 With a :class:`Store`, each result is written atomically to its own content-addressed folder
@@ -168,6 +168,8 @@ def encode(obj):
             raise TypeError("a result may not hold object arrays")
         data = base64.b64encode(np.ascontiguousarray(obj).tobytes()).decode()
         return {"__ndarray__": obj.dtype.str, "shape": list(obj.shape), "data": data}
+    if isinstance(obj, (bytes, bytearray)):  # file contents, e.g. safe weights
+        return {"__bytes__": base64.b64encode(obj).decode()}
     if isinstance(obj, tuple):
         return {"__tuple__": [encode(v) for v in obj]}
     if isinstance(obj, list):
@@ -176,8 +178,8 @@ def encode(obj):
         if all(isinstance(k, str) for k in obj) and not any(k.startswith("__") for k in obj):
             return {k: encode(v) for k, v in obj.items()}
         return {"__items__": [[encode(k), encode(v)] for k, v in obj.items()]}
-    raise TypeError(f"a job result must be plain data (dict, list, tuple, str, int, float, bool, None, NumPy "
-                    f"arrays); got a {type(obj).__module__}.{type(obj).__qualname__}")
+    raise TypeError(f"a job result must be plain data (dict, list, tuple, str, int, float, bool, None, bytes, "
+                    f"NumPy arrays); got a {type(obj).__module__}.{type(obj).__qualname__}")
 
 
 def decode(obj):
@@ -195,6 +197,8 @@ def decode(obj):
         return np.frombuffer(raw, dtype=np.dtype(obj["__ndarray__"])).reshape(obj["shape"]).copy()
     if "__tuple__" in obj:
         return tuple(decode(v) for v in obj["__tuple__"])
+    if "__bytes__" in obj:
+        return base64.b64decode(obj["__bytes__"])
     if "__items__" in obj:
         return {decode(k): decode(v) for k, v in obj["__items__"]}
     return {k: decode(v) for k, v in obj.items()}

@@ -11,8 +11,10 @@ A run is what :attr:`ehss_gym.evaluation.specs.PolicySpec.runs` holds per traini
 - any object with ``predict``, used as it is.
 
 Safe-weights models are loaded once per process (:func:`load_safe` remembers them by the identity of their two
-files, so spec parsing, the shape checks and the episodes share one load). Worker processes get the loaded
-objects as bytes from :func:`portable` and rebuild them with :func:`restore`: they read no model file unless an
+files, so spec parsing, the shape checks and the episodes share one load). Worker processes (local ones, or Ray
+workers on other machines) get what :func:`portable` makes of a loaded run and rebuild it with :func:`restore`:
+a safe-weights model as the bytes of its two files (no pickle; loaded through the safe-weights checks from a
+private copy, so no worker needs the model's files), other objects as pickles; they read no model file unless an
 object cannot be pickled, and then load it at most once each.
 """
 
