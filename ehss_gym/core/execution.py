@@ -476,7 +476,13 @@ class Executor:
         env = {**thread_env(self.backend.threads), NUMBA_CACHE_ENV: numba_cache_dir()}
         runtime_env = {"env_vars": env}
         if address is not None:
-            ray.init(address=address, runtime_env=runtime_env, log_to_driver=False, ignore_reinit_error=True)
+            try:
+                ray.init(address=address, runtime_env=runtime_env, log_to_driver=False, ignore_reinit_error=True)
+            except (ConnectionError, RuntimeError) as exc:  # reachable, but Ray refused (e.g. its token check)
+                cause = f" ({exc.__cause__})" if exc.__cause__ else ""
+                raise ExecutionError(f"--address {address}: cannot join the Ray cluster: {exc}{cause}; a cluster "
+                                     "started with ray start checks a token: set RAY_AUTH_MODE=token here too "
+                                     "(docs/RAY.md)") from None
         else:
             ray.init(num_cpus=self.backend.workers or usable_cores(), include_dashboard=False,
                      _node_ip_address="127.0.0.1", runtime_env=runtime_env, log_to_driver=False,
