@@ -31,7 +31,7 @@ TINY = ["--n-envs", "2", "--eval-episodes", "1", "--eval-seconds", "0.1", "--hp"
 @pytest.fixture(scope="module")
 def ray_instance():
     """A local Ray instance of 2 CPUs bound to 127.0.0.1 (the commands use it instead of starting their own)."""
-    ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", log_to_driver=False,
+    ray.init(address="local", num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", log_to_driver=False,
              runtime_env={"env_vars": {**thread_env(1), NUMBA_CACHE_ENV: numba_cache_dir()}})
     # the test module's job functions travel by value (Ray's workers cannot import tests/)
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])

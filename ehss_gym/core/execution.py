@@ -484,7 +484,8 @@ class Executor:
                                      "started with ray start checks a token: set RAY_AUTH_MODE=token here too "
                                      "(docs/RAY.md)") from None
         else:
-            ray.init(num_cpus=self.backend.workers or usable_cores(), include_dashboard=False,
+            # address "local": a new instance of our own, never a cluster some other process left running here
+            ray.init(address="local", num_cpus=self.backend.workers or usable_cores(), include_dashboard=False,
                      _node_ip_address="127.0.0.1", runtime_env=runtime_env, log_to_driver=False,
                      ignore_reinit_error=True)
         self._ray, self._started_ray = ray, True
