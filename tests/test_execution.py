@@ -137,8 +137,8 @@ def test_an_interrupted_sweep_restarted_recomputes_only_the_missing_jobs(tmp_pat
     assert skipped == done and computed == len(Store(store).keys()) - done > 0
     whole = tmp_path / "whole"
     assert cli_main(["reproduce", "--quick", "--no-progress", "--no-store", "--out", str(whole)]) == 0
-    csvs = sorted(p for p in os.listdir(whole) if p.endswith(".csv"))
-    assert csvs
+    csvs = sorted(p.relative_to(whole) for p in whole.rglob("*.csv"))
+    assert len(csvs) >= 5 and csvs == sorted(p.relative_to(out) for p in out.rglob("*.csv"))
     for name in csvs:
         assert (out / name).read_bytes() == (whole / name).read_bytes(), name
 
