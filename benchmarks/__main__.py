@@ -8,6 +8,11 @@ import sys
 import time
 import traceback
 
+from ehss_gym.core.util import report_folder
+
+from . import bench_compile, bench_env, bench_memory, bench_sim, bench_train, report
+from .common import Section, load_average, log, machine, versions
+
 SECTIONS = ("sim", "env", "train", "memory", "compile")
 
 
@@ -37,11 +42,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args, command: str) -> int:
-    from ehss_gym.core.util import report_folder
-
-    from . import bench_compile, bench_env, bench_memory, bench_sim, bench_train, report
-    from .common import Section, load_average, log, machine, versions
-
     modules = {"sim": bench_sim, "env": bench_env, "train": bench_train, "memory": bench_memory,
                "compile": bench_compile}
     args.out = report_folder(args.out, args.quick, os.path.join("reports", "perf"))

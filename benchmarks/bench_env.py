@@ -12,35 +12,39 @@ The native vector env (``ehss_gym.envs.vector``) is stepped the same way at 1, 1
 
 from __future__ import annotations
 
-import cProfile
-import importlib
-import inspect
-import pstats
 import time
+from importlib.metadata import version
 
 import gymnasium as gym
+import numba
 
-from .common import Section, Table, Target, interleave, log, median, spread
+import ehss_gym  # noqa: F401  (registers EHSSTracking-v0 with gymnasium)
+from ehss_gym.core.sim import MAX_LANES
+from ehss_gym.envs.kernels import advance
+
+from . import kernel_profile
+from .common import Section, Table, Target, interleave, log, median, profile, repo_root, spread, top_own_time
 
 ENV_ID = "EHSSTracking-v0"
 GEM_ID = "Cont-SC-PermExDc-v0"
+OURS, PENDULUM = "EHSSTracking-v0 (ours)", "Pendulum-v1"  # their rows in the single env table
 VEC_SIZES = (1, 16, 256, 1024)
+VEC_TARGET = 20.0  # sub-env steps/s of the vector env at VEC_TARGET_SIZE sub-envs over the single env's steps/s
+VEC_TARGET_SIZE = 256
+BLOCK = MAX_LANES  # lanes of the vectorised plant and core-loop blocks timed for the vector env
+STRIP = ("site-packages/", repo_root() + "/")  # profile file names are shown relative to these
 
 
 def env_status() -> str:
-    """'' if our env is registered and builds, else why not."""
+    """'' if our env is registered, else why not."""
     try:
-        import ehss_gym  # noqa: F401  (registers the env)
-
         gym.spec(ENV_ID)
-    except Exception as exc:  # the env is written by another module; say why it is missing
+    except Exception as exc:  # say why it is missing rather than fail the whole run
         return f"env not available: {ENV_ID} is not registered ({type(exc).__name__}: {exc})"
     return ""
 
 
 def make_ours():
-    import ehss_gym  # noqa: F401
-
     return gym.make(ENV_ID)
 
 
@@ -48,9 +52,17 @@ def make_pendulum():
     return gym.make("Pendulum-v1")
 
 
+def _gem():
+    """The gym-electric-motor module; raises ImportError (or what its import raises) where it is not installed."""
+    import gym_electric_motor  # optional peer: not a dependency of ehss-gym, compared only where installed
+
+    return gym_electric_motor
+
+
 def gem_status() -> str:
+    """'' if gym-electric-motor imports, else why it is left out."""
     try:
-        import gym_electric_motor  # noqa: F401
+        _gem()
     except Exception as exc:
         return (f"gym-electric-motor not installed here ({type(exc).__name__}); install it with "
                 f"`pip install gym-electric-motor` to include it")
@@ -58,35 +70,16 @@ def gem_status() -> str:
 
 
 def make_gem():
-    import gym_electric_motor as gem
-
-    return gem.make(GEM_ID)
+    return _gem().make(GEM_ID)
 
 
 def make_vector(n: int):
-    """The native vector env with n sub-envs.
-
-    Uses the registered vector entry point (``gym.make_vec(..., vectorization_mode="vector_entry_point")``)
-    if there is one, else the VectorEnv subclass defined in ``ehss_gym.envs.vector``.
-    """
-    import ehss_gym  # noqa: F401
-
-    spec = gym.spec(ENV_ID)
-    if getattr(spec, "vector_entry_point", None):
-        return gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point")
-    mod = importlib.import_module("ehss_gym.envs.vector")
-    classes = [c for c in vars(mod).values() if isinstance(c, type) and issubclass(c, gym.vector.VectorEnv)
-               and c.__module__ == mod.__name__]
-    if not classes:
-        raise RuntimeError("ehss_gym.envs.vector defines no gymnasium.vector.VectorEnv subclass")
-    cls = classes[0]
-    params = inspect.signature(cls).parameters
-    if "num_envs" in params:
-        return cls(num_envs=n)
-    return cls(n)
+    """The native vector env with n sub-envs, through its registered vector entry point."""
+    return gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point")
 
 
 def vector_status() -> str:
+    """'' if the vector env builds, else why not."""
     if env_status():
         return "vector env not available: the single env is not available"
     try:
@@ -121,14 +114,11 @@ class Stepper:
         return dt
 
 
-class VecStepper:
+class VecStepper(Stepper):
     """Steps a vector env with pre-sampled batched actions (autoreset is the env's own)."""
 
     def __init__(self, venv, seed: int = 0, n_actions: int = 64):
-        self.env = venv
-        venv.action_space.seed(seed)
-        self.actions = [venv.action_space.sample() for _ in range(n_actions)]
-        venv.reset(seed=seed)
+        super().__init__(venv, seed, n_actions)
 
     def run(self, n: int) -> float:
         env, acts, na = self.env, self.actions, len(self.actions)
@@ -142,15 +132,7 @@ def profile_steps(env, n: int, top: int = 8) -> tuple[float, list]:
     """cProfile of n env steps: total time and the top functions by own time (share, name)."""
     s = Stepper(env, seed=1)
     s.run(5)  # Gymnasium's passive checker inspects the first step only; keep that one-off out of the profile
-    prof = cProfile.Profile()
-    prof.enable()
-    s.run(n)
-    prof.disable()
-    st = pstats.Stats(prof)
-    total = sum(v[2] for v in st.stats.values())
-    rows = sorted(((v[2] / total, f"{k[0].split('site-packages/')[-1].split('/work/main/')[-1]}:{k[1]}({k[2]})")
-                   for k, v in st.stats.items()), reverse=True)[:top]
-    return total, rows
+    return top_own_time(profile(s.run, n), top, STRIP)
 
 
 def _describe(env) -> str:
@@ -168,16 +150,115 @@ def _describe(env) -> str:
     return ", ".join(parts)
 
 
-def _step_breakdown(quick: bool) -> dict | None:
+def run(quick: bool) -> Section:
+    """Section 2: single env steps/s against the peers, what one step costs, and the native vector env."""
+    sec = Section("env", "2. Environment steps per second", template="env.md.j2")
+    status = env_status()
+    if status:
+        sec.skipped = status
+        log(f"env: {status}")
+        return sec
+    n_steps = 300 if quick else 5000
+    reps = 2 if quick else 5
+    makers, gem = _makers()
+    tb, rates, described = single_env_rates(makers, n_steps, reps)
+    sec.tables.append(tb)
+    sec.targets.append(Target("env steps/s vs Pendulum-v1", rates[OURS] / rates[PENDULUM], 1.0))
+    profiles = step_profiles(200 if quick else 2000)
+    kc = step_breakdown(quick)
+    if kc is not None:
+        sec.tables.append(step_cost_table(kc, rates[OURS], rates[PENDULUM]))
+    v_status, vec, v_profile = vector_status(), None, None
+    vector_target = f"vector env ({VEC_TARGET_SIZE} sub-envs) vs single env"
+    if v_status:
+        sec.targets.append(Target(vector_target, None, VEC_TARGET, note=v_status))
+    else:
+        vtab, vec = vector_rates(quick, n_steps, reps if quick else 3)
+        sec.tables.append(vtab)
+        sec.targets.append(Target(vector_target, vec["ratio"], VEC_TARGET))
+        if vec["ratio"] < VEC_TARGET:
+            v_profile = vector_profile(vec["steps"])
+    sec.context = report_context(n_steps, reps, (gem, described, profiles), kc, rates, v_status, vec, v_profile)
+    return sec
+
+
+def report_context(n_steps: int, reps: int, peers: tuple[dict, list, dict], kc: dict | None,
+                   rates: dict[str, float], v_status: str, vec: dict | None, v_profile: list | None) -> dict:
+    """What ``env.md.j2`` is rendered with: the run's sizes, the measurements and the explanations of misses.
+
+    Args:
+        n_steps: single env steps per repeat.
+        reps: interleaved repeats.
+        peers: :func:`_makers`'s gym-electric-motor status, :func:`single_env_rates`'s descriptions of the envs and
+            :func:`step_profiles`'s profiles.
+        kc: :func:`step_breakdown` (None if the env's internals are not as expected).
+        rates: single env steps/s per env.
+        v_status: why the vector env is left out, or ''.
+        vec: :func:`vector_rates`'s measurements (None when left out).
+        v_profile: :func:`vector_profile` when the vector env misses its target, else None.
+    """
+    gem, described, profiles = peers
+    ours, pend = rates[OURS], rates[PENDULUM]
+    return {"n_steps": n_steps, "reps": reps, "gem_id": GEM_ID, "block": BLOCK, "vector_size": VEC_TARGET_SIZE,
+            "gem": gem, "described": described, "profiles": profiles,
+            "pendulum_miss": None if kc is None else pendulum_miss(kc, ours, pend, profiles["ours"]["rows"]),
+            "vector_status": v_status, "vector_profile": v_profile,
+            "vector_miss": None if kc is None or v_profile is None else vector_miss(kc, vec, v_profile)}
+
+
+def _makers() -> tuple[dict, dict]:
+    """The envs to compare (name -> maker), and gym-electric-motor's ``status`` (why it is left out, or '') and
+    ``version``."""
+    makers = {OURS: make_ours, PENDULUM: make_pendulum}
+    gs = gem_status()
+    if gs:
+        return makers, {"status": gs, "version": ""}
+    makers[f"{GEM_ID} (gym-electric-motor)"] = make_gem
+    return makers, {"status": "", "version": version("gym-electric-motor")}
+
+
+def single_env_rates(makers: dict, n_steps: int, reps: int) -> tuple[Table, dict[str, float], list]:
+    """Each env stepped ``n_steps`` times per repeat, interleaved.
+
+    Returns:
+        the table, steps/s per env (median), and (name, description) of each env.
+    """
+    steppers, described = {}, []
+    for name, mk in makers.items():
+        env = mk()
+        steppers[name] = Stepper(env)
+        steppers[name].run(min(50, n_steps))  # first steps (JIT load, caches) outside the timing
+        described.append((name, _describe(env)))
+    log(f"env: {', '.join(makers)}: {reps} x {n_steps} steps interleaved")
+    times = interleave({k: (lambda s=s: s.run(n_steps)) for k, s in steppers.items()}, reps)
+    tb = Table("env_steps", columns=["env", "median_steps_per_s", "min..max_s_per_run", "vs_Pendulum-v1",
+                                     "episodes_ended"])
+    pend = n_steps / median(times[PENDULUM])
+    rates = {}
+    for name, ts in times.items():
+        rates[name] = n_steps / median(ts)
+        tb.add(name, rates[name], spread(ts), rates[name] / pend, steppers[name].episodes)
+    for s in steppers.values():
+        s.env.close()
+    return tb, rates, described
+
+
+def step_profiles(n: int) -> dict[str, dict]:
+    """cProfile of n steps of ours and of Pendulum-v1: ``us_per_step`` under the profiler and the top ``rows``."""
+    out = {}
+    for key, mk in (("ours", make_ours), ("pendulum", make_pendulum)):
+        total, rows = profile_steps(mk(), n)
+        out[key] = {"us_per_step": total / n * 1e6, "rows": rows}
+    return out
+
+
+def step_breakdown(quick: bool) -> dict | None:
     """Time the pieces of one EHSSTracking-v0 step [us]; None if the env's internals are not as expected.
 
-    Uses the env's compiled step (``ehss_gym.envs.env.advance`` on ``env.unwrapped._lanes._args``) and the
-    core's kernels through :mod:`benchmarks.kernel_profile`, at the env's own control period and substeps.
+    The core's kernels through :mod:`benchmarks.kernel_profile`, at the env's own control period and substeps
+    (``ctrl``, ``plant1``, ``plantB``, ``loopB`` per control period, ``floor1`` their sum over one agent step),
+    and the env's compiled step (``advance`` on ``env.unwrapped._lanes._args``) as called and as dispatched.
     """
-    import numba as nb
-
-    from . import kernel_profile
-
     env = make_ours()
     u = env.unwrapped
     template = getattr(u, "scenario_template", None)
@@ -188,209 +269,146 @@ def _step_breakdown(quick: bool) -> dict | None:
     n = sc.n_steps
     out = {"agent_period": ap, "h": sc.control_period, "substeps": sc.substeps,
            "ctrl": kernel_profile.controller_us(sc, n), "plant1": kernel_profile.plant_us_per_lane(sc, 1, n),
-           "plantB": kernel_profile.plant_us_per_lane(sc, 128, n),
-           "loopB": kernel_profile.loop_us_per_lane(sc, 128)}
+           "plantB": kernel_profile.plant_us_per_lane(sc, BLOCK, n),
+           "loopB": kernel_profile.loop_us_per_lane(sc, BLOCK)}
     out["floor1"] = ap * (out["ctrl"] + out["plant1"])
-    try:
-        from ehss_gym.envs.kernels import advance
-
-        args = u._lanes._args
-    except (ImportError, AttributeError):
+    args = getattr(getattr(u, "_lanes", None), "_args", None)
+    if args is None:
         return out
     calls = 100 if quick else 1000
-    best = float("inf")
-    for _ in range(3):
-        env.reset(seed=3)  # a fresh episode: every call advances a live lane
-        t0 = time.perf_counter()
-        for _ in range(calls):
-            advance(*args)
-        best = min(best, time.perf_counter() - t0)
+    best = _best_calls(advance, args, calls, before=lambda: env.reset(seed=3))  # every call advances a live lane
     env.close()
-    ns: dict = {}
-    exec("def noop(" + ", ".join(f"a{i}" for i in range(len(args))) + "):\n    return 0\n", ns)
-    noop = nb.njit(ns["noop"])
-    noop(*args)
-    dbest = float("inf")
-    for _ in range(3):
-        t0 = time.perf_counter()
-        for _ in range(calls):
-            noop(*args)
-        dbest = min(dbest, time.perf_counter() - t0)
+    dbest = _best_calls(_noop_like(args), args, calls)
     out.update({"advance": best / calls * 1e6, "dispatch": dbest / calls * 1e6, "n_args": len(args)})
     return out
 
 
-def run(quick: bool) -> Section:
-    sec = Section("env", "2. Environment steps per second")
-    status = env_status()
-    if status:
-        sec.skipped = status
-        log(f"env: {status}")
-        return sec
-    n_steps = 300 if quick else 5000
-    reps = 2 if quick else 5
-    makers = {"EHSSTracking-v0 (ours)": make_ours, "Pendulum-v1": make_pendulum}
-    gs = gem_status()
-    if gs:
-        sec.note(f"{GEM_ID}: skipped, {gs}.")
-    else:
-        from importlib.metadata import version
+def _noop_like(args: tuple):
+    """A compiled function that does nothing with as many arguments as ``args``, compiled for their types."""
+    ns: dict = {}
+    exec("def noop(" + ", ".join(f"a{i}" for i in range(len(args))) + "):\n    return 0\n", ns)
+    noop = numba.njit(ns["noop"])
+    noop(*args)
+    return noop
 
-        makers[f"{GEM_ID} (gym-electric-motor)"] = make_gem
-        sec.note(f"gym-electric-motor {version('gym-electric-motor')} (PyPI) runs in the same process and venv as "
-                 "the others (same numpy, scipy and gymnasium), built with its own gem.make.")
-    steppers = {}
-    for name, mk in makers.items():
-        env = mk()
-        steppers[name] = Stepper(env)
-        steppers[name].run(min(50, n_steps))  # first steps (JIT load, caches) outside the timing
-        sec.note(f"{name}: {_describe(env)}.")
-    log(f"env: {', '.join(makers)}: {reps} x {n_steps} steps interleaved")
-    times = interleave({k: (lambda s=s: s.run(n_steps)) for k, s in steppers.items()}, reps)
-    tb = Table("env_steps", f"Single env steps/s ({n_steps} steps per repeat, {reps} interleaved repeats, random "
-                            "actions, resets included)", ["env", "median_steps_per_s", "min..max_s_per_run",
-                                                          "vs_Pendulum-v1", "episodes_ended"])
-    pend = n_steps / median(times["Pendulum-v1"])
-    rates = {}
-    for name, ts in times.items():
-        rates[name] = n_steps / median(ts)
-        tb.add(name, rates[name], spread(ts), rates[name] / pend, steppers[name].episodes)
-    sec.tables.append(tb)
-    ours_name = "EHSSTracking-v0 (ours)"
-    sec.targets.append(Target("env steps/s vs Pendulum-v1", rates[ours_name] / pend, 1.0))
 
-    n_prof = 200 if quick else 2000
-    total, rows = profile_steps(make_ours(), n_prof)
-    sec.note(f"Profile of our env.step (cProfile, own time; {total / n_prof * 1e6:.1f} us per step under the "
-             "profiler): " + "; ".join(f"{name} {share:.0%}" for share, name in rows))
-    total_p, rows_p = profile_steps(make_pendulum(), n_prof)
-    sec.note(f"Profile of Pendulum-v1 step ({total_p / n_prof * 1e6:.1f} us per step under the profiler): "
-             + "; ".join(f"{name} {share:.0%}" for share, name in rows_p))
-    kernel_share = sum(share for share, name in rows if name.endswith("(advance)"))
-    for s in steppers.values():
-        s.env.close()
+def _best_calls(fn, args: tuple, calls: int, before=None, repeats: int = 3) -> float:
+    """Best of ``repeats`` wall times [s] of ``calls`` calls ``fn(*args)``; ``before()`` runs untimed first."""
+    best = float("inf")
+    for _ in range(repeats):
+        if before is not None:
+            before()
+        t0 = time.perf_counter()
+        for _ in range(calls):
+            fn(*args)
+        best = min(best, time.perf_counter() - t0)
+    return best
 
-    # compiled work per env step, from the core's kernels at the env's own settings
-    kc = _step_breakdown(quick)
-    if kc is not None:
-        t_ours = 1e6 / rates[ours_name]
-        t_pend = 1e6 / pend
-        ap = kc["agent_period"]
-        kt = Table("env_profile", "What one env step costs (us). Step times: medians above; the pieces are timed "
-                                  "alone (best of 3) at the env's own settings", ["piece", "us", "note"])
-        kt.add("EHSSTracking-v0 step", t_ours, f"{ap} control periods of {kc['h']:g} s, {kc['substeps']} RK4 "
-               "substep(s) each")
-        if "advance" in kc:
-            kt.add("  Python step + Gymnasium wrappers", t_ours - kc["advance"], "step minus the compiled call")
-            kt.add("  compiled call advance(...), as called", kc["advance"], "")
-            kt.add(f"    numba dispatch of its {kc['n_args']} arguments", kc["dispatch"],
-                   "a no-op compiled function with the same arguments")
-            kt.add(f"    controller, {ap} x controller_update", ap * kc["ctrl"], f"{kc['ctrl']:.3g} us per period")
-            kt.add(f"    plant, {ap} x integrate_lanes on 1 lane", ap * kc["plant1"],
-                   f"{kc['plant1']:.3g} us per period")
-            kt.add("    other compiled work", kc["advance"] - kc["dispatch"] - kc["floor1"],
-                   "lane grouping, copies, checks, metrics, observation, reward")
-        kt.add("plant per control period per lane, 128-lane block", kc["plantB"], "vectorised (vector env)")
-        kt.add("core loop sim.run_lanes per control period per lane, 128-lane block", kc["loopB"],
-               "controller + plant + checks + metrics, one thread, no env")
-        kt.add("Pendulum-v1 step", t_pend, "")
-        sec.tables.append(kt)
-        if rates[ours_name] < pend and "advance" in kc:
-            sec.note(
-                f"**Why EHSSTracking-v0 misses 1x Pendulum-v1 (profile above).** One step of ours simulates {ap} "
-                f"control periods of the {1 / kc['h'] / 1e3:g} kHz loop in one compiled call, which takes "
-                f"{kc['advance']:.1f} of its {t_ours:.1f} us (cProfile, which inflates the Python side, gives "
-                f"it {kernel_share:.0%} of the step's own time): "
-                f"{kc['dispatch']:.1f} us is numba's dispatch of {kc['n_args']} arguments, {kc['floor1']:.1f} us the "
-                f"controller and plant arithmetic, and {kc['advance'] - kc['dispatch'] - kc['floor1']:.1f} us other "
-                f"compiled per-step work; Python and the wrappers add {t_ours - kc['advance']:.1f} us. Pendulum's "
-                f"whole step is {t_pend:.1f} us, so the controller and plant arithmetic alone is "
-                f"{kc['floor1'] / t_pend:.0%} of it, and the compiled call alone {kc['advance'] / t_pend:.0%}.")
 
-    # --- native vector env ---------------------------------------------------------------
-    vs = vector_status()
-    if vs:
-        sec.note(f"Vector env: skipped, {vs}.")
-        sec.targets.append(Target("vector env (256 sub-envs) vs single env", None, 20.0, note=vs))
-        return sec
-    import numba
+def step_cost_table(kc: dict, ours: float, pend: float) -> Table:
+    """What one env step costs [us], from :func:`step_breakdown` and the measured steps/s of ours and Pendulum."""
+    t_ours, t_pend = 1e6 / ours, 1e6 / pend
+    ap = kc["agent_period"]
+    kt = Table("env_profile", columns=["piece", "us", "note"])
+    kt.add("EHSSTracking-v0 step", t_ours, f"{ap} control periods of {kc['h']:g} s, {kc['substeps']} RK4 "
+           "substep(s) each")
+    if "advance" in kc:
+        kt.add("  Python step + Gymnasium wrappers", t_ours - kc["advance"], "step minus the compiled call")
+        kt.add("  compiled call advance(...), as called", kc["advance"], "")
+        kt.add(f"    numba dispatch of its {kc['n_args']} arguments", kc["dispatch"],
+               "a no-op compiled function with the same arguments")
+        kt.add(f"    controller, {ap} x controller_update", ap * kc["ctrl"], f"{kc['ctrl']:.3g} us per period")
+        kt.add(f"    plant, {ap} x integrate_lanes on 1 lane", ap * kc["plant1"], f"{kc['plant1']:.3g} us per period")
+        kt.add("    other compiled work", kc["advance"] - kc["dispatch"] - kc["floor1"],
+               "lane grouping, copies, checks, metrics, observation, reward")
+    kt.add(f"plant per control period per lane, {BLOCK}-lane block", kc["plantB"], "vectorised (vector env)")
+    kt.add(f"core loop sim.run_lanes per control period per lane, {BLOCK}-lane block", kc["loopB"],
+           "controller + plant + checks + metrics, one thread, no env")
+    kt.add("Pendulum-v1 step", t_pend, "")
+    return kt
 
+
+def pendulum_miss(kc: dict, ours: float, pend: float, rows: list) -> dict | None:
+    """The numbers that explain ours missing 1x Pendulum-v1's steps/s; None when it does not (or is not timed)."""
+    if not (ours < pend and "advance" in kc):
+        return None
+    t_ours, t_pend = 1e6 / ours, 1e6 / pend
+    return {"kc": kc, "rate_khz": 1 / kc["h"] / 1e3, "t_ours": t_ours, "t_pend": t_pend,
+            "kernel_share": sum(share for share, name in rows if name.endswith("(advance)")),
+            "other": kc["advance"] - kc["dispatch"] - kc["floor1"], "python": t_ours - kc["advance"],
+            "floor_vs_pend": kc["floor1"] / t_pend, "advance_vs_pend": kc["advance"] / t_pend}
+
+
+def vector_rates(quick: bool, n_steps: int, reps: int) -> tuple[Table, dict]:
+    """Sub-env steps/s of the native vector env at VEC_SIZES sub-envs on all numba threads and at VEC_TARGET_SIZE on
+    one, interleaved with the single env.
+
+    Returns:
+        the table and the measurements: ``single`` (the single env's steps/s), ``rate`` (sub-env steps/s per
+        size), ``rate_1t`` (VEC_TARGET_SIZE sub-envs on one thread), ``ratio`` (VEC_TARGET_SIZE sub-envs vs the
+        single env), ``steps`` (vector steps per run, per size) and ``threads``.
+    """
     threads = numba.get_num_threads()
-    sizes = VEC_SIZES
     budget = 2048 if quick else 20_000  # sub-env steps per measurement
-    vreps = reps if quick else 3
     vsteppers = {}
-    for n in sizes:
-        v = make_vector(n)
-        vsteppers[n] = VecStepper(v)
+    for n in VEC_SIZES:
+        vsteppers[n] = VecStepper(make_vector(n))
         vsteppers[n].run(3)
-    vsteps = {n: max(5 if quick else 20, min(budget // n, 2000)) for n in sizes}
+    vsteps = {n: max(5 if quick else 20, min(budget // n, 2000)) for n in VEC_SIZES}
     single = Stepper(make_ours(), seed=2)
     single.run(min(50, n_steps))
 
-    def one_thread_256():
+    def one_thread():
         numba.set_num_threads(1)
         try:
-            return vsteppers[256].run(vsteps[256])
+            return vsteppers[VEC_TARGET_SIZE].run(vsteps[VEC_TARGET_SIZE])
         finally:
             numba.set_num_threads(threads)
 
     cases = {"single env (gym.make)": lambda: single.run(n_steps)}
-    for n in sizes:
+    for n in VEC_SIZES:
         cases[n] = lambda n=n: vsteppers[n].run(vsteps[n])
-    cases["256, 1 thread"] = one_thread_256
-    log(f"env: vector env at {sizes} sub-envs (+ 256 on 1 thread), {vreps} interleaved repeats")
-    vt = interleave(cases, vreps)
-    single_rate = n_steps / median(vt["single env (gym.make)"])
-    vtab = Table("vector_env", "Native vector env: sub-env steps/s (interleaved with the single env)",
-                 ["sub_envs", "numba_threads", "vector_steps_per_run", "median_s", "sub_env_steps_per_s",
-                  "vs_single_env"])
-    vtab.add("single env (gym.make)", 1, n_steps, median(vt["single env (gym.make)"]), single_rate, 1.0)
-    vrate = {}
-    for n in sizes:
-        vrate[n] = n * vsteps[n] / median(vt[n])
-        vtab.add(n, threads, vsteps[n], median(vt[n]), vrate[n], vrate[n] / single_rate)
-    rate_1t = 256 * vsteps[256] / median(vt["256, 1 thread"])
-    vtab.add(256, 1, vsteps[256], median(vt["256, 1 thread"]), rate_1t, rate_1t / single_rate)
-    sec.tables.append(vtab)
-    sec.targets.append(Target("vector env (256 sub-envs) vs single env", vrate[256] / single_rate, 20.0))
+    cases[f"{VEC_TARGET_SIZE}, 1 thread"] = one_thread
+    log(f"env: vector env at {VEC_SIZES} sub-envs (+ {VEC_TARGET_SIZE} on 1 thread), {reps} interleaved repeats")
+    vt = interleave(cases, reps)
     for s in vsteppers.values():
         s.env.close()
-    if vrate[256] / single_rate < 20.0:
-        v = make_vector(256)
-        vst = VecStepper(v)
-        prof = cProfile.Profile()
-        prof.enable()
-        vst.run(max(5, vsteps[256] // 2))
-        prof.disable()
-        v.close()
-        st = pstats.Stats(prof)
-        tot = sum(x[2] for x in st.stats.values())
-        vrows = sorted(((x[2] / tot, f"{k[0].split('site-packages/')[-1].split('/work/main/')[-1]}:{k[1]}({k[2]})")
-                        for k, x in st.stats.items()), reverse=True)[:8]
-        sec.note("Profile of the 256-sub-env vector step (cProfile, own time): "
-                 + "; ".join(f"{name} {share:.0%}" for share, name in vrows))
-        if kc is not None:
-            t_single = 1e6 / single_rate
-            floor_v = kc["agent_period"] * (kc["ctrl"] + kc["plantB"]) / threads
-            sec.note(
-                f"**Why the vector env misses 20x at 256 sub-envs (profile above).** The vector env removes the "
-                f"per-step Python cost but not the compiled work: every sub-env step is still {kc['agent_period']} "
-                f"control periods, each needing the controller ({kc['ctrl']:.2f} us, once per lane; it does not "
-                f"vectorise across lanes) and the plant ({kc['plantB']:.3f} us per lane in a 128-lane block). On "
-                f"{threads} threads that is a floor of {floor_v:.2f} us per sub-env step, so at most "
-                f"{t_single / floor_v:.1f}x the single env's {t_single:.1f} us step even with zero overhead; "
-                f"measured {1e6 / vrate[256]:.2f} us ({vrate[256] / single_rate:.1f}x), and cProfile puts "
-                f"{sum(sh for sh, nm in vrows if 'advance' in nm):.0%} of the vector step inside the compiled "
-                f"call, so the other {1e6 / vrate[256] - floor_v:.2f} us per sub-env step is spent in compiled code "
-                f"besides controller and plant: per-lane work (lane copies, checks, metrics, observation, reward) "
-                f"and, on the shared cores, waiting for both threads to be scheduled (the same 256 sub-envs on 1 "
-                f"thread: {1e6 / rate_1t:.2f} us per sub-env step, {rate_1t / single_rate:.1f}x, i.e. "
-                f"{1e6 / rate_1t / kc['agent_period']:.2f} us per control period per lane, against "
-                f"{kc['loopB']:.2f} us for the core's own batch loop sim.run_lanes at the same settings, so "
-                f"{max(0.0, 1 - kc['loopB'] * kc['agent_period'] * rate_1t / 1e6):.0%} of it is the env's own "
-                f"compiled per-step work). 20x needs "
-                f"<= {t_single / 20:.2f} us per sub-env step, i.e. at most "
-                f"{t_single / 20 * threads / kc['agent_period'] * 1e3:.0f} ns of compiled work per control period "
-                f"per lane on {threads} threads, where the controller alone takes {kc['ctrl'] * 1e3:.0f} ns.")
-    return sec
+    return _vector_table(vt, vsteps, n_steps, threads)
+
+
+def _vector_table(vt: dict, vsteps: dict, n_steps: int, threads: int) -> tuple[Table, dict]:
+    single_rate = n_steps / median(vt["single env (gym.make)"])
+    vtab = Table("vector_env", columns=["sub_envs", "numba_threads", "vector_steps_per_run", "median_s",
+                                        "sub_env_steps_per_s", "vs_single_env"])
+    vtab.add("single env (gym.make)", 1, n_steps, median(vt["single env (gym.make)"]), single_rate, 1.0)
+    vrate = {}
+    for n in VEC_SIZES:
+        vrate[n] = n * vsteps[n] / median(vt[n])
+        vtab.add(n, threads, vsteps[n], median(vt[n]), vrate[n], vrate[n] / single_rate)
+    n, t_1t = VEC_TARGET_SIZE, median(vt[f"{VEC_TARGET_SIZE}, 1 thread"])
+    rate_1t = n * vsteps[n] / t_1t
+    vtab.add(n, 1, vsteps[n], t_1t, rate_1t, rate_1t / single_rate)
+    return vtab, {"single": single_rate, "rate": vrate, "rate_1t": rate_1t, "steps": vsteps, "threads": threads,
+                  "ratio": vrate[VEC_TARGET_SIZE] / single_rate}
+
+
+def vector_profile(vsteps: dict) -> list:
+    """cProfile of the VEC_TARGET_SIZE-sub-env vector step: the top functions by own time (share, name)."""
+    v = make_vector(VEC_TARGET_SIZE)
+    vst = VecStepper(v)
+    st = profile(vst.run, max(5, vsteps[VEC_TARGET_SIZE] // 2))
+    v.close()
+    return top_own_time(st, 8, STRIP)[1]
+
+
+def vector_miss(kc: dict, vec: dict, rows: list) -> dict:
+    """The numbers that explain the vector env missing VEC_TARGET x the single env at VEC_TARGET_SIZE sub-envs."""
+    ap, threads, rate, rate_1t = kc["agent_period"], vec["threads"], vec["rate"][VEC_TARGET_SIZE], vec["rate_1t"]
+    t_single = 1e6 / vec["single"]
+    floor_v = ap * (kc["ctrl"] + kc["plantB"]) / threads
+    return {"kc": kc, "target": VEC_TARGET, "size": VEC_TARGET_SIZE, "threads": threads, "t_single": t_single,
+            "floor": floor_v, "ceiling": t_single / floor_v, "us": 1e6 / rate, "ratio": rate / vec["single"],
+            "compiled_share": sum(sh for sh, nm in rows if "advance" in nm), "rest_us": 1e6 / rate - floor_v,
+            "us_1t": 1e6 / rate_1t, "ratio_1t": rate_1t / vec["single"], "us_1t_per_period": 1e6 / rate_1t / ap,
+            "env_share_1t": max(0.0, 1 - kc["loopB"] * ap * rate_1t / 1e6), "needed_us": t_single / VEC_TARGET,
+            "needed_ns_per_period": t_single / VEC_TARGET * threads / ap * 1e3, "ctrl_ns": kc["ctrl"] * 1e3}

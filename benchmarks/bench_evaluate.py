@@ -22,10 +22,8 @@ import re
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # run as a script
-from benchmarks.common import time_command, wall_target_line  # noqa: E402
-
-TARGET_S = 180.0
-CORES = 2
+from benchmarks.common import time_command  # noqa: E402
+from benchmarks.report import command_timing  # noqa: E402
 
 
 def time_evaluate(quick: bool = False, workers: int | None = None) -> dict:
@@ -53,13 +51,7 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=None, help="pass --workers to the command (default: its own)")
     args = p.parse_args(argv)
     res = time_evaluate(quick=args.quick, workers=args.workers)
-    what = "ehss evaluate --quick" if args.quick else "ehss evaluate (full default run)"
-    phases = ", ".join(f"{k} {v:.1f} s" for k, v in res["phases"].items())
-    print(f"{what}: {res['episodes']} episodes, {res['workers']} workers; wall {res['wall_s']:.1f} s "
-          f"(phases: {phases}), CPU {res['cpu_s']:.1f} s (CPU/{CORES} = {res['cpu_s'] / CORES:.1f} s) on "
-          f"{os.cpu_count()} CPU(s); 1-min load average {res['load_before']:.2f} before, {res['load_after']:.2f} after")
-    if not args.quick:
-        print(wall_target_line(res, TARGET_S, CORES))
+    print(command_timing("evaluate", res, args.quick), end="")
     return 0
 
 

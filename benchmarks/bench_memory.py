@@ -1,6 +1,6 @@
 """Memory: peak resident set of a large batch of trajectories against the size of the data itself.
 
-Measured in a fresh subprocess (``python -m benchmarks.bench_memory --child ...``) so
+Measured in a fresh subprocess (``python -m benchmarks.bench_memory --child N T_END LOG_INTERVAL``) so
 nothing else in the benchmark run inflates it: the child imports ehss_gym, runs a
 tiny warm-up batch (kernels loaded, thread pool started), reads its peak RSS
 (``resource.getrusage(...).ru_maxrss``) as the baseline, runs the batch, and reads
@@ -10,17 +10,21 @@ trajectory's arrays (log and metrics accumulator).
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import resource
-import subprocess
 import sys
 import time
 
-from .common import Section, Table, log, repo_root
+from ehss_gym import Scenario, simulate_batch
+from ehss_gym.core.layout import N_LOG
 
-N_LOG_COLUMNS = 26  # ehss_gym.core.layout.N_LOG, repeated here so the parent need not import the package
+from .common import Section, Table, child_main, log, run_child
+
+SCENARIO = dict(task="velocity", sigma=1e5, smoothing=1e3, current_limit=10.0)  # n = 2, 4, 6 in turn
+FULL = (1024, 20.0)  # scenarios, simulated time [s] of the full run
+QUICK = (16, 1.0)  # ... and of --quick
+LOG_INTERVAL = 1e-3  # [s]
+LOW_MEMORY_LOG_INTERVAL = 1e-2  # [s] when the 1 ms log would not fit in the available memory
 
 
 def _mem_available() -> int | None:
@@ -44,10 +48,7 @@ def _current_rss() -> int:
 
 def child(n: int, t_end: float, log_interval: float) -> dict:
     """Run in the subprocess: returns the measurements as a dict."""
-    from ehss_gym import Scenario, simulate_batch
-
-    base = Scenario(task="velocity", sigma=1e5, smoothing=1e3, current_limit=10.0, t_end=t_end,
-                    log_interval=log_interval)
+    base = Scenario(**SCENARIO, t_end=t_end, log_interval=log_interval)
     simulate_batch([base.replace(t_end=0.01)] * 2)
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     cur0 = _current_rss()
@@ -64,31 +65,58 @@ def child(n: int, t_end: float, log_interval: float) -> dict:
 
 
 def measure(n: int, t_end: float, log_interval: float) -> dict:
-    cmd = [sys.executable, "-m", "benchmarks.bench_memory", "--child", str(n), str(t_end), str(log_interval)]
-    out = subprocess.run(cmd, cwd=repo_root(), capture_output=True, text=True, timeout=3600)
-    if out.returncode != 0:
-        raise RuntimeError(f"memory child failed ({out.returncode}): {out.stderr[-2000:]}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    """:func:`child` in a fresh process."""
+    return run_child("bench_memory", [n, t_end, log_interval], timeout=3600)
+
+
+def _data_estimate(n: int, t_end: float) -> int:
+    """[bytes] of the logs of n scenarios of t_end [s] logged every LOG_INTERVAL."""
+    return n * round(t_end / LOG_INTERVAL) * N_LOG * 8
 
 
 def run(quick: bool) -> Section:
-    sec = Section("memory", "4. Memory: peak RSS of a batch vs the size of its trajectories")
-    n, t_end = (16, 1.0) if quick else (1024, 20.0)
-    log_interval = 1e-3
-    data_est = n * round(t_end / log_interval) * N_LOG_COLUMNS * 8
+    """Section 4: peak RSS of a large batch against the size of its trajectories, in a fresh process."""
+    sec = Section("memory", "4. Memory: peak RSS of a batch vs the size of its trajectories", template="memory.md.j2")
+    n, t_end = QUICK if quick else FULL
+    data_est = _data_estimate(n, t_end)
     avail = _mem_available()
     # simulate_batch holds the batch log and the per-trajectory copies at once: ~2x the data
-    if avail is not None and 2.5 * data_est > 0.6 * avail:
-        log_interval = 1e-2
-        sec.note(f"MemAvailable {avail / 2**30:.1f} GiB is too little for {n} x {t_end:g} s logged every 1 ms "
-                 f"(~{2 * data_est / 2**30:.1f} GiB at peak), so this run logs every 10 ms.")
-    if quick:
-        sec.note(f"--quick: {n} scenarios x {t_end:g} s instead of 1024 x 20 s.")
+    low_memory = avail is not None and 2.5 * data_est > 0.6 * avail
+    log_interval = LOW_MEMORY_LOG_INTERVAL if low_memory else LOG_INTERVAL
     log(f"memory: {n} x {t_end:g} s (log every {log_interval:g} s) in a subprocess")
     r = measure(n, t_end, log_interval)
-    tb = Table("memory", f"Peak resident memory, batch of {n} velocity scenarios x {t_end:g} s (h = 1e-4 s, "
-                         f"log every {log_interval * 1e3:g} ms, {N_LOG_COLUMNS} float64 columns)",
-               ["quantity", "MiB", "x_data"])
+    sec.tables.append(memory_table(r))
+    sec.context = report_context(quick, (n, t_end), log_interval, avail if low_memory else None, r)
+    return sec
+
+
+def report_context(quick: bool, batch: tuple[int, float], log_interval: float, avail: int | None, r: dict) -> dict:
+    """What ``memory.md.j2`` is rendered with.
+
+    Args:
+        quick: whether this is the --quick run.
+        batch: its scenarios and their simulated time [s].
+        log_interval: the log interval the batch ran with [s].
+        avail: MemAvailable [bytes] when it was too little for the 1 ms log (so the batch logged less often), else
+            None.
+        r: :func:`child`'s measurements.
+    """
+    n, t_end = batch
+    data_est = _data_estimate(n, t_end)
+    return {
+        "quick": quick, "n": n, "t_end": t_end, "full": FULL, "log_columns": N_LOG,
+        "h": Scenario(**SCENARIO).control_period, "log_ms": log_interval * 1e3,
+        "low_memory": None if avail is None else {"avail_gib": avail / 2**30, "peak_gib": 2 * data_est / 2**30,
+                                                  "log_ms": LOG_INTERVAL * 1e3,
+                                                  "fallback_ms": LOW_MEMORY_LOG_INTERVAL * 1e3},
+        "seconds": r["seconds"], "rate_M": r["substeps"] / r["seconds"] / 1e6,
+        "increase": (r["peak_rss"] - r["baseline_peak_rss"]) / r["data_bytes"],
+    }
+
+
+def memory_table(r: dict) -> Table:
+    """The child's peak and current RSS in MiB and as multiples of the trajectory data it returned."""
+    tb = Table("memory", columns=["quantity", "MiB", "x_data"])
     mib = 2.0 ** 20
     d = r["data_bytes"]
     tb.add("trajectory data returned (sum of array nbytes)", d / mib, 1.0)
@@ -97,23 +125,11 @@ def run(quick: bool) -> Section:
     tb.add("peak RSS increase due to the batch", (r["peak_rss"] - r["baseline_peak_rss"]) / mib,
            (r["peak_rss"] - r["baseline_peak_rss"]) / d)
     tb.add("RSS after the batch (trajectories held)", r["rss_after"] / mib, r["rss_after"] / d)
-    sec.tables.append(tb)
-    inc = (r["peak_rss"] - r["baseline_peak_rss"]) / d
-    sec.note(f"The batch took {r['seconds']:.1f} s ({r['substeps'] / r['seconds'] / 1e6:.3g} M plant substeps/s on "
-             f"all threads). Its peak RSS increase is {inc:.2f}x the data. Expected from the code: simulate_batch "
-             f"fills one (scenarios, rows, {N_LOG_COLUMNS}) log array in the compiled call, then copies each "
-             f"trajectory's rows out of it while that array is alive, so ~2x the data is resident at the peak; "
-             f"the per-lane working arrays are a few hundred bytes per scenario.")
-    return sec
+    return tb
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description="memory benchmark child")
-    p.add_argument("--child", nargs=3, metavar=("N", "T_END", "LOG_INTERVAL"), required=True)
-    a = p.parse_args(argv)
-    n, t_end, li = int(a.child[0]), float(a.child[1]), float(a.child[2])
-    print(json.dumps(child(n, t_end, li)))
-    return 0
+    return child_main(child, {"N": int, "T_END": float, "LOG_INTERVAL": float}, "memory benchmark child", argv)
 
 
 if __name__ == "__main__":

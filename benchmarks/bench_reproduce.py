@@ -20,9 +20,8 @@ import os
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # run as a script
-from benchmarks.common import time_command, wall_target_line  # noqa: E402
-
-TARGET_S = 120.0
+from benchmarks.common import time_command  # noqa: E402
+from benchmarks.report import command_timing  # noqa: E402
 
 
 def time_reproduce(quick: bool = False) -> dict:
@@ -35,11 +34,7 @@ def main(argv=None) -> int:
     p.add_argument("--quick", action="store_true", help="time the CI smoke run instead of the full study")
     args = p.parse_args(argv)
     res = time_reproduce(quick=args.quick)
-    what = "ehss reproduce --quick" if args.quick else "ehss reproduce (full default run)"
-    print(f"{what}: wall {res['wall_s']:.1f} s, CPU {res['cpu_s']:.1f} s on {os.cpu_count()} CPU(s); "
-          f"1-min load average {res['load_before']:.2f} before, {res['load_after']:.2f} after")
-    if not args.quick:
-        print(wall_target_line(res, TARGET_S, 2))
+    print(command_timing("reproduce", res, args.quick), end="")
     return 0
 
 

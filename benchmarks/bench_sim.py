@@ -21,14 +21,11 @@ friction acts, so that no integrator's trajectory is reproducible there.
 
 from __future__ import annotations
 
-import cProfile
-import json
 import math
 import os
-import pstats
-import subprocess
 import sys
 import time
+from dataclasses import dataclass
 
 import numba
 import numpy as np
@@ -40,7 +37,19 @@ from ehss_gym.core.control import controller_update
 from ehss_gym.core.sim import LoopArrays, run_lanes
 
 from . import kernel_profile
-from .common import Section, Table, Target, interleave, log, median, repo_root, spread
+from .common import (
+    Section,
+    Table,
+    Target,
+    child_main,
+    interleave,
+    log,
+    median,
+    profile,
+    run_child,
+    spread,
+    top_own_time,
+)
 
 SETTING = dict(task="velocity", n=2, fr=100.0, sigma=1e5, smoothing=1e4, current_limit=10.0,
                control_period=1e-4, substeps=10)
@@ -150,9 +159,128 @@ def max_rel_diff(ours: np.ndarray, ref: np.ndarray) -> tuple[float, np.ndarray]:
     return float(per_state.max()), per_state
 
 
+@dataclass(frozen=True)
+class Sizes:
+    """Problem sizes of one run of the section (``--quick`` shrinks them)."""
+
+    t_short: float  # [s] simulated in the '1 s' case
+    t_long: float  # [s] simulated in the '20 s' case (and the setting check)
+    reps_short: int  # interleaved repeats of the '1 s' case
+    reps_long: int  # ... and of the '20 s' case
+    n_batch: int  # scenarios in the substeps/s batch
+    t_batch: float  # [s] each of them
+    t_scale: float  # [s] each scenario of the batch-scaling runs
+    setup_calls: int  # simulate() calls per set-up child process
+    setup_procs: int  # set-up child processes per BLAS setting
+    peer_periods: int  # control periods of the profiled peer loop
+
+    @classmethod
+    def of(cls, quick: bool) -> Sizes:
+        if quick:
+            return cls(0.05, 0.2, 2, 1, 32, 0.05, 0.05, 5, 1, 200)
+        return cls(1.0, 20.0, 5, 3, 256, 1.0, 1.0, 15, 2, 2000)
+
+
+def run(quick: bool) -> Section:
+    """Section 1: ours against solve_ivp, substeps/s, batch scaling, set-up cost, and the profile bounding them."""
+    sec = Section("sim", "1. Closed-loop simulation vs scipy solve_ivp", template="sim.md.j2")
+    size = Sizes.of(quick)
+    base = Scenario(**SETTING)
+    simulate(base.replace(t_end=0.01))  # compile or load the kernels outside any timing
+    check = setting_check(base, size.t_long)
+    cmp, cases = versus_solve_ivp(base, size)
+    sub, rates = substeps_per_second(base, size, cases["20 s"])
+    scaling = batch_scaling(base, size.t_scale)
+    blas, setup_ms = setup_by_blas_threads(size)
+    peer_us = cases["1 s"]["peer_s"] / base.replace(t_end=size.t_short).n_steps * 1e6
+    prof, bd, mix, pp = where_time_goes(base.replace(t_end=size.t_short), size.peer_periods, peer_us)
+    sec.tables += [check, cmp, sub, scaling, blas, prof]
+    sec.targets += [Target(f"simulate() vs solve_ivp, {label} velocity scenario", cases[label]["ratio"],
+                           TARGET_RATIO) for label in ("1 s", "20 s")]
+    sec.targets += [Target("plant substeps/s/core, single scenario", rates["single"], TARGET_SUBSTEPS, unit="/s"),
+                    Target(f"plant substeps/s/core, batch of {size.n_batch} (numba 1 thread)", rates["batch"],
+                           TARGET_SUBSTEPS, unit="/s")]
+    sec.context = report_context(quick, size, base, cases, rates, (bd, mix, pp), peer_us, setup_ms)
+    return sec
+
+
+def report_context(quick: bool, size: Sizes, base: Scenario, cases: dict[str, dict], rates: dict,
+                   profile_results: tuple[dict, dict, dict], peer_us: float, setup_ms: dict[str, float]) -> dict:
+    """What ``sim.md.j2`` is rendered with: the setting, and the measurements and the explanations of misses.
+
+    Args:
+        quick: whether this is the --quick run.
+        size: its problem sizes.
+        base: the benchmark scenario.
+        cases: :func:`versus_solve_ivp`'s measurements.
+        rates: :func:`substeps_per_second`'s rates.
+        profile_results: :func:`where_time_goes`'s breakdown, instruction mix and peer profile.
+        peer_us: the peer's median cost per control period [us].
+        setup_ms: :func:`setup_by_blas_threads`'s set-up times [ms].
+    """
+    bd, mix, pp = profile_results
+    return {
+        "quick": quick, "size": size, "setting": SETTING, "rate_khz": 1 / SETTING["control_period"] / 1e3,
+        "solver": SOLVER, "threads": numba.get_num_threads(),
+        "cases": list(cases.values()), "batch": batch_cost(base, size, rates, cases["1 s"]["peer_s"]),
+        "bd": bd, "mix": mix, "pp": pp, "ratio_miss": ratio_miss(cases, bd, pp, peer_us, setup_ms),
+        "substeps_miss": substeps_miss(rates, bd),
+    }
+
+
+def setting_check(base: Scenario, t_long: float) -> Table:
+    """Ours at 10 vs 40 substeps for the benchmark's smoothing and the narrower one: is the loop smooth enough?"""
+    log("sim: setting check (ours at 10 vs 40 substeps)")
+    chk = Table("setting_check", columns=["smoothing", "used_here", "max_rel_state_diff_10_vs_40_substeps",
+                                          "saturation", "tv_u_rate_mA_per_s", "max_abs_e_friction"])
+    for w in (SETTING["smoothing"], ALT_SMOOTHING):
+        s10, s40 = simulate_batch([base.replace(smoothing=w, t_end=t_long),
+                                   base.replace(smoothing=w, t_end=t_long, substeps=40)])
+        m = s10.metrics()
+        chk.add(w, w == SETTING["smoothing"], max_rel_diff(s10.x, s40.x)[0], m["saturation"], m["tv_u_rate"],
+                m["max_abs_e_friction"])
+    return chk
+
+
+def versus_solve_ivp(base: Scenario, size: Sizes) -> tuple[Table, dict[str, dict]]:
+    """The '1 s' and '20 s' cases, ours and the peer interleaved.
+
+    Returns:
+        the table, and per case label its measurements: ``ratio`` (simulate() vs the peer), ``peer_s`` (the
+        peer's median [s]), ``simulate_s`` and ``loop_s`` (ours' medians [s]), ``substeps`` (of one run),
+        ``diff`` and ``per_state`` (max relative state difference) and ``relief_hits`` (of the peer).
+    """
+    cmp = Table("sim_vs_solve_ivp", columns=["scenario", "case", "repeats", "median_s", "min..max_s",
+                                             "speed-up_vs_solve_ivp", "max_rel_state_diff",
+                                             "solve_ivp_nfev_per_period"])
+    cases = {}
+    for label, t_end, reps in (("1 s", size.t_short, size.reps_short), ("20 s", size.t_long, size.reps_long)):
+        sc = base.replace(t_end=t_end)
+        peer = ScipyLoop(sc)
+        last = {}
+
+        def ours(sc=sc, last=last):
+            last["traj"] = simulate(sc)
+
+        log(f"sim: {label} scenario ({t_end:g} s simulated), {reps} interleaved repeats; solve_ivp is slow")
+        times = interleave({"ours: simulate()": ours, "ours: compiled loop only": _run_lanes_callable(sc),
+                            "solve_ivp loop": peer.timed_run}, reps)
+        t_peer = median(times["solve_ivp loop"])
+        diff, per_state = max_rel_diff(last["traj"].x, peer.states)
+        for case, ts in times.items():
+            cmp.add(label, case, reps, median(ts), spread(ts), t_peer / median(ts),
+                    diff if case != "solve_ivp loop" else 0.0,
+                    peer.nfev / sc.n_steps if case == "solve_ivp loop" else "")
+        cases[label] = {"label": label, "ratio": t_peer / median(times["ours: simulate()"]), "peer_s": t_peer,
+                        "simulate_s": median(times["ours: simulate()"]),
+                        "loop_s": median(times["ours: compiled loop only"]), "substeps": sc.n_steps * sc.substeps,
+                        "diff": diff, "per_state": per_state.tolist(), "relief_hits": peer.relief_hits}
+    return cmp, cases
+
+
 def _run_lanes_callable(sc):
     def call():
-        _, args = kernel_profile._run_lanes_args([sc])
+        _, args = kernel_profile.run_lanes_args([sc])
         t0 = time.perf_counter()
         run_lanes(*args)
         return time.perf_counter() - t0  # array set-up left out: the compiled loop alone
@@ -160,21 +288,101 @@ def _run_lanes_callable(sc):
     return call
 
 
-def _peer_profile(sc, n_periods: int) -> dict:
-    """cProfile of the peer loop: share of its time in the plant RHS, the controller and solve_ivp itself."""
-    loop = ScipyLoop(sc)
-    prof = cProfile.Profile()
-    prof.enable()
-    loop.run(n_periods)
-    prof.disable()
-    st = pstats.Stats(prof)
-    total = sum(v[2] for v in st.stats.values())  # tottime over all functions
-    rhs = sum(v[2] for k, v in st.stats.items() if k[2] == "rhs")
-    ctrl = sum(v[2] for k, v in st.stats.items() if "controller_update" in str(k))
-    top = sorted(((v[2], f"{k[0].split('site-packages/')[-1]}:{k[1]}({k[2]})") for k, v in st.stats.items()),
-                 reverse=True)[:8]
-    return {"total_s": total, "rhs_share": rhs / total, "ctrl_share": ctrl / total, "top": top,
-            "periods": n_periods, "nfev_per_period": loop.nfev / n_periods}
+def _batch(base: Scenario, n: int, t_end: float) -> list[Scenario]:
+    """n scenarios of t_end [s], n = 2, 4, 6 in turn."""
+    return [base.replace(n=(2, 4, 6)[i % 3], t_end=t_end) for i in range(n)]
+
+
+def substeps_per_second(base: Scenario, size: Sizes, long: dict) -> tuple[Table, dict]:
+    """Plant substeps/s of the lone '20 s' case and of a batch on 1 thread and on all.
+
+    Returns:
+        the table, and the rates [substeps/s]: ``single`` (simulate(), 20 s case), ``batch`` (the batch on one
+        thread), with ``batch_1thread_s``, the batch's median time on one thread [s].
+    """
+    batch = _batch(base, size.n_batch, size.t_batch)
+    substeps = size.n_batch * batch[0].n_steps * batch[0].substeps
+    threads = numba.get_num_threads()
+    simulate_batch(batch[:2])  # compile or load the parallel kernel
+
+    def batch_with(nthreads):
+        def call():
+            numba.set_num_threads(nthreads)
+            try:
+                simulate_batch(batch)
+            finally:
+                numba.set_num_threads(threads)
+        return call
+
+    log(f"sim: batch of {size.n_batch} x {size.t_batch:g} s, 1 thread vs {threads} threads")
+    bt = interleave({"1 thread": batch_with(1), f"{threads} threads": batch_with(threads)}, 3)
+    sub = Table("substeps_per_second", columns=["case", "threads", "scenarios", "median_s", "substeps_per_s",
+                                                "substeps_per_s_per_core"])
+    single, single_loop = long["substeps"] / long["simulate_s"], long["substeps"] / long["loop_s"]
+    sub.add("single scenario, simulate() (20 s case)", 1, 1, long["simulate_s"], single, single)
+    sub.add("single scenario, compiled loop only (20 s case)", 1, 1, long["loop_s"], single_loop, single_loop)
+    per_core_batch = substeps / median(bt["1 thread"])
+    all_threads = substeps / median(bt[f"{threads} threads"])
+    sub.add(f"batch simulate_batch(), {size.t_batch:g} s each", 1, size.n_batch, median(bt["1 thread"]),
+            per_core_batch, per_core_batch)
+    sub.add(f"batch simulate_batch(), {size.t_batch:g} s each", threads, size.n_batch,
+            median(bt[f"{threads} threads"]), all_threads, all_threads / threads)
+    return sub, {"single": single, "batch": per_core_batch, "batch_1thread_s": median(bt["1 thread"])}
+
+
+def batch_cost(base: Scenario, size: Sizes, rates: dict, peer_s: float) -> dict:
+    """One '1 s' scenario's share of the one-thread batch [ms], and how much less that is than the peer's run."""
+    per_scenario = (rates["batch_1thread_s"] / size.n_batch
+                    * (base.replace(t_end=size.t_short).n_steps / base.replace(t_end=size.t_batch).n_steps))
+    return {"per_scenario_ms": per_scenario * 1e3, "vs_peer": peer_s / per_scenario}
+
+
+def batch_scaling(base: Scenario, t_scale: float) -> Table:
+    """Throughput of batches of 1, 16 and 256 scenarios on all numba threads."""
+    sizes = (1, 16, 256)
+    threads = numba.get_num_threads()
+    groups = {B: _batch(base, B, t_scale) for B in sizes}
+    log(f"sim: batch scaling {sizes} x {t_scale:g} s, {threads} threads")
+    st = interleave({B: (lambda g=g: simulate_batch(g)) for B, g in groups.items()}, 3)
+    scale = Table("batch_scaling", columns=["scenarios", "median_s", "substeps_per_s", "throughput_vs_1",
+                                            "s_per_scenario"])
+    tput1 = None
+    for B in sizes:
+        n_sub = B * groups[B][0].n_steps * groups[B][0].substeps
+        tp = n_sub / median(st[B])
+        tput1 = tput1 or tp
+        scale.add(B, median(st[B]), tp, tp / tput1, median(st[B]) / B)
+    return scale
+
+
+def setup_by_blas_threads(size: Sizes) -> tuple[Table, dict[str, float]]:
+    """simulate()'s fixed set-up in fresh processes, with the default BLAS pool and with one BLAS thread.
+
+    LoopArrays.build discretises the filters with scipy.linalg.expm, which goes through OpenBLAS; its thread
+    pool stalls when the other core is busy, so the set-up is timed in fresh processes with the default pool
+    and with one BLAS thread, interleaved.
+
+    Returns:
+        the table, and the median LoopArrays.build time [ms] per BLAS setting ("default", "1").
+    """
+    log("sim: simulate() set-up with the default BLAS pool vs OPENBLAS_NUM_THREADS=1 (subprocesses)")
+    setup = {"default": [], "1": []}
+    interleave({key: (lambda key=key: setup[key].append(_spawn_setup(key, size.t_short, size.setup_calls)))
+                for key in setup}, size.setup_procs)
+    blas = Table("setup_blas_threads", columns=["OpenBLAS threads", "LoopArrays.build_ms", "simulate_ms"])
+    setup_ms = {}
+    for key, label in (("default", "default (all cores)"), ("1", "1 (OPENBLAS_NUM_THREADS=1)")):
+        setup_ms[key] = median([r["build_ms"] for r in setup[key]])
+        blas.add(label, setup_ms[key], median([r["simulate_ms"] for r in setup[key]]))
+    return blas, setup_ms
+
+
+def _spawn_setup(blas_threads: str, t_end: float, calls: int) -> dict:
+    """:func:`setup_child` in a fresh process; ``blas_threads`` "default" leaves OpenBLAS's pool as it is."""
+    env = dict(os.environ)
+    if blas_threads != "default":
+        env["OPENBLAS_NUM_THREADS"] = blas_threads
+    return run_child("bench_sim", [t_end, calls], env=env, timeout=600)
 
 
 def setup_child(t_end: float, calls: int) -> dict:
@@ -192,236 +400,80 @@ def setup_child(t_end: float, calls: int) -> dict:
     return {"build_ms": median(build) * 1e3, "simulate_ms": median(sim) * 1e3}
 
 
-def _spawn_setup(blas_threads: str | None, t_end: float, calls: int) -> dict:
-    env = dict(os.environ)
-    if blas_threads is not None:
-        env["OPENBLAS_NUM_THREADS"] = blas_threads
-    p = subprocess.run([sys.executable, "-m", "benchmarks.bench_sim", "--setup-child", str(t_end), str(calls)],
-                       cwd=repo_root(), env=env, capture_output=True, text=True, timeout=600)
-    if p.returncode != 0:
-        raise RuntimeError(f"set-up child failed: {p.stderr[-2000:]}")
-    return json.loads(p.stdout.strip().splitlines()[-1])
+def where_time_goes(sc: Scenario, peer_periods: int, peer_us: float) -> tuple[Table, dict, dict, dict]:
+    """The profile: numba timing breakdown of our kernels, the plant RHS's instruction mix, cProfile of the peer.
 
+    Args:
+        sc: the '1 s' case.
+        peer_periods: control periods of the profiled peer loop.
+        peer_us: the peer's median cost per control period [us] (from the interleaved runs).
 
-def run(quick: bool) -> Section:
-    sec = Section("sim", "1. Closed-loop simulation vs scipy solve_ivp")
-    t_short = 0.05 if quick else 1.0
-    t_long = 0.2 if quick else 20.0
-    reps_short = 2 if quick else 5
-    reps_long = 1 if quick else 3
-    base = Scenario(**SETTING)
-    sec.note(f"Setting: velocity task, n=2, f_r=100 Hz, sigma=1e5, smoothing={SETTING['smoothing']:g}, |u|<=10 mA, "
-             f"h=1e-4 s (10 kHz), "
-             f"10 RK4 substeps, paper reference and friction (1.8 N*m, 8-10 s). Peer: solve_ivp "
-             f"{SOLVER['method']}, rtol={SOLVER['rtol']:g}, atol={SOLVER['atol_rel']:g} x (1 rad, 1 rad/s, P_s, "
-             f"K*1mA), called once per control period with the current and the friction amplitude held (the core "
-             f"switches friction on its grid; the events start and end on it); plant RHS in plain Python floats; "
-             f"control law = the core's compiled controller_update, called from Python.")
-    if quick:
-        sec.note(f"--quick: the '1 s' case runs {t_short:g} s and the '20 s' case {t_long:g} s of simulated time.")
-
-    simulate(base.replace(t_end=0.01))  # compile or load the kernels outside any timing
-    log("sim: setting check (ours at 10 vs 40 substeps)")
-    chk = Table("setting_check", f"Is the loop smooth enough to compare integrators? Ours at 10 vs 40 RK4 substeps, "
-                                 f"{t_long:g} s", ["smoothing", "used_here", "max_rel_state_diff_10_vs_40_substeps",
-                                                   "saturation", "tv_u_rate_mA_per_s", "max_abs_e_friction"])
-    for w in (SETTING["smoothing"], ALT_SMOOTHING):
-        s10, s40 = simulate_batch([base.replace(smoothing=w, t_end=t_long),
-                                   base.replace(smoothing=w, t_end=t_long, substeps=40)])
-        m = s10.metrics()
-        chk.add(w, w == SETTING["smoothing"], max_rel_diff(s10.x, s40.x)[0], m["saturation"], m["tv_u_rate"],
-                m["max_abs_e_friction"])
-    sec.tables.append(chk)
-    cmp = Table("sim_vs_solve_ivp", "Closed loop, ours vs solve_ivp (median wall time per run, interleaved)",
-                ["scenario", "case", "repeats", "median_s", "min..max_s", "speed-up_vs_solve_ivp",
-                 "max_rel_state_diff", "solve_ivp_nfev_per_period"])
-    ratios = {}
-    peer_medians = {}
-    for label, t_end, reps in (("1 s", t_short, reps_short), ("20 s", t_long, reps_long)):
-        sc = base.replace(t_end=t_end)
-        peer = ScipyLoop(sc)
-        last = {}
-
-        def ours(sc=sc, last=last):
-            last["traj"] = simulate(sc)
-
-        log(f"sim: {label} scenario ({t_end:g} s simulated), {reps} interleaved repeats; solve_ivp is slow")
-        times = interleave({"ours: simulate()": ours, "ours: compiled loop only": _run_lanes_callable(sc),
-                            "solve_ivp loop": peer.timed_run}, reps)
-        t_peer = median(times["solve_ivp loop"])
-        peer_medians[label] = t_peer
-        diff, per_state = max_rel_diff(last["traj"].x, peer.states)
-        for case, ts in times.items():
-            r = t_peer / median(ts)
-            cmp.add(label, case, reps, median(ts), spread(ts), r, diff if case != "solve_ivp loop" else 0.0,
-                    peer.nfev / sc.n_steps if case == "solve_ivp loop" else "")
-            ratios[(label, case)] = r
-        sec.note(f"{label}: max relative state difference ours vs solve_ivp {diff:.2e} (per state x1..x4: "
-                 + ", ".join(f"{v:.1e}" for v in per_state) + "), normalised by each state's max |x| over the run; "
-                 f"the relief-valve clamp |x3| <= P_s acted on {peer.relief_hits} periods of the peer.")
-        if label == "20 s":
-            single_t = median(times["ours: simulate()"])
-            single_loop_t = median(times["ours: compiled loop only"])
-            single_substeps = sc.n_steps * sc.substeps
-    sec.tables.append(cmp)
-    for label in ("1 s", "20 s"):
-        sec.targets.append(Target(f"simulate() vs solve_ivp, {label} velocity scenario",
-                                  ratios[(label, "ours: simulate()")], TARGET_RATIO))
-
-    # --- plant substeps per second -------------------------------------------------------
-    n_batch = 32 if quick else 256
-    t_batch = 0.05 if quick else 1.0
-    batch = [base.replace(n=(2, 4, 6)[i % 3], t_end=t_batch) for i in range(n_batch)]
-    substeps_batch = n_batch * batch[0].n_steps * batch[0].substeps
-    threads = numba.get_num_threads()
-    simulate_batch(batch[:2])  # compile or load the parallel kernel
-
-    def batch_with(nthreads):
-        def call():
-            numba.set_num_threads(nthreads)
-            try:
-                simulate_batch(batch)
-            finally:
-                numba.set_num_threads(threads)
-        return call
-
-    log(f"sim: batch of {n_batch} x {t_batch:g} s, 1 thread vs {threads} threads")
-    bt = interleave({"1 thread": batch_with(1), f"{threads} threads": batch_with(threads)}, 3)
-    sub = Table("substeps_per_second", "Plant substeps per second (one RK4 step of one scenario = 1 substep)",
-                ["case", "threads", "scenarios", "median_s", "substeps_per_s", "substeps_per_s_per_core"])
-    sub.add("single scenario, simulate() (20 s case)", 1, 1, single_t, single_substeps / single_t,
-            single_substeps / single_t)
-    sub.add("single scenario, compiled loop only (20 s case)", 1, 1, single_loop_t, single_substeps / single_loop_t,
-            single_substeps / single_loop_t)
-    per_core_batch = substeps_batch / median(bt["1 thread"])
-    all_threads = substeps_batch / median(bt[f"{threads} threads"])
-    sub.add(f"batch simulate_batch(), {t_batch:g} s each", 1, n_batch, median(bt["1 thread"]), per_core_batch,
-            per_core_batch)
-    sub.add(f"batch simulate_batch(), {t_batch:g} s each", threads, n_batch, median(bt[f"{threads} threads"]),
-            all_threads, all_threads / threads)
-    sec.tables.append(sub)
-    sec.targets.append(Target("plant substeps/s/core, single scenario", single_substeps / single_t, TARGET_SUBSTEPS,
-                              unit="/s"))
-    sec.targets.append(Target(f"plant substeps/s/core, batch of {n_batch} (numba 1 thread)", per_core_batch,
-                              TARGET_SUBSTEPS, unit="/s"))
-    per_scen_batch = median(bt["1 thread"]) / n_batch * (base.replace(t_end=t_short).n_steps / batch[0].n_steps)
-    sec.note(f"Derived: inside a {n_batch}-scenario batch on one core, one '1 s' scenario ({t_short:g} s simulated) "
-             f"costs {per_scen_batch * 1e3:.3g} ms (batch time / {n_batch}, scaled to {t_short:g} s), "
-             f"{peer_medians['1 s'] / per_scen_batch:.0f}x less than the solve_ivp loop's median for it "
-             f"(a different measurement of the same run, not interleaved).")
-
-    # --- batch scaling ---------------------------------------------------------------------
-    sizes = (1, 16, 256)
-    t_scale = 0.05 if quick else 1.0
-    groups = {B: [base.replace(n=(2, 4, 6)[i % 3], t_end=t_scale) for i in range(B)] for B in sizes}
-    log(f"sim: batch scaling {sizes} x {t_scale:g} s, {threads} threads")
-    st = interleave({B: (lambda g=g: simulate_batch(g)) for B, g in groups.items()}, 3)
-    scale = Table("batch_scaling", f"Batch scaling, all {threads} numba threads, {t_scale:g} s scenarios",
-                  ["scenarios", "median_s", "substeps_per_s", "throughput_vs_1", "s_per_scenario"])
-    tput1 = None
-    for B in sizes:
-        n_sub = B * groups[B][0].n_steps * groups[B][0].substeps
-        tp = n_sub / median(st[B])
-        tput1 = tput1 or tp
-        scale.add(B, median(st[B]), tp, tp / tput1, median(st[B]) / B)
-    sec.tables.append(scale)
-
-    # --- simulate()'s fixed set-up and the BLAS thread pool -----------------------------------
-    # LoopArrays.build discretises the filters with scipy.linalg.expm, which goes through OpenBLAS; its
-    # thread pool stalls when the other core is busy, so the set-up is timed in fresh processes with the
-    # default pool and with one BLAS thread, interleaved.
-    log("sim: simulate() set-up with the default BLAS pool vs OPENBLAS_NUM_THREADS=1 (subprocesses)")
-    calls = 5 if quick else 15
-    setup = {}
-    interleave({"default": lambda: setup.setdefault("default", []).append(_spawn_setup(None, t_short, calls)),
-                "1": lambda: setup.setdefault("1", []).append(_spawn_setup("1", t_short, calls))}, 1 if quick else 2)
-    blas = Table("setup_blas_threads", f"simulate() of the '1 s' case ({t_short:g} s) in fresh processes: median of "
-                                       f"{calls} calls, median over {1 if quick else 2} interleaved process(es) each",
-                 ["OpenBLAS threads", "LoopArrays.build_ms", "simulate_ms"])
-    setup_ms = {}
-    for key, label in (("default", "default (all cores)"), ("1", "1 (OPENBLAS_NUM_THREADS=1)")):
-        setup_ms[key] = median([r["build_ms"] for r in setup[key]])
-        blas.add(label, setup_ms[key], median([r["simulate_ms"] for r in setup[key]]))
-    sec.tables.append(blas)
-
-    # --- profile: what bounds ours, and the peer ---------------------------------------------
+    Returns:
+        the table, :func:`kernel_profile.breakdown`, :func:`kernel_profile.rhs_instruction_mix` and
+        :func:`_peer_profile` results.
+    """
     log("sim: kernel timing breakdown and peer profile")
-    bd = kernel_profile.breakdown(base.replace(t_end=t_short), repeats=3)
+    bd = kernel_profile.breakdown(sc, repeats=3)
     mix = kernel_profile.rhs_instruction_mix()
-    pp = _peer_profile(base.replace(t_end=t_short), 200 if quick else 2000)
-    prof = Table("sim_profile", "Where a control period's time goes (best of 3, microseconds per control period; "
-                 "numba timing breakdown of the core's kernels)", ["piece", "us_per_period", "note"])
+    pp = _peer_profile(sc, peer_periods)
+    prof = Table("sim_profile", columns=["piece", "us_per_period", "note"])
     prof.add("simulate(), single scenario", bd["simulate_us"], "end to end")
     prof.add("  Python set-up (LoopArrays.build)", bd["setup_us"], f"{bd['setup_ms']:.3g} ms per call, fixed")
     prof.add("  compiled loop (run_lanes, 1 lane)", bd["loop_us"], "")
     prof.add("    controller (controller_update)", bd["controller_us"], "estimator, ref model, Lie derivs, law")
-    prof.add("    plant, 10 RK4 substeps, 1 lane", bd["plant_1lane_us"],
+    prof.add(f"    plant, {bd['substeps']} RK4 substeps, 1 lane", bd["plant_1lane_us"],
              f"{bd['ns_per_substep_1lane_plant']:.3g} ns per substep")
     prof.add("    rest (checks, metrics, logging, lane copies)", bd["other_1lane_us"], "")
-    prof.add("plant, 10 RK4 substeps, scalar integrate_plant", bd["ns_per_substep_scalar_plant"] * 10 / 1e3,
+    prof.add(f"plant, {bd['substeps']} RK4 substeps, scalar integrate_plant",
+             bd["ns_per_substep_scalar_plant"] * bd["substeps"] / 1e3,
              f"{bd['ns_per_substep_scalar_plant']:.3g} ns per substep, no lane machinery")
-    prof.add("plant per lane, 8-lane block", bd["ns_per_substep_8lane_plant"] * 10 / 1e3,
+    prof.add("plant per lane, 8-lane block", bd["ns_per_substep_8lane_plant"] * bd["substeps"] / 1e3,
              f"{bd['ns_per_substep_8lane_plant']:.3g} ns per substep per lane")
     prof.add(f"plant per lane, {bd['lanes']}-lane block", bd["plant_block_us_per_lane"],
              f"{bd['ns_per_substep_block_plant']:.3g} ns per substep per lane")
     prof.add(f"compiled loop per lane, {bd['lanes']}-lane block", bd["loop_block_us_per_lane"],
              "one thread, controller and bookkeeping included")
-    peer_us = peer_medians["1 s"] / base.replace(t_end=t_short).n_steps * 1e6
     prof.add("solve_ivp loop (peer), 1 s case median", peer_us,
              f"under cProfile: RHS {pp['rhs_share']:.0%}, controller {pp['ctrl_share']:.0%}, solve_ivp machinery "
              f"the rest; {pp['nfev_per_period']:.2f} RHS calls per period")
-    sec.tables.append(prof)
-    sec.note("Peer profile (cProfile, top functions by own time over "
-             f"{pp['periods']} periods): " + "; ".join(f"{name} {t / pp['total_s']:.0%}" for t, name in pp["top"]))
-    sec.note(f"Instruction mix of the plant right-hand side (lane_rhs, machine code numba generated here): "
-             f"{mix['vsqrtpd']} packed sqrt + {mix['vdivpd']} packed div in the vector loop "
-             f"({mix['vector_width']} doubles wide: {mix['packed_on_zmm']} packed ops on zmm), "
-             f"{mix['vsqrtsd']} scalar sqrt + {mix['vdivsd']} scalar div in the remainder loop; "
-             "an RK4 substep evaluates it 4 times.")
-    miss_ratio = min(ratios[("1 s", "ours: simulate()")], ratios[("20 s", "ours: simulate()")])
-    if miss_ratio < TARGET_RATIO:
-        budget_ns = peer_us / TARGET_RATIO * 1e3
-        plant_block_ns = bd["plant_block_us_per_lane"] * 1e3
-        sec.note(
-            f"**Why the {TARGET_RATIO:g}x target is missed (profile above).** The peer costs {peer_us:.0f} us per "
-            f"control period, mostly solve_ivp's per-call machinery (its RHS is {pp['rhs_share']:.0%} of it). "
-            f"{TARGET_RATIO:g}x leaves ours {budget_ns:.0f} ns per control period for 10 RK4 substeps plus the "
-            f"controller. Even the plant alone, vectorised {mix['vector_width']}-wide over {bd['lanes']} lanes, "
-            f"takes {plant_block_ns:.0f} ns per period per scenario ({plant_block_ns / budget_ns:.1f}x the whole "
-            f"budget; {mix['vsqrtpd']} sqrt + {mix['vdivpd']} div per RHS, 4 RHS per substep), and the controller "
-            f"adds {bd['controller_us'] * 1e3:.0f} ns. A lone scenario cannot vectorise across lanes: its plant "
-            f"costs {bd['ns_per_substep_1lane_plant']:.0f} ns per substep in the lane kernel and still "
-            f"{bd['ns_per_substep_scalar_plant']:.0f} ns in the scalar integrator with no lane machinery (the RHS "
-            f"is a dependent chain of square roots and divisions, so one lane waits on their latency; 8 lanes: "
-            f"{bd['ns_per_substep_8lane_plant']:.0f} ns, {bd['lanes']} lanes: {bd['ns_per_substep_block_plant']:.0f} "
-            f"ns per lane), and simulate() adds a fixed Python set-up per call ({setup_ms['default']:.2g} ms median "
-            f"in a fresh process here, {setup_ms['1']:.2g} ms with OPENBLAS_NUM_THREADS=1"
-            + ("; the filters' expm waits on OpenBLAS's thread pool while the other core is busy"
-               if setup_ms["default"] > 2 * setup_ms["1"] else "") + "). Measured "
-            f"ceilings at 10 substeps per period: {peer_us / bd['loop_block_us_per_lane']:.0f}x per scenario in a "
-            f"batch on one core, {peer_us / bd['loop_us']:.0f}x for a lone scenario's compiled loop.")
-    if single_substeps / single_t < TARGET_SUBSTEPS or per_core_batch < TARGET_SUBSTEPS:
-        sec.note(
-            f"**Substeps/s/core.** A lone scenario does {single_substeps / single_t / 1e6:.3g} M substeps/s: "
-            f"per period it pays the controller ({bd['controller_us']:.2g} us) and the bookkeeping "
-            f"({bd['other_1lane_us']:.2g} us) for only 10 substeps, and its plant runs at the one-lane latency "
-            f"bound above ({bd['ns_per_substep_1lane_plant']:.0f} ns per substep; "
-            f"{1e3 / bd['ns_per_substep_scalar_plant']:.3g} M/s even for the bare scalar integrator). The batch "
-            f"spreads both over lanes and vectorises the plant: {per_core_batch / 1e6:.3g} M substeps/s on one "
-            f"core; its compiled loop costs {bd['loop_block_us_per_lane']:.2g} us per lane-period, of which the "
-            f"plant is {bd['plant_block_us_per_lane']:.2g} us, so the per-lane controller and bookkeeping "
-            f"({bd['loop_block_us_per_lane'] - bd['plant_block_us_per_lane']:.2g} us) are the larger share.")
-    return sec
+    return prof, bd, mix, pp
+
+
+def _peer_profile(sc, n_periods: int) -> dict:
+    """cProfile of the peer loop: share of its time in the plant RHS, the controller and solve_ivp itself."""
+    loop = ScipyLoop(sc)
+    st = profile(loop.run, n_periods)
+    total, top = top_own_time(st)
+    rhs = sum(v[2] for k, v in st.stats.items() if k[2] == "rhs")
+    ctrl = sum(v[2] for k, v in st.stats.items() if "controller_update" in str(k))
+    return {"total_s": total, "rhs_share": rhs / total, "ctrl_share": ctrl / total, "top": top,
+            "periods": n_periods, "nfev_per_period": loop.nfev / n_periods}
+
+
+def ratio_miss(cases: dict, bd: dict, pp: dict, peer_us: float, setup_ms: dict) -> dict | None:
+    """The numbers that explain a missed speed-up target; None when both cases meet it."""
+    if not min(cases["1 s"]["ratio"], cases["20 s"]["ratio"]) < TARGET_RATIO:
+        return None
+    budget_ns = peer_us / TARGET_RATIO * 1e3
+    plant_block_ns = bd["plant_block_us_per_lane"] * 1e3
+    return {"target": TARGET_RATIO, "peer_us": peer_us, "rhs_share": pp["rhs_share"], "budget_ns": budget_ns,
+            "plant_block_ns": plant_block_ns, "plant_vs_budget": plant_block_ns / budget_ns,
+            "controller_ns": bd["controller_us"] * 1e3, "setup_ms": setup_ms,
+            "blas_pool_stalls": setup_ms["default"] > 2 * setup_ms["1"],
+            "ceiling_batch": peer_us / bd["loop_block_us_per_lane"], "ceiling_single": peer_us / bd["loop_us"]}
+
+
+def substeps_miss(rates: dict, bd: dict) -> dict | None:
+    """The numbers that explain a missed substeps/s/core target; None when both rates meet it."""
+    if not (rates["single"] < TARGET_SUBSTEPS or rates["batch"] < TARGET_SUBSTEPS):
+        return None
+    return {"single_M": rates["single"] / 1e6, "scalar_M": 1e3 / bd["ns_per_substep_scalar_plant"],
+            "batch_M": rates["batch"] / 1e6,
+            "rest_block_us": bd["loop_block_us_per_lane"] - bd["plant_block_us_per_lane"]}
 
 
 def main(argv=None) -> int:
-    import argparse
-
-    p = argparse.ArgumentParser(description="set-up timing child of the sim benchmark")
-    p.add_argument("--setup-child", nargs=2, metavar=("T_END", "CALLS"), required=True)
-    a = p.parse_args(argv)
-    print(json.dumps(setup_child(float(a.setup_child[0]), int(a.setup_child[1]))))
-    return 0
+    return child_main(setup_child, {"T_END": float, "CALLS": int}, "set-up timing child of the sim benchmark", argv)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,16 @@
-"""Shared benchmark machinery: interleaved timing, machine description, tables and targets."""
+"""Shared benchmark machinery: interleaved timing, child processes, profiles, machine description, tables, targets."""
 
 from __future__ import annotations
 
+import argparse
+import cProfile
 import csv
 import io
+import json
 import math
 import os
 import platform
+import pstats
 import resource
 import statistics
 import subprocess
@@ -16,6 +20,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import metadata
+
+import numba
 
 PACKAGES = ("ehss-gym", "numpy", "numba", "llvmlite", "scipy", "gymnasium", "stable-baselines3", "torch",
             "gym-electric-motor")
@@ -69,11 +75,73 @@ def time_command(subcommand: str, out_name: str, args: list) -> dict:
     return {"wall_s": wall, "cpu_s": cpu, "load_before": load0[0], "load_after": load1[0], "stdout": proc.stdout}
 
 
-def wall_target_line(res: dict, target_s: float, cores: int) -> str:
-    """'target <= T s wall on N cores: met/MISSED' for a :func:`time_command` result, flagging a shared machine."""
-    ok = res["wall_s"] <= target_s
-    return (f"target <= {target_s:.0f} s wall on {cores} cores: {'met' if ok else 'MISSED'}"
-            + ("" if res["load_before"] < 0.5 else " (machine shared: other load was running)"))
+def run_child(module: str, args: list, env: dict | None = None, timeout: float = 600.0) -> dict:
+    """Run ``python -m benchmarks.<module> --child <args>`` in a fresh process from the checkout root.
+
+    Args:
+        module: the benchmark module whose :func:`child_main` (or own ``--child`` entry point) runs the child.
+        args: the values after ``--child``.
+        env: the child's environment (default: this process's).
+        timeout: [s] before the child is killed.
+
+    Returns:
+        dict: the JSON object the child printed last, plus ``wall_s`` [s], the whole subprocess's wall time
+        (interpreter start and exit included). Raises RuntimeError if the child fails.
+    """
+    cmd = [sys.executable, "-m", f"benchmarks.{module}", "--child", *map(str, args)]
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, cwd=repo_root(), env=env, capture_output=True, text=True, timeout=timeout)
+    wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        raise RuntimeError(f"benchmark child `{' '.join(cmd[1:])}` failed ({p.returncode}):\n{p.stderr[-2000:]}")
+    return {**json.loads(p.stdout.strip().splitlines()[-1]), "wall_s": wall}
+
+
+def child_main(fn: Callable[..., dict], types: dict[str, type], description: str, argv=None) -> int:
+    """The ``--child`` entry point of a benchmark module: calls ``fn`` and prints its result as one JSON line.
+
+    Args:
+        fn: the measurement, called with the ``--child`` values converted by ``types``.
+        types: metavar -> type of each value after ``--child``, in order.
+        description: for ``--help``.
+        argv: the arguments (default: ``sys.argv[1:]``).
+    """
+    p = argparse.ArgumentParser(description=description)
+    p.add_argument("--child", nargs=len(types), metavar=tuple(types), required=True)
+    values = p.parse_args(argv).child
+    print(json.dumps(fn(*(t(v) for t, v in zip(types.values(), values)))))
+    return 0
+
+
+def profile(fn: Callable, *args) -> pstats.Stats:
+    """cProfile statistics of the one call ``fn(*args)``."""
+    prof = cProfile.Profile()
+    prof.enable()
+    fn(*args)
+    prof.disable()
+    return pstats.Stats(prof)
+
+
+def top_own_time(st: pstats.Stats, top: int = 8, strip: tuple[str, ...] = ("site-packages/",)
+                 ) -> tuple[float, list[tuple[float, str]]]:
+    """The total own time [s] of a profile and its ``top`` functions by own time.
+
+    Args:
+        st: the profile.
+        top: how many functions.
+        strip: each file name is cut after the last occurrence of each of these, in turn (so that
+            ``.../site-packages/numpy/x.py`` reads ``numpy/x.py``).
+
+    Returns:
+        (total own time [s], [(share of the total, "file:line(function)"), ...] largest share first).
+    """
+    total = sum(v[2] for v in st.stats.values())  # tottime over all functions
+    rows = []
+    for (file, line, func), v in st.stats.items():
+        for prefix in strip:
+            file = file.split(prefix)[-1]
+        rows.append((v[2] / total, f"{file}:{line}({func})"))
+    return total, sorted(rows, reverse=True)[:top]
 
 
 def median(xs) -> float:
@@ -107,12 +175,20 @@ def fmt(x, digits: int = 3) -> str:
 
 @dataclass
 class Table:
-    """A result table: written as ``<name>.csv`` and as a markdown table in PERF.md."""
+    """A result table: written as ``<name>.csv`` and as a markdown table in PERF.md.
+
+    A section rendered from its own template gives the table's caption there and leaves ``title`` empty;
+    ``title`` is the caption of sections without a template.
+    """
 
     name: str
-    title: str
-    columns: list[str]
+    title: str = ""
+    columns: list[str] = field(default_factory=list)
     rows: list[list] = field(default_factory=list)
+
+    def __post_init__(self):
+        if not self.columns:
+            raise ValueError(f"table {self.name}: no columns")
 
     def add(self, *row) -> None:
         if len(row) != len(self.columns):
@@ -163,13 +239,19 @@ class Target:
 
 @dataclass
 class Section:
-    """One benchmark's results: tables, targets and markdown notes (incl. its profile)."""
+    """One benchmark's results: tables, targets, and what the report says about them.
+
+    A section either names its ``template`` (a file under ``benchmarks/templates``) and the numbers it
+    needs in ``context``, or carries ready markdown ``notes``; see :mod:`benchmarks.report`.
+    """
 
     key: str
     title: str
     tables: list[Table] = field(default_factory=list)
     targets: list[Target] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    template: str = ""
+    context: dict = field(default_factory=dict)
     skipped: str = ""
     seconds: float = 0.0
     load_before: tuple = ()
@@ -215,8 +297,6 @@ def versions() -> dict[str, str]:
 
 
 def machine() -> dict:
-    import numba
-
     try:
         affinity = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover

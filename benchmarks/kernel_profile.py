@@ -23,6 +23,7 @@ import time
 import numba as nb
 import numpy as np
 
+from ehss_gym import simulate
 from ehss_gym.core import layout as L
 from ehss_gym.core.control import controller_update, integrate_lanes, plant_only_arrays
 from ehss_gym.core.physics import N_LANE_CONST, integrate_plant, lane_constants, lane_rhs
@@ -60,7 +61,8 @@ def _best_of(fn, repeats: int) -> float:
     return best
 
 
-def _run_lanes_args(scenarios):
+def run_lanes_args(scenarios):
+    """The arrays of ``scenarios`` and the argument tuple of ``run_lanes`` on them (output arrays zeroed)."""
     sc = scenarios[0]
     a = LoopArrays.build(scenarios)
     B = len(scenarios)
@@ -106,7 +108,7 @@ def loop_us_per_lane(sc, lanes: int, repeats: int = 3) -> float:
     """The core's whole compiled loop (``run_lanes``: controller, plant, checks, metrics, logging) per lane per
     control period [us], for ``lanes`` copies of the scenario (n = 2, 4, 6 in turn) in one block on one thread."""
     scB = [sc.replace(n=(2, 4, 6)[i % 3]) for i in range(lanes)]
-    _, args = _run_lanes_args(scB)
+    _, args = run_lanes_args(scB)
     run_lanes(args[0].copy(), *args[1:])
     return _best_of(lambda: run_lanes(args[0].copy(), *args[1:]), repeats) / sc.n_steps / lanes * 1e6
 
@@ -119,13 +121,11 @@ def breakdown(sc, lanes: int = MAX_LANES, repeats: int = 3) -> dict:
         lanes: block size for the batched numbers (a thread integrates this many lanes in lock-step).
         repeats: best-of repeats per piece (the minimum is the least disturbed by other load).
     """
-    from ehss_gym import simulate
-
     n = sc.n_steps
     h = sc.control_period
     out = {"periods": n, "substeps": sc.substeps, "lanes": lanes}
 
-    a1, args1 = _run_lanes_args([sc])
+    a1, args1 = run_lanes_args([sc])
     run_lanes(args1[0].copy(), *args1[1:])  # compile / load
     t_setup = _best_of(lambda: LoopArrays.build([sc]), repeats)
     t_sim = _best_of(lambda: simulate(sc), repeats)

@@ -1,77 +1,84 @@
-"""Assemble PERF.md and the CSV files from the benchmark sections."""
+"""Assemble PERF.md and the CSV files from the benchmark sections.
+
+The prose lives in Jinja2 templates under ``benchmarks/templates`` (``perf.md.j2`` is the page, one template per
+section holds its tables' captions and notes); the code here and in the sections computes the numbers. The
+templates are rendered with the package's report environment (:mod:`ehss_gym.reporting.render`: undefined names
+are errors, the same number filters), on this folder.
+"""
 
 from __future__ import annotations
 
 import os
 import time
+import traceback
 
 from ehss_gym.core.util import atomic_write_text
+from ehss_gym.reporting.render import environment, render_in
 
-from .common import Section, Table, fmt
+from .common import Section, Table, Target, fmt
 
-METHOD = """\
-## Method
-
-- Every comparison runs ours (A) and the peer (B) in this one run, interleaved A B A B ...,
-  repeated; the tables quote the median and the min..max of the repeats, and ratios are
-  median(peer time) / median(our time) (or rate ratios). Nothing here is a timed unit test;
-  the speed targets are checked only in this report.
-- First calls (numba cache load, warm-up) are made before any timing, except in section 5,
-  which measures exactly that.
-- Rates count plant substeps (one RK4 step of one scenario) and env steps (one `env.step`;
-  for the vector env, one sub-env transition).
-- Profiles explain misses: numba kernel timing breakdowns and the generated machine code for
-  the compiled loop (cProfile cannot see inside it), cProfile for Python-level code.
-"""
+TEMPLATES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "templates")
+SHARED_LOAD = 0.3  # 1-min load average from which the page warns that other processes shared the cores
+SHARED_LOAD_COMMAND = 0.5  # ... and from which a timed command's target line says the machine was shared
+COMMAND_TARGETS_S = {"evaluate": 180.0, "reproduce": 120.0}  # [s] wall time of the full default `ehss <command>`
+COMMAND_TARGET_CORES = 2  # ... on this many cores
 
 
-def render(sections: list[Section], meta: dict) -> str:
-    lines = ["# ehss-gym performance report", ""]
-    lines.append(f"Made by `{meta['command']}` on {meta['date']} in {meta['wall_s']:.0f} s of wall time"
-                 f"{' (--quick: shrunken problems, for CI; not a performance result)' if meta['quick'] else ''}. "
-                 "Generated; never edited by hand. CSV files beside this one hold every table.")
-    lines += ["", "## Machine", ""]
-    for k, v in meta["machine"].items():
-        lines.append(f"- {k}: {v}")
+def render_template(template: str, **context) -> str:
+    """Render ``template`` (a file name under benchmarks/templates) with ``context``."""
+    return render_in(environment(TEMPLATES), template, **context)
+
+
+def target_cells(t: Target) -> list[str]:
+    """The cells of a target's row in the page's targets table: target, measured, goal, status, shortfall."""
+    unit = "" if t.unit == "x" else f" {t.unit}"
+    meas = "-" if t.measured is None else (f"{fmt(t.measured)}x" if t.unit == "x" else fmt(t.measured) + unit)
+    goal = f"{'<=' if t.lower_is_better else '>='} {fmt(t.goal)}{'x' if t.unit == 'x' else unit}"
+    status = t.status + (f" ({t.note})" if t.note else "")
+    return [t.name, meas, goal, status, t.shortfall]
+
+
+def section_body(s: Section) -> str:
+    """The markdown of a section below its wall-time line: its template, or its tables and notes as they are."""
+    tables = {t.name: t for t in s.tables}
+    if s.template:
+        text = render_template(s.template, tables=tables, **s.context)
+    else:
+        text = render_template("notes.md.j2", tables=s.tables, notes=s.notes)
+    return text.strip("\n")
+
+
+def _body_or_failure(s: Section) -> dict:
+    """The section's body for the page; if its template fails, the traceback in its place (``failed`` set), so that
+    one broken template does not cost the other sections' results."""
+    if s.skipped:
+        return {"s": s, "skipped": s.skipped, "body": "", "failed": False}
+    try:
+        return {"s": s, "skipped": "", "body": section_body(s), "failed": False}
+    except Exception:
+        tb = traceback.format_exc().strip()
+        return {"s": s, "skipped": f"FAILED rendering its template:\n\n```\n{tb}\n```\n", "body": "", "failed": True}
+
+
+def render(sections: list[Section], meta: dict) -> tuple[str, list[str]]:
+    """PERF.md for the sections, with the run's ``meta`` (command, date, quick, machine, versions, load, wall_s).
+
+    Returns:
+        the page, and the keys of the sections whose template failed (the page shows the traceback instead).
+    """
     la0, la1 = meta["load_start"], meta["load_end"]
-    lines.append(f"- load average (1, 5, 15 min): {la0} at the start, {la1} at the end; per section below")
     busy = max(la0[0], la1[0], *(s.load_before[0] for s in sections if s.load_before))
-    if busy >= 0.3:
-        lines.append(f"- **The cores were shared**: other processes kept the 1-minute load average up to {busy:g} "
-                     f"on {meta['machine']['logical cores']} cores during this run (on the machine this report "
-                     "was made on, other developers' tests and training runs), so absolute times are pessimistic "
-                     "and noisy. The ratios come from interleaved runs that saw the same load; read those.")
-    lines += ["", "## Package versions", ""]
-    lines.append(", ".join(f"{k} {v}" for k, v in meta["versions"].items()))
-    lines += ["", "## Targets", "", "| target | measured | goal | status | shortfall |",
-              "| --- | --- | --- | --- | --- |"]
-    for s in sections:
-        for t in s.targets:
-            unit = "" if t.unit == "x" else f" {t.unit}"
-            meas = "-" if t.measured is None else (f"{fmt(t.measured)}x" if t.unit == "x" else fmt(t.measured) + unit)
-            goal = (f"{'<=' if t.lower_is_better else '>='} {fmt(t.goal)}{'x' if t.unit == 'x' else unit}")
-            status = t.status + (f" ({t.note})" if t.note else "")
-            lines.append(f"| {t.name} | {meas} | {goal} | {status} | {t.shortfall} |")
-    lines.append("")
-    lines.append("Where a target is missed, its section says by how much and shows the profile that bounds it.")
-    for s in sections:
-        lines += ["", f"## {s.title}", ""]
-        lines.append(f"Section wall time {s.seconds:.0f} s; load average {s.load_before} before, {s.load_after} after.")
-        if s.skipped:
-            lines += ["", f"**Skipped: {s.skipped}.**"]
-            continue
-        for t in s.tables:
-            lines += ["", f"**{t.title}** (`{t.name}.csv`)", "", t.markdown()]
-        if s.notes:
-            lines.append("")
-            for n in s.notes:
-                lines.append(f"- {n}")
-    lines += ["", METHOD]
-    return "\n".join(lines)
+    views = [_body_or_failure(s) for s in sections]
+    page = render_template("perf.md.j2", **meta, busy=busy, shared=busy >= SHARED_LOAD,
+                           targets=[target_cells(t) for s in sections for t in s.targets], sections=views)
+    return page, [v["s"].key for v in views if v["failed"]]
 
 
 def write(out_dir: str, sections: list[Section], meta: dict) -> list[str]:
-    """Write PERF.md and one CSV per table into out_dir; returns the paths written."""
+    """Write PERF.md and one CSV per table into out_dir; returns the paths written.
+
+    Raises RuntimeError after writing them if a section's template failed.
+    """
     os.makedirs(out_dir, exist_ok=True)
     paths = []
     tables: list[Table] = [t for s in sections for t in s.tables]
@@ -86,9 +93,26 @@ def write(out_dir: str, sections: list[Section], meta: dict) -> list[str]:
         atomic_write_text(p, header + t.csv_text())
         paths.append(p)
     p = os.path.join(out_dir, "PERF.md")
-    atomic_write_text(p, render(sections, meta) + "\n")
+    page, failed = render(sections, meta)
+    atomic_write_text(p, page)
     paths.append(p)
+    if failed:
+        raise RuntimeError(f"the template of section(s) {', '.join(failed)} failed; {p} shows the traceback(s)")
     return paths
+
+
+def command_timing(command: str, res: dict, quick: bool) -> str:
+    """What a timed ``ehss <command>`` run prints: its summary and, for the full run, its wall-time target.
+
+    Args:
+        command: "evaluate" or "reproduce" (a key of :data:`COMMAND_TARGETS_S`).
+        res: :func:`benchmarks.common.time_command`'s result (for evaluate with episodes, workers and phases).
+        quick: whether the CI smoke run was timed (it has no target).
+    """
+    target_s, cores = COMMAND_TARGETS_S[command], COMMAND_TARGET_CORES
+    return render_template("command_timing.txt.j2", command=command, res=res, quick=quick, target_s=target_s,
+                           cores=cores, cpus=os.cpu_count(), cpu_per_core=res["cpu_s"] / cores,
+                           met=res["wall_s"] <= target_s, shared=not res["load_before"] < SHARED_LOAD_COMMAND)
 
 
 def now() -> str:

@@ -43,12 +43,13 @@ TINY = ["--n-envs", "2", "--hp", "n_steps=64", "--hp", "batch_size=64", "--hp", 
 def test_parse_seeds_forms():
     assert runs.parse_seeds("3") == [3]
     assert runs.parse_seeds("0-4") == [0, 1, 2, 3, 4]
-    assert runs.parse_seeds("0-2, 7,2") == [0, 1, 2, 7]
+    assert runs.parse_seeds("7, 0-2") == [0, 1, 2, 7]
 
 
 @pytest.mark.parametrize("text, match", [("4-0", "start > end"), ("a", "bad item 'a'"), ("", "must be like"),
                                          ("-1", "bad item '-1'"), ("1-", "bad item '1-'"),
-                                         ("0-10000", r"integers in \[0, 10000\)"), ("1,,2", "bad item ''")])
+                                         ("0-10000", r"integers in \[0, 10000\)"), ("1,,2", "bad item ''"),
+                                         ("0,0", "seed 0 twice"), ("0-2, 7,2", "seed 2 twice")])
 def test_parse_seeds_bad(text, match):
     with pytest.raises(runs.RunError, match=match):
         runs.parse_seeds(text)
@@ -182,6 +183,34 @@ def test_training_smoke(tmp_path):
     stamp = os.stat(shipped[0] + ".json").st_mtime_ns
     assert analysis.ship(groups, str(tmp_path / "models"), made_by="another command") == shipped
     assert os.stat(shipped[0] + ".json").st_mtime_ns == stamp and load_policy(shipped[0]).metadata == ship_pol.metadata
+
+
+def test_noop_resume_keeps_the_checkpoint_and_the_best_models(tmp_path, capsys):
+    """Issue 16, bug 1: a resume with nothing left to train used to save a checkpoint labelled step 0, so the
+    next resume deleted every best model above it and crashed looking for evals/best_step_<S>/model.zip."""
+    out = str(tmp_path / "r")
+    base = ["train", "--eval-freq", "128", "--checkpoint-freq", "128", "--out", out, *TINY]
+    assert cli_main([*base, "--timesteps", "256"]) == 0
+    best = sorted(os.listdir(os.path.join(out, "evals")))
+    assert cli_main([*base, "--timesteps", "256", "--resume"]) == 0
+    assert "nothing to train" in capsys.readouterr().err
+    assert runs.latest_checkpoint(out)["step"] == 256 and sorted(os.listdir(os.path.join(out, "evals"))) == best
+    assert cli_main([*base, "--timesteps", "384", "--resume"]) == 0
+    assert json.loads(open(os.path.join(out, "summary.json")).read())["timesteps"] == 384
+
+
+def test_timesteps_rounded_to_a_rollout_are_announced(tmp_path, capsys):
+    """Issue 16, bug 7: PPO trains whole rollouts; a --timesteps that is not a multiple says what will run."""
+    from ehss_gym.train.loop import rollout_note
+
+    assert rollout_note(4096, 0, 2048) is None
+    assert "training runs to step 4096" in rollout_note(3000, 0, 2048)
+    assert "training runs to step 3072" in rollout_note(3000, 1024, 2048)
+    assert "nothing to train" in rollout_note(3000, 4096, 2048)
+    out = str(tmp_path / "r")
+    assert cli_main(["train", "--timesteps", "200", "--eval-freq", "128", "--out", out, *TINY]) == 0
+    assert "--timesteps 200 is not a whole number of rollouts (128 agent steps" in capsys.readouterr().err
+    assert json.loads(open(os.path.join(out, "summary.json")).read())["timesteps"] == 256
 
 
 def test_training_other_base_law(tmp_path):

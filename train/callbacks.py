@@ -251,11 +251,13 @@ class Checkpoint(BaseCallback):
 
     def save(self) -> dict:
         """Write a checkpoint now (model, VecNormalize, RNG and callback states); its manifest."""
-        state = {"num_timesteps": int(self.num_timesteps), "rng": capture_rng(self.env_rngs()),
+        # the model's counter, not the callback's copy: that one is only refreshed inside learn(), so a save
+        # outside it (the end of a run) would be labelled step 0 and a later resume would drop every best model
+        step = int(self.model.num_timesteps)
+        state = {"num_timesteps": step, "rng": capture_rng(self.env_rngs()),
                  "callbacks": {k: cb.state_dict() for k, cb in self.stateful.items()}}
-        man = runs.save_checkpoint(self.run_dir, self.num_timesteps, self.model, self.model.get_vec_normalize_env(),
-                                   state)
-        self.last = self.num_timesteps
+        man = runs.save_checkpoint(self.run_dir, step, self.model, self.model.get_vec_normalize_env(), state)
+        self.last = step
         return man
 
 

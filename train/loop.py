@@ -133,6 +133,22 @@ def validation(cfg: Config, env_kwargs: dict) -> tuple[list, list[dict], list[di
 # --- training ---------------------------------------------------------------------------------------------
 
 
+def rollout_note(timesteps: int, start: int, rollout: int) -> str | None:
+    """What a run of ``--timesteps`` from step ``start`` will really do, when that is not what was asked.
+
+    PPO collects whole rollouts (``rollout`` = n_envs * n_steps agent steps), so it stops at the first rollout
+    boundary at or past ``timesteps``; a resumed run already at or past it trains nothing.
+    """
+    if start >= timesteps:
+        return (f"the run is already at step {start} (--timesteps {timesteps}); nothing to train, the final and "
+                "best models are exported again")
+    end = start + -(-(timesteps - start) // rollout) * rollout
+    if end != timesteps:
+        return (f"--timesteps {timesteps} is not a whole number of rollouts ({rollout} agent steps = n_envs x "
+                f"n_steps) from step {start}; training runs to step {end}")
+    return None
+
+
 def train(cfg: Config, on_eval: Callable[[dict], None] | None = None) -> dict:
     """Run (or resume) one training run; returns the summary dict (also written to summary.json).
 
@@ -171,11 +187,14 @@ def train(cfg: Config, on_eval: Callable[[dict], None] | None = None) -> dict:
 
     # --- learn -------------------------------------------------------------------------------------------
     remaining = cfg.timesteps - model.num_timesteps
+    note = rollout_note(cfg.timesteps, int(model.num_timesteps), spec.n_envs * spec.n_steps)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
     if remaining > 0:
         model.learn(total_timesteps=remaining, callback=CallbackList([wall, progress, evaluator, checkpoint]),
                     reset_num_timesteps=manifest is None, tb_log_name="PPO", progress_bar=False)
-    checkpoint.init_callback(model)
-    checkpoint.save()  # a finished run can be extended with --resume --timesteps LARGER
+        checkpoint.init_callback(model)
+        checkpoint.save()  # a finished run can be extended with --resume --timesteps LARGER
 
     # --- the best and the final model ----------------------------------------------------------------------
     summary = finish(cfg, model, venv, evaluator, base, reference, wall.seconds)
@@ -227,5 +246,5 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = ["CLIP_OBS", "make_env", "env_generators", "open_run", "export_model", "validation", "train", "finish",
-           "describe", "main"]
+__all__ = ["CLIP_OBS", "make_env", "env_generators", "open_run", "export_model", "validation", "rollout_note",
+           "train", "finish", "describe", "main"]

@@ -45,10 +45,11 @@ def parse_seeds(text: str, limit: int = 10_000) -> list[int]:
         limit: seeds must be integers in [0, limit).
 
     Returns:
-        Sorted distinct seeds.
+        The seeds, sorted.
 
     Raises:
-        RunError: a malformed item, a range with start > end, a seed outside [0, limit), or no seeds.
+        RunError: a malformed item, a range with start > end, a seed outside [0, limit), a seed given twice
+            (two runs of one seed would write one run folder), or no seeds.
     """
     if not isinstance(text, str) or not text.strip():
         raise RunError(f"--seeds must be like '0-4', '3' or '0-2,7' (integers in [0, {limit})), got {text!r}")
@@ -65,6 +66,9 @@ def parse_seeds(text: str, limit: int = 10_000) -> list[int]:
             raise RunError(f"--seeds range {item!r} has start > end; write it as '{b}-{a}'")
         if b >= limit:
             raise RunError(f"--seeds must be integers in [0, {limit}), got {b} in {text!r}")
+        twice = seeds.intersection(range(a, b + 1))
+        if twice:
+            raise RunError(f"--seeds names seed {min(twice)} twice in {text!r}; give each seed once")
         seeds.update(range(a, b + 1))
     return sorted(seeds)
 
