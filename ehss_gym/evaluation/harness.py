@@ -3,9 +3,10 @@
 Every policy acts in the Gymnasium env ``EHSSTracking-v0`` (:class:`ehss_gym.envs.env.EHSSTrackingEnv`) through
 SB3's ``predict(obs, state, episode_start, deterministic=True)``; every episode is pinned to a scenario
 (``reset(options={"scenario": ...})``), so all policies see exactly the same references, friction
-events, plants and sensor noise. Episodes run in worker processes (``spawn``) across the cores; the
-split of episodes into jobs does not depend on the number of workers, so results are identical for
-any ``--workers``.
+events, plants and sensor noise. The episodes run as jobs of the execution layer (:mod:`ehss_gym.core.execution`):
+in this process, in ``spawn`` worker processes across the cores, or as Ray tasks (``--backend ray``); the split
+of episodes into jobs depends neither on the number of workers nor on the backend, so results are identical
+for any ``--workers`` and on both backends.
 
 The pieces: the suites and their episodes (:mod:`~ehss_gym.evaluation.suites`), the policy specs
 (:mod:`~ehss_gym.evaluation.specs`), loading a spec's runs (:mod:`~ehss_gym.evaluation.loading`), the primary
@@ -14,8 +15,9 @@ cuts the work into jobs, runs them and gathers the :class:`Results`; the report 
 :mod:`ehss_gym.reporting.comparison`'s.
 
 **Loading**: every run is loaded once, in this process, to check that it fits the env
-(:func:`~ehss_gym.evaluation.specs.check_fit`); the worker processes get the loaded models as bytes when the
-pool starts, so no worker reads a model file (a model that cannot be pickled is loaded at most once per worker).
+(:func:`~ehss_gym.evaluation.specs.check_fit`); the workers get each policy once, as the jobs' shared context
+(:func:`~ehss_gym.evaluation.loading.portable`: a safe-weights model as its two files' bytes), so no worker reads
+a model file (a model that cannot be pickled is loaded at most once per worker).
 """
 
 from __future__ import annotations
