@@ -135,9 +135,11 @@ def trial_rows(results) -> list[dict]:
     rows = []
     for r in results:
         m = r.metrics or {}
-        row = {"trial": os.path.basename(r.path) if r.path else "", "status": "error" if r.error else "ok",
+        # Tune's folder name is trainable_<id>_<number>_<the params>: the params are columns of their own
+        name = "_".join(os.path.basename(r.path).split("_")[:3]) if r.path else ""
+        row = {"trial": name, "status": "error" if r.error else "ok",
                "steps": int(m.get("step", 0)), METRIC: float(m.get(METRIC, math.nan)),
-               "score": float(m.get("score", math.nan))}
+               "score": float(m.get("score", math.nan)), "train_s": float(m.get("time_total_s", math.nan))}
         row.update({k: r.config.get(k) for k in SEARCH_SPACE})
         rows.append(row)
     return sorted(rows, key=lambda d: (math.isnan(d[METRIC]), d[METRIC]))
@@ -168,7 +170,7 @@ def compare(settings: TuneSettings, hp: dict, executor: Executor) -> list[dict]:
         s = res["summary"]
         rows.append({"recipe": name, "seed": cfg.seed, "steps": s["timesteps"], "best_step": s["best_step"],
                      "validation_score": s["best_validation"]["score"],
-                     "final_score": s["final_validation"]["score"], "run": s["run_name"]})
+                     "final_score": s["final_validation"]["score"], "wall_s": s["wall_s"], "run": s["run_name"]})
     return rows
 
 

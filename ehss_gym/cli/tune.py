@@ -17,7 +17,7 @@ import shlex
 import sys
 import time
 
-from ehss_gym.core.execution import Backend, ExecutionError, Executor
+from ehss_gym.core.execution import Backend, ExecutionError, Executor, Store
 from ehss_gym.reporting.tune import write_report
 from ehss_gym.train.options import parse_pairs
 
@@ -50,7 +50,8 @@ def cmd_tune(args) -> int:
     try:
         backend = Backend("ray", args.address, workers=args.cpus).validate()  # Ray missing: named here
         search, settings = _settings(args)
-        with Executor(backend) as executor:
+        # the comparison's training seeds are jobs with a store: a rerun (or a restart) does not train them again
+        with Executor(backend, Store(os.path.join(args.out, "jobs"))) as executor:
             result = search.run_search(settings, executor)
     except ValueError as exc:  # ExecutionError, RunError: bad settings, Ray missing, address unreachable
         print(f"{prog}: error: {exc}", file=sys.stderr)

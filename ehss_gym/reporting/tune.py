@@ -56,7 +56,7 @@ def write_report(result: dict, settings, out: str, command: str, wall_s: float) 
         wall_s: the command's wall time [s].
     """
     trials, best, compare = result["trials"], result["best_config"], result["compare"]
-    hp_keys = [k for k in trials[0] if k not in ("trial", "status", "steps", "best_score", "score")]
+    hp_keys = [k for k in trials[0] if k not in ("trial", "status", "steps", "best_score", "score", "train_s")]
     made = f"Made by `{command}` (ehss-gym {__version__}); do not edit: rerun the command."
     lines = ["# Hyperparameter search for the residual agent", "", made, "",
              f"Ray Tune with Optuna's TPE sampler (seed {settings.seed}) and ASHA (reduction factor 3, grace "
@@ -65,9 +65,11 @@ def write_report(result: dict, settings, out: str, command: str, wall_s: float) 
              f"{settings.timesteps} agent steps each, {settings.concurrent} at a time. Metric: the best held-out "
              f"validation score so far ({settings.eval_episodes} validation scenarios of {settings.eval_seconds:g} s; "
              "0.5 RMSE + 0.5 TV relative to the n = 2 law; lower is better, the base law scores 1), the policy "
-             f"a run keeps. Wall time {wall_s:.0f} s.", "",
+             f"a run keeps. Wall time of this command: {wall_s:.0f} s (a rerun restores the finished search and takes "
+             f"the comparison from its store; the trials' own times are the train_s column: "
+             f"{sum(t['train_s'] for t in trials if math.isfinite(t['train_s'])):.0f} s in all).", "",
              "## Trials (best first)", "", made, "", *_table(trials, ["trial", "status", "steps", "best_score",
-                                                                      "score", *hp_keys]), "",
+                                                                      "score", "train_s", *hp_keys]), "",
              "## Best config", "", "`best_config.json` (train it with `ehss train --config best_config.json "
              "--seed S`):", "", *_table([{**best["hp"]}], list(best["hp"])), "",
              "The shipped recipe's values:", "", *_table([result["shipped"]], list(result["shipped"])), ""]
@@ -75,8 +77,10 @@ def write_report(result: dict, settings, out: str, command: str, wall_s: float) 
         lines += ["## Tuned config against the shipped recipe", "", made, "",
                   f"Both trained at the search's budget ({settings.timesteps} steps) on fresh seeds (not the "
                   "search's), scored on the held-out validation block (the kept policy: the run's best "
-                  "evaluation).", "", *_table(compare, ["recipe", "seed", "steps", "best_step", "validation_score",
-                                                        "final_score"]), "", *summary_lines(compare), ""]
+                  "evaluation). The search chose its config on this same validation block, so the comparison "
+                  "favours it; the held-out test block of `ehss evaluate` is the unbiased check.", "",
+                  *_table(compare, ["recipe", "seed", "steps", "best_step", "validation_score", "final_score",
+                                    "wall_s"]), "", *summary_lines(compare), ""]
     os.makedirs(out, exist_ok=True)
     atomic_write_text(os.path.join(out, "trials.csv"), _csv(trials))
     if compare:
