@@ -6,6 +6,7 @@ import json
 import math
 import os
 import pathlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -244,6 +245,20 @@ def test_results_do_not_depend_on_workers():
     # the constant residual changed the outcome (the policy's action reaches the plant)
     r = {(x["policy"], x["episode"]): x for x in one.rows}
     assert any(r[("const", e)]["rmse"] != r[("clf-n2", e)]["rmse"] for e in ("heldout-0", "heldout-1"))
+
+
+def test_a_law_evaluated_on_both_tasks_acts_on_each_with_its_own_object():
+    """A scripted law's item (its description) is the same for both tasks; the object made from it is not: a worker
+    that ran the velocity episodes first must not score the position ones with the velocity PID (it did, at
+    first, under the execution layer's cache)."""
+    key = ("task", "episode", "score", "rmse", "tv_u_rate")
+    for workers in (1, 2):
+        mixed = ev.evaluate([ev.parse_policy("pid")], replace(TINY, tasks=("velocity", "position")), workers=workers,
+                            progress=False)
+        alone = ev.evaluate([ev.parse_policy("pid")], replace(TINY, tasks=("position",)), workers=workers,
+                            progress=False)
+        pos = [tuple(r[k] for k in key) for r in mixed.rows if r["task"] == "position" and r["policy"] == "pid"]
+        assert pos and pos == [tuple(r[k] for k in key) for r in alone.rows if r["policy"] == "pid"]
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -509,8 +509,8 @@ class Executor:
                 store once); it must not change a result without its job's config changing too.
             desc: the progress bar's label.
             fresh_process: local backend: a new worker process per job (training: a clean torch state).
-            in_process: local backend: run the jobs in this process (default: when there is one worker and no
-                fresh process is asked for), leaving its thread pools as they are.
+            in_process: run the jobs in this process whatever the backend (default: on the local backend with one
+                worker and no fresh process asked for), leaving its thread pools as they are.
 
         Raises:
             RuntimeError: a job failed (the message names it and the failure); results finished before it are in
@@ -543,7 +543,7 @@ class Executor:
         """(index, result text) of the jobs ``todo``, as they finish."""
         if not todo:
             return
-        if self.backend.name == "ray":
+        if self.backend.name == "ray" and not in_process:
             yield from self._run_ray(jobs, todo, context)
             return
         workers = min(self.backend.workers or usable_cores(), len(todo))

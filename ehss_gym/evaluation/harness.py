@@ -107,7 +107,7 @@ class Results:
     notes: list = field(default_factory=list)
 
 
-_MADE: dict = {}  # this process's policy objects, by the digest of the item they were made from
+_MADE: dict = {}  # this process's policy objects, by (digest of their item, (policy, run, task))
 
 
 def item_digest(item: tuple) -> str:
@@ -120,10 +120,12 @@ def _eval_job(config: dict, seed: int, items: dict) -> dict:
     """An executor job (:mod:`ehss_gym.core.execution`): one :class:`Job`'s episodes with its policy, made once
     per process from its item in ``items``; plain data back (per-episode metrics, traces or None)."""
     job: Job = config["job"]
-    digest = config["item"]
-    if digest not in _MADE:
-        _MADE[digest] = restore(items[job.key], job.task, job.env_kwargs)
-    res, traces = rollout(_MADE[digest], job.env_kwargs, job.episodes, job.trace, job.policy)
+    # one object per item *and* (policy, run, task): a scripted law's item is the same for both tasks, its object
+    # is built for one
+    made = (config["item"], job.key)
+    if made not in _MADE:
+        _MADE[made] = restore(items[job.key], job.task, job.env_kwargs)
+    res, traces = rollout(_MADE[made], job.env_kwargs, job.episodes, job.trace, job.policy)
     return {"metrics": res, "traces": traces}
 
 
