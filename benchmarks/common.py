@@ -23,6 +23,8 @@ from importlib import metadata
 
 import numba
 
+from ehss_gym.core.fmt import fmt_cell
+
 PACKAGES = ("ehss-gym", "numpy", "numba", "llvmlite", "scipy", "gymnasium", "stable-baselines3", "torch",
             "gym-electric-motor")
 
@@ -154,24 +156,8 @@ def spread(xs) -> str:
 
 
 def fmt(x, digits: int = 3) -> str:
-    """Compact number formatting for tables."""
-    if x is None:
-        return "-"
-    if isinstance(x, str):
-        return x
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, int):
-        return str(x)
-    if not math.isfinite(x):
-        return str(x)
-    if x == 0:
-        return "0"
-    a = abs(x)
-    if a >= 1e6 or a < 1e-3:
-        return f"{x:.{digits - 1}e}"
-    return f"{x:.{digits}g}" if a < 1000 else f"{x:,.0f}"
-
+    """A table cell (:func:`ehss_gym.core.fmt.fmt_cell`): thousands grouped from 1000, scientific from 1e6."""
+    return fmt_cell(x, digits, sci_from=1e6, grouped_from=1000)
 
 @dataclass
 class Table:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from ehss_gym.agents.specs import AGENTS, agent_names, env_kwargs_for, get_spec
 
+from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
 
 from . import options, runs
@@ -68,8 +69,12 @@ class Config:
             raise runs.RunError(f"--agent must be one of {agent_names()}, got {self.agent!r}")
         if self.task not in ("velocity", "position"):
             raise runs.RunError(f"--task must be one of ['velocity', 'position'], got {self.task!r}")
-        if isinstance(self.n, bool) or not isinstance(self.n, int) or self.n < 2 or self.n % 2:
-            raise runs.RunError(f"--n must be an even integer >= 2, got {self.n!r}")
+        if not isinstance(self.n, int):  # a float 4.0 would pass check_even_n but not the run name's n<k>
+            raise runs.RunError(f"--n must be an even integer >= 2 (2, 4, 6, ...), got {self.n!r}")
+        try:
+            check_even_n(self.n, "--n")
+        except ValueError as exc:
+            raise runs.RunError(str(exc)) from None
         for name, low in (("timesteps", 1), ("eval_freq", 1), ("eval_episodes", 1), ("checkpoint_freq", 1),
                           ("torch_threads", 1), ("seed", 0)):
             v = getattr(self, name)

@@ -9,6 +9,7 @@ from ehss_gym.core.layout import ESTIMATORS
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.signals import FAMILIES, chirp, multisine, sine, step
 from ehss_gym.core.sim import PAPER_FRICTION, Scenario
+from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs.config import EnvConfig
 
 
@@ -85,12 +86,9 @@ def int_at_least(name, low):
 
 def _even_n(text):
     try:
-        v = int(text)
-    except ValueError:
-        v = -1
-    if v < 2 or v % 2:
-        raise argparse.ArgumentTypeError(f"--n must be an even integer >= 2 (2, 4, 6, ...), got {text!r}")
-    return v
+        return check_even_n(int(text), "--n")
+    except ValueError:  # int() of a non-number, or check_even_n's own message
+        raise argparse.ArgumentTypeError(f"--n must be an even integer >= 2 (2, 4, 6, ...), got {text!r}") from None
 
 
 PRESETS = ("recommended", "paper")

@@ -407,11 +407,7 @@ def integrate_lanes(X, U, t0, h, substeps, c, events, work, analog, ctrl, ref, f
     B = X.shape[1]
     n = X.shape[0] if analog else N_PLANT
     dt = h / substeps
-    k1 = work[0]
-    k2 = work[1]
-    k3 = work[2]
-    k4 = work[3]
-    xt = work[4]
+    k1, k2, k3, k4, xt = work[0], work[1], work[2], work[3], work[4]  # the RK4 stages and the stage state
     amp = work[5, 0]
     for j in range(substeps):
         ts = t0 + j * dt

@@ -1,8 +1,15 @@
-"""Number and table formatting shared by every report (one convention: NaN is "n/a", inf is "never")."""
+"""Number and table formatting shared by every report and benchmark.
+
+One convention for a missing value: an empty table cell is "-" (:func:`fmt_cell`), a number missing from a
+sentence is "n/a" (:func:`fmt_num`); a recovery that never happens is "never". The reports differ only in
+how many digits a table shows (the arguments of :func:`fmt_cell`), never in how they mark a missing value.
+"""
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 
 def fmt_num(x, fmt: str = ".3g") -> str:
@@ -12,6 +19,47 @@ def fmt_num(x, fmt: str = ".3g") -> str:
     if isinstance(x, float) and math.isinf(x):
         return "never"
     return format(x, fmt)
+
+
+def fmt_cell(x, digits: int = 3, *, sci_from: float = 1e4, grouped_from: float | None = None,
+             decimals: bool = False) -> str:
+    """A table cell.
+
+    Args:
+        x: a number, bool, string or None.
+        digits: significant digits (or, with ``decimals``, digits after the point).
+        sci_from: magnitudes from this value on, and below 1e-3, in scientific notation.
+        grouped_from: magnitudes from this value up to ``sci_from`` as a whole number with thousands
+            separators (e.g. 12,345); None: no grouping.
+        decimals: ``digits`` decimals instead of significant digits in [1e-2, ``sci_from``) (scores and
+            ratios around 1 line up); below 1e-2 significant digits.
+
+    Returns:
+        "-" for None, NaN or ""; "yes"/"no" for booleans; "inf"/"-inf"; "0"; the number otherwise.
+    """
+    if x is None or (isinstance(x, str) and not x):
+        return "-"
+    if isinstance(x, str):
+        return x
+    if isinstance(x, (bool, np.bool_)):
+        return "yes" if x else "no"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    x = float(x)
+    if math.isnan(x):
+        return "-"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    if x == 0:
+        return "0"
+    a = abs(x)
+    if decimals:
+        return f"{x:.{digits}g}" if a < 1e-2 or a >= sci_from else f"{x:.{digits}f}"
+    if a >= sci_from or a < 1e-3:
+        return f"{x:.{digits - 1}e}"
+    if grouped_from is not None and a >= grouped_from:
+        return f"{x:,.0f}"
+    return f"{x:.{digits}g}"
 
 
 def fmt_axis(v) -> str:

@@ -137,11 +137,7 @@ def integrate_plant(x, u, t0, h, substeps, p, events, work):
     ``work`` is scratch of shape (5, 4).
     """
     dt = h / substeps
-    k1 = work[0]
-    k2 = work[1]
-    k3 = work[2]
-    k4 = work[3]
-    xt = work[4]
+    k1, k2, k3, k4, xt = work[0], work[1], work[2], work[3], work[4]  # the RK4 stages and the stage state
     n = x.shape[0]
     for j in range(substeps):
         amp = active_amplitude(t0 + (j + 0.5) * dt, events)

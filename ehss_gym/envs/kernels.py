@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 import numba as nb
+import numpy as np
 
 from ehss_gym.core import layout as L
 from ehss_gym.core.control import controller_update
@@ -40,6 +41,7 @@ from ehss_gym.core.layout import (
     LAY_SRC,
     N_PARAM,
     N_STATS,
+    N_WEIGHTS,
     S_N,
     S_SAT,
     S_SUM_E2,
@@ -114,6 +116,23 @@ def observe(h, F, IB, BB, events, filt, work, obs, lay):
         _write_obs(obs[b], F[b, F_PEEK:F_PEEK + L.N_INFO], F[b, F_INFO_OK:F_INFO_OK + L.N_INFO], lay)
 
 
+def reward_weights(weights: dict, error_scale: float, residual_scale: float) -> np.ndarray:
+    """The ``wts`` vector :func:`agent_reward` reads (W_* slots), from the env's reward weights.
+
+    Args:
+        weights: the env's ``reward_weights`` (track, effort, rate, tv, tv_u, divergence) [-].
+        error_scale: the tracking error that costs 1 per step [output unit].
+        residual_scale: the current of a unit action [mA].
+    """
+    wts = np.zeros(N_WEIGHTS)
+    for slot, key in ((W_TRACK, "track"), (W_EFFORT, "effort"), (W_RATE, "rate"), (W_TV, "tv"), (W_TVU, "tv_u"),
+                      (W_DIV, "divergence")):
+        wts[slot] = weights[key]
+    wts[W_INV_E2] = 1.0 / error_scale**2
+    wts[W_INV_SCALE] = 1.0 / residual_scale
+    return wts
+
+
 @jit
 def agent_reward(a, a_prev, n, sum_e2, tv_added, diverged, wts):
     """The reward of one agent step (the env's docstring states it); a pure function of its arguments.
@@ -154,7 +173,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
         IB: per-lane int64 buffer (B, N_IB): step index, agent steps taken, scratch.
         BB: per-lane bool buffer (B, N_BB): run flag (cleared on divergence), scratch.
         events: friction events (B, E, 3); filt: filter blocks (B, 3, 4, 4).
-        c, X, U, work, lwork: lane scratch (see :class:`ehss_gym.core.sim.LaneScratch`).
+        c, X, U, work, lwork: lane scratch (made by :class:`ehss_gym.envs.lanes.Lanes`).
         obs: (B, D) float32 observations (output); lay: observation layout (3, D).
         elog: (B, T) float32 error at the last sample of each agent step.
         wts: reward weights (N_WEIGHTS,).

@@ -7,42 +7,6 @@ import math
 import numpy as np
 
 from ehss_gym.core import layout as L
-from ehss_gym.core.layout import (
-    BB_ACT,
-    BB_PRE,
-    BB_RUN,
-    F_ACC,
-    F_CTRL,
-    F_INFO_OK,
-    F_MODEL,
-    F_PLANT,
-    F_REF,
-    F_REW,
-    F_STATS,
-    F_URES,
-    F_Z,
-    FLAG_LAST,
-    FLAG_SQUASH,
-    IB_K,
-    IB_NSTEP,
-    LAY_FLAGS,
-    LAY_SCALE,
-    LAY_SRC,
-    N_BB,
-    N_F,
-    N_IB,
-    N_PARAM,
-    N_STATS,
-    N_WEIGHTS,
-    W_DIV,
-    W_EFFORT,
-    W_INV_E2,
-    W_INV_SCALE,
-    W_RATE,
-    W_TRACK,
-    W_TV,
-    W_TVU,
-)
 from ehss_gym.core.metrics import summarize_acc
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import N_LANE_CONST, lane_constants
@@ -58,7 +22,7 @@ from ehss_gym.core.signals import reference_value
 from ehss_gym.core.sim import Scenario, ctrl_row, filter_block, init_filters
 
 from .config import SCENARIOS, EnvConfig
-from .kernels import advance, advance_chunks, observe
+from .kernels import advance, advance_chunks, observe, reward_weights
 from .observation import observation_layout
 
 MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
@@ -78,27 +42,27 @@ class Lanes:
         base[L.C_BASE] = 1.0 if cfg.mode == "residual" else 0.0
         self.ctrl_base = base
         nominal = PlantParams().as_array()
-        self.F = np.zeros((B, N_F))
-        self.IB = np.zeros((B, N_IB), dtype=np.int64)
-        self.BB = np.zeros((B, N_BB), dtype=np.bool_)
+        self.F = np.zeros((B, L.N_F))
+        self.IB = np.zeros((B, L.N_IB), dtype=np.int64)
+        self.BB = np.zeros((B, L.N_BB), dtype=np.bool_)
         # named views into the buffers (writes go to F, IB, BB)
-        self.z = self.F[:, F_Z:F_Z + L.N_LOOP]
-        self.plant = self.F[:, F_PLANT:F_PLANT + N_PARAM]
-        self.model = self.F[:, F_MODEL:F_MODEL + N_PARAM]
-        self.ctrl = self.F[:, F_CTRL:F_CTRL + L.N_CTRL]
-        self.ref = self.F[:, F_REF:F_REF + L.N_REF]
-        self.info_ok = self.F[:, F_INFO_OK:F_INFO_OK + L.N_INFO]
-        self.acc = self.F[:, F_ACC:F_ACC + L.N_METRICS]
-        self.stats = self.F[:, F_STATS:F_STATS + N_STATS]
-        self.u_res = self.F[:, F_URES]
-        self.rew = self.F[:, F_REW]
-        # lane 0's rows, pre-made for the single env's step: stats (N_STATS), residual and reward in one view
+        self.z = self.F[:, L.F_Z:L.F_Z + L.N_LOOP]
+        self.plant = self.F[:, L.F_PLANT:L.F_PLANT + L.N_PARAM]
+        self.model = self.F[:, L.F_MODEL:L.F_MODEL + L.N_PARAM]
+        self.ctrl = self.F[:, L.F_CTRL:L.F_CTRL + L.N_CTRL]
+        self.ref = self.F[:, L.F_REF:L.F_REF + L.N_REF]
+        self.info_ok = self.F[:, L.F_INFO_OK:L.F_INFO_OK + L.N_INFO]
+        self.acc = self.F[:, L.F_ACC:L.F_ACC + L.N_METRICS]
+        self.stats = self.F[:, L.F_STATS:L.F_STATS + L.N_STATS]
+        self.u_res = self.F[:, L.F_URES]
+        self.rew = self.F[:, L.F_REW]
+        # lane 0's rows, pre-made for the single env's step: stats (L.N_STATS), residual and reward in one view
         self.info_ok0 = self.info_ok[0]
         self.acc0 = self.acc[0]
-        self.tail0 = self.F[0, F_STATS:F_REW + 1]
-        self.k = self.IB[:, IB_K]
-        self.nstep = self.IB[:, IB_NSTEP]
-        self.run = self.BB[:, BB_RUN]
+        self.tail0 = self.F[0, L.F_STATS:L.F_REW + 1]
+        self.k = self.IB[:, L.IB_K]
+        self.nstep = self.IB[:, L.IB_NSTEP]
+        self.run = self.BB[:, L.BB_RUN]
         self.plant[:] = nominal
         self.model[:] = nominal
         self.ctrl[:] = base
@@ -115,21 +79,14 @@ class Lanes:
         self.layout = observation_layout(cfg)
         self.lay = np.zeros((3, len(self.layout)))
         for i, (_, src, scale, squash, _) in enumerate(self.layout):
-            self.lay[LAY_SRC, i] = src
-            self.lay[LAY_SCALE, i] = scale
-            self.lay[LAY_FLAGS, i] = (FLAG_SQUASH if squash else 0) + (FLAG_LAST if src in (L.I_UAPP, L.I_URES) else 0)
+            self.lay[L.LAY_SRC, i] = src
+            self.lay[L.LAY_SCALE, i] = scale
+            last = src in (L.I_UAPP, L.I_URES)  # the applied/residual current of the last period, not a peek
+            self.lay[L.LAY_FLAGS, i] = (L.FLAG_SQUASH if squash else 0) + (L.FLAG_LAST if last else 0)
         self.obs = np.zeros((B, len(self.layout)), dtype=np.float32)
         self.obs0 = self.obs[0]
         rw = cfg.reward_weights
-        self.wts = np.zeros(N_WEIGHTS)
-        self.wts[W_TRACK] = rw["track"]
-        self.wts[W_EFFORT] = rw["effort"]
-        self.wts[W_RATE] = rw["rate"]
-        self.wts[W_TV] = rw["tv"]
-        self.wts[W_TVU] = rw["tv_u"]
-        self.wts[W_DIV] = rw["divergence"]
-        self.wts[W_INV_E2] = 1.0 / cfg.error_scale**2
-        self.wts[W_INV_SCALE] = 1.0 / cfg.residual_scale
+        self.wts = reward_weights(rw, cfg.error_scale, cfg.residual_scale)
         self.elog = np.zeros((B, 1), dtype=np.float32)
         self.T = np.zeros(B, dtype=np.int64)  # agent steps in each lane's episode
         self.scenarios: list[Scenario | None] = [None] * B
@@ -175,7 +132,7 @@ class Lanes:
         self.acc[b, L.M_LOST_BOUND] = sc.lost_track_bound
         self.acc[b, L.M_T_LOST] = -1.0
         self.IB[b] = 0
-        self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
+        self.BB[b, L.BB_PRE] = False  # the look-ahead of the previous episode is stale
         self.run[b] = True
         T = sc.n_steps // cfg.agent_period
         self.T[b] = T
@@ -188,8 +145,8 @@ class Lanes:
 
     def observe(self, lanes) -> None:
         """Fill the observations of the given lanes from their current state (no time passes)."""
-        self.BB[:, BB_ACT] = False
-        self.BB[lanes, BB_ACT] = True
+        self.BB[:, L.BB_ACT] = False
+        self.BB[lanes, L.BB_ACT] = True
         observe(self.cfg.control_period, self.F, self.IB, self.BB, self.events, self.filt, self.work[0], self.obs,
                 self.lay)
 
@@ -214,7 +171,7 @@ class Lanes:
     def metrics(self, b: int) -> dict:
         """The core metrics summary of lane b's episode so far (with recovery times from the agent-rate log)."""
         sc = self.scenarios[b]
-        n = int(min(self.IB[b, IB_NSTEP], self.elog.shape[1]))
+        n = int(min(self.IB[b, L.IB_NSTEP], self.elog.shape[1]))
         per = self.cfg.agent_period
         t = ((np.arange(n) + 1) * per - 1) * self.cfg.control_period
         return summarize_acc(self.acc[b], sc, t, self.elog[b, :n].astype(np.float64))

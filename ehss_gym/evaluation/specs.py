@@ -31,6 +31,7 @@ import numpy as np
 import yaml
 
 from ehss_gym.agents.safeweights import shipped_models
+from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
 
 from .loading import PolicyError, load_safe, make_env
@@ -113,10 +114,11 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
     over = dict(env_overrides or {})
     m = CLF_RE.match(name)
     if m:
-        n = int(m.group(1))
-        if n < 2 or n % 2:
+        try:
+            n = check_even_n(int(m.group(1)))
+        except ValueError:
             raise PolicyError(f"unknown policy {name!r}: the CLF power factor must be an even integer >= 2 "
-                              f"(clf-n2, clf-n4, clf-n6, ...)")
+                              f"(clf-n2, clf-n4, clf-n6, ...)") from None
         src = f"scripted Sontag/CLF law, n = {n}" + (f", {over}" if over else "")
         return PolicySpec(name=label or name, kind="clf", runs=[{"kind": "clf", "n": n}],
                           env_kwargs={"n": n, "mode": "residual", **over}, source=src)

@@ -14,9 +14,8 @@ import os
 import time
 from collections.abc import Sequence
 
-import numpy as np
-
 from ehss_gym._version import __version__
+from ehss_gym.core.fmt import fmt_cell
 from ehss_gym.core.util import atomic_write_text
 from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.harness import Results
@@ -42,26 +41,8 @@ EPISODE_COLUMNS = ("suite", "task", "policy", "run", "episode", "sweep", "level"
 
 
 def fmt(x, digits: int = 3) -> str:
-    """A table cell: ``digits`` significant digits (scientific below 1e-3 and from 1e4), "-" for None/NaN/"",
-    yes/no for booleans, inf as "inf"."""
-    if x is None or (isinstance(x, str) and not x):
-        return "-"
-    if isinstance(x, str):
-        return x
-    if isinstance(x, (bool, np.bool_)):
-        return "yes" if x else "no"
-    x = float(x)
-    if math.isnan(x):
-        return "-"
-    if math.isinf(x):
-        return "inf" if x > 0 else "-inf"
-    if x == 0:
-        return "0"
-    a = abs(x)
-    if a >= 1e4 or a < 1e-3:
-        return f"{x:.{digits - 1}e}"
-    return f"{x:.{digits}g}"
-
+    """A table cell (:func:`ehss_gym.core.fmt.fmt_cell`: scientific below 1e-3 and from 1e4)."""
+    return fmt_cell(x, digits)
 
 def _md(text: str) -> str:
     """Escape the pipes of |e| inside a markdown table cell."""

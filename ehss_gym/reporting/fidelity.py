@@ -74,12 +74,22 @@ MAIN_LEGEND = (
 )
 
 
+def _top_derivative_rows(ol: list[dict]) -> dict:
+    """The open-loop rows of the estimators' top derivative, by (task, scheme, h): what the closed-loop tables
+    put next to each loop."""
+    return {(r["task"], r["scheme"], r["h"]): r for r in ol if r["filter"] == "estimator" and r["top"]}
+
+
+def _header(*cols: str, align: str) -> list[str]:
+    """A markdown table's header and alignment rows; ``align`` has one letter per column (l left, r right)."""
+    return ["| " + " | ".join(cols) + " |", "| " + " | ".join("---:" if a == "r" else "---" for a in align) + " |"]
+
+
 def main_table(ol: list[dict], cl: list[dict]) -> str:
     """The main table (markdown): per task, h and scheme, the open-loop top-derivative error and the closed loop."""
-    top = {(r["task"], r["scheme"], r["h"]): r for r in ol if r["filter"] == "estimator" and r["top"]}
-    lines = ["| task | h [us] | scheme | open-loop top-derivative error (rel. RMS) | bias / (c0 h/2) | RMSE | "
-             "/ analog | RMS(e - e_analog) | saturated [%] | median abs(psi/G) [mA] |",
-             "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    top = _top_derivative_rows(ol)
+    lines = _header("task", "h [us]", "scheme", "open-loop top-derivative error (rel. RMS)", "bias / (c0 h/2)", "RMSE",
+                    "/ analog", "RMS(e - e_analog)", "saturated [%]", "median abs(psi/G) [mA]", align="lrlrrrrrrr")
     for r in cl:
         o = top.get((r["task"], r["scheme"], r["h"]))
         if r["scheme"] == "analog":
@@ -135,10 +145,10 @@ def top_fit_table(ol: list[dict]) -> str:
 
 def closed_extra_table(ol: list[dict], cl: list[dict]) -> str:
     """Closed-loop distance from the analog loop against its quasi-static estimate, and more columns."""
-    top = {(r["task"], r["scheme"], r["h"]): r for r in ol if r["filter"] == "estimator" and r["top"]}
-    lines = ["| task | h [us] | scheme | RMS(e - e_analog) | quasi-static estimate | measured / estimate | "
-             "max abs(e) | median abs(u_base) [mA] | RMS of true y^(m-1) [rad/s^3] | RMS of y_d^(m-1) [rad/s^3] |",
-             "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    top = _top_derivative_rows(ol)
+    lines = _header("task", "h [us]", "scheme", "RMS(e - e_analog)", "quasi-static estimate", "measured / estimate",
+                    "max abs(e)", "median abs(u_base) [mA]", "RMS of true y^(m-1) [rad/s^3]",
+                    "RMS of y_d^(m-1) [rad/s^3]", align="lrlrrrrrrr")
     for r in cl:
         o = top.get((r["task"], r["scheme"], r["h"]))
         if r["scheme"] == "analog" or o is None:

@@ -10,13 +10,13 @@ from __future__ import annotations
 import csv
 import io
 import json
-import math
 import os
 import time
 
 import matplotlib
 
 from ehss_gym.agents.specs import AGENTS
+from ehss_gym.core.fmt import fmt_cell
 from ehss_gym.core.util import atomic_write, atomic_write_text
 from ehss_gym.train import analysis as an
 
@@ -33,13 +33,9 @@ CURVES = (("score", "validation score (ref. CLF n=2 = 1)"), ("rmse", "RMSE / bas
 
 
 def cell(x, d: int = 3) -> str:
-    """A table cell: None/NaN as "-", floats to ``d`` decimals (``d`` significant digits below 0.01 or from 1e4)."""
-    if x is None or (isinstance(x, float) and math.isnan(x)):
-        return "-"
-    if isinstance(x, float):
-        return f"{x:.{d}g}" if abs(x) < 1e-2 or abs(x) >= 1e4 else f"{x:.{d}f}"
-    return str(x)
-
+    """A table cell (:func:`ehss_gym.core.fmt.fmt_cell`): ``d`` decimals, significant digits below 0.01 and from
+    1e4."""
+    return fmt_cell(x, d, decimals=True)
 
 def cells(rows) -> list[list[str]]:
     """Every value of ``rows`` through :func:`cell`."""
