@@ -136,7 +136,7 @@ def test_an_interrupted_sweep_restarted_recomputes_only_the_missing_jobs(tmp_pat
     computed, skipped = int(m.group(1)), int(m.group(2))
     assert skipped == done and computed == len(Store(store).keys()) - done > 0
     assert sorted(p.name for p in out.rglob("*.csv")) and (out / "REPORT.md").is_file()
-    # (that stored and recomputed results are the same bytes: the local-versus-Ray tests in tests/test_ray.py)
+    # (a stored result decodes to the computed one exactly: test_store_skips_complete_jobs_and_keeps_results_exact)
 
 
 # --- bad input --------------------------------------------------------------------------------------------
