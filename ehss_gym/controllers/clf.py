@@ -1,14 +1,58 @@
-"""The Sontag/CLF law as a fixed policy (a zero residual, or the law's own current in direct mode)."""
+"""The CLF laws as fixed policies (a zero residual, or the law's own current in direct mode), and their names.
+
+Scripted CLF policies are named (:func:`parse_scripted`):
+
+- ``clf-n<k>``: the env's default law and estimator for each task (the noise study's choice, ``ehss noise``), n = k;
+- ``<law>-n<k>``: that law (``sontag``, ``lin-sontag``) with the env's default estimator and that law's default
+  sigma (:attr:`ehss_gym.envs.config.TaskDefaults.sigma_by_law`);
+- ``<law>-<estimator>-n<k>``: that law with that estimator (``foh``, ``zoh``, ``analog``, ``state``, ``eso``), e.g.
+  ``sontag-foh-n2``: Sontag's formula with the paper's state-variable filter.
+
+The start-up settings (bumpless start, reference shaper, the model's pressure domain) are the env's defaults in every
+case; pass them as env overrides to change them.
+"""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
+
+from ehss_gym.core.layout import ESTIMATORS, LAWS
 
 from .base import ScriptedPolicy
 
+_NAME_RE = re.compile(r"^(clf|" + "|".join(map(re.escape, LAWS)) + r")(?:-(" + "|".join(ESTIMATORS) + r"))?-n(\d+)$")
+SCRIPTED_FORMS = ("clf-n<k>", "<law>-n<k>", "<law>-<estimator>-n<k>")
+
+
+def parse_scripted(name: str) -> dict | None:
+    """The env keyword arguments of a scripted CLF policy name, or None if ``name`` is not one.
+
+    Returns:
+        {"n": k, "mode": "residual"} plus "law" and "estimator" where the name gives them (``clf`` gives neither: the
+        env's defaults). n is validated by the env (an even integer >= 2).
+
+    Raises:
+        ValueError: ``clf-<estimator>-n<k>`` (the default law has no estimator variant by that name: use the law's).
+    """
+    m = _NAME_RE.match(name)
+    if not m:
+        return None
+    law, est, n = m.group(1), m.group(2), int(m.group(3))
+    if law == "clf" and est is not None:
+        raise ValueError(f"scripted policy {name!r}: an estimator variant names its law, e.g. "
+                         f"'sontag-{est}-n{n}' or 'lin-sontag-{est}-n{n}'")
+    kw = {"n": n, "mode": "residual"}
+    if law != "clf":
+        kw["law"] = law
+    if est is not None:
+        kw["estimator"] = est
+    return kw
+
 
 class CLFPolicy(ScriptedPolicy):
-    """The Sontag/CLF law (for the env's n): zero residual, or the Sontag current in direct mode."""
+    """The CLF law of the env it acts in: zero residual, or the law's current in direct mode."""
 
     def act(self, obs, state, episode_start):
         if self.config.mode == "residual":

@@ -32,7 +32,9 @@ import math
 import numpy as np
 import scipy.linalg
 
-from .layout import ESTIMATORS, MAX_ORDER
+from .layout import MAX_ORDER, SVF_ESTIMATORS
+
+SCHEMES = SVF_ESTIMATORS  # how a continuous filter runs: "foh", "zoh" or "analog"
 
 
 def butterworth_coefficients(order: int, cutoff_hz: float) -> np.ndarray:
@@ -73,16 +75,64 @@ def hold_integrals(c: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.
         x_{k+1} = Phi x_k + Gamma0 v_k + Gamma1 (v_{k+1} - v_k),
         Phi = e^{A h},  Gamma0 = int_0^h e^{A s} b ds,  Gamma1 = (1/h) int_0^h e^{A s} b (h - s) ds,
 
-    all read off one matrix exponential of the augmented system [[A h, b h, 0], [0, 0, 1], [0, 0, 0]].
+    all read off one matrix exponential (:func:`hold_integrals_ab`).
     """
     A, b = companion(c)
-    m = len(c)
-    M = np.zeros((m + 2, m + 2))
-    M[:m, :m] = A * h
-    M[:m, m] = b * h
-    M[m, m + 1] = 1.0
+    phi, g0, g1 = hold_integrals_ab(A, b.reshape(-1, 1), h)
+    return phi, g0[:, 0].copy(), g1[:, 0].copy()
+
+
+def hold_integrals_ab(A: np.ndarray, Bm: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Phi, Gamma0, Gamma1) of x' = A x + Bm v (n states, p inputs) over one period h [s], as in
+    :func:`hold_integrals`, from the exponential of the augmented system [[A h, Bm h, 0], [0, 0, I], [0, 0, 0]]."""
+    n, p = Bm.shape
+    M = np.zeros((n + 2 * p, n + 2 * p))
+    M[:n, :n] = A * h
+    M[:n, n:n + p] = Bm * h
+    M[n:n + p, n + p:] = np.eye(p)
     E = scipy.linalg.expm(M)
-    return E[:m, :m].copy(), E[:m, m].copy(), E[:m, m + 1].copy()
+    return E[:n, :n].copy(), E[:n, n:n + p].copy(), E[:n, n + p:].copy()
+
+
+def observer_matrices(cutoff_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Continuous (A, Bm) of the extended-state observer ("eso") with Butterworth error poles at ``cutoff_hz`` [Hz].
+
+    States q = (velocity estimate w_hat [rad/s], disturbance acceleration d_hat [rad/s^2]); inputs v = (model
+    acceleration a_m [rad/s^2], measured velocity w_m [rad/s])::
+
+        w_hat' = a_m + d_hat + l1 (w_m - w_hat),    d_hat' = l2 (w_m - w_hat)
+
+    The estimation error obeys eps'' + l1 eps' + l2 eps = (disturbance rate), so (l1, l2) = (sqrt(2) w_o, w_o^2),
+    w_o = 2 pi cutoff_hz, are the second-order Butterworth coefficients.
+    """
+    l2, l1 = butterworth_coefficients(2, cutoff_hz)
+    A = np.array([[-l1, 1.0], [-l2, 0.0]])
+    Bm = np.array([[1.0, l1], [0.0, l2]])
+    return A, Bm
+
+
+def foh_form(phi: np.ndarray, g0: np.ndarray, g1: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Phi, E, D) of the first-order-hold digital form (w_{k+1} = Phi w_k + E v_k, state z_k = w_k + D v_k).
+
+    From the FOH step with z_k the state at t_k::
+
+        z_{k+1} = Phi z_k + Gamma0 v_k + Gamma1 (v_{k+1} - v_k);  with z_k = w_k + Gamma1 v_k:
+        w_{k+1} = Phi z_k + (Gamma0 - Gamma1) v_k = Phi w_k + (Phi Gamma1 + Gamma0 - Gamma1) v_k.
+    """
+    return phi, phi @ g1 + g0 - g1, g1
+
+
+@functools.lru_cache(maxsize=64)
+def observer_filter(cutoff_hz: float, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Phi, E, D) of the extended-state observer in the first-order-hold digital form at period h [s].
+
+    Cached (read-only arrays).
+    """
+    A, Bm = observer_matrices(cutoff_hz)
+    out = foh_form(*hold_integrals_ab(A, Bm, h))
+    for arr in out:
+        arr.flags.writeable = False
+    return out
 
 
 def digital_filter(c: np.ndarray, h: float, scheme: str = "foh") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -93,20 +143,17 @@ def digital_filter(c: np.ndarray, h: float, scheme: str = "foh") -> tuple[np.nda
         h: control period [s].
         scheme: "foh", "zoh" or "analog" (identity and zeros: the kernels integrate that one).
 
-    The FOH form follows from the FOH step with z_k the state at t_k::
-
-        z_{k+1} = Phi z_k + Gamma0 v_k + Gamma1 (v_{k+1} - v_k);  with z_k = w_k + Gamma1 v_k:
-        w_{k+1} = Phi z_k + (Gamma0 - Gamma1) v_k = Phi w_k + (Phi Gamma1 + Gamma0 - Gamma1) v_k.
+    The FOH form is :func:`foh_form`'s.
     """
-    if scheme not in ESTIMATORS:
-        raise ValueError(f"estimator must be one of {list(ESTIMATORS)}, got {scheme!r}")
+    if scheme not in SCHEMES:
+        raise ValueError(f"scheme must be one of {list(SCHEMES)}, got {scheme!r}")
     m = len(c)
     if scheme == "analog":
         return np.eye(m), np.zeros(m), np.zeros(m)
     phi, g0, g1 = hold_integrals(c, h)
     if scheme == "zoh":
         return phi, g0, np.zeros(m)
-    return phi, phi @ g1 + g0 - g1, g1
+    return foh_form(phi, g0, g1)
 
 
 @functools.lru_cache(maxsize=256)

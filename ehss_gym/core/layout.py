@@ -12,7 +12,10 @@ X_AV = 3  # x4, servo-valve opening area [m^2]
 N_PLANT = 4
 Z_REF = 4  # reference-model state y_d, y_d', ... (up to 4 slots)
 Z_EST = 8  # estimator state y_e, y_e', ... (up to 3 slots)
-N_LOOP = 11
+Z_OBS = 11  # extended-state observer ("eso"): velocity and lumped disturbance acceleration (FOH form, 2 slots)
+Z_NOISE = 13  # noise estimate of the adaptive boundary layer: last s, running mean of (s_k - s_{k-1})^2
+Z_SHAPE = 15  # reference shaper (position task): shaped reference p, its rate, the last r and its last rate
+N_LOOP = 19
 MAX_ORDER = 4  # largest relative degree (position task)
 
 # --- Controller row (one per scenario) --------------------------------------
@@ -32,14 +35,29 @@ C_NOISE_AV = 12
 C_OMEGA_MAX = 13  # divergence bound on |x2| [rad/s]
 C_P_BOUND = 14  # divergence bound on |x3| as a multiple of P_s
 C_BASE = 15  # gain on the Sontag current: 1 = base law + residual, 0 = residual only (pure RL)
-C_EST = 16  # filter scheme of the reference model and the estimator: one of EST_* below
-N_CTRL = 17
+C_EST = 16  # output-derivative estimator and filter scheme of the reference model: one of EST_* below
+C_LAW = 17  # the CLF law: one of LAW_* below
+C_LAYER_GAIN = 18  # adaptive boundary layer: w_eff = max(w, gain * noise std of s); 0 = the fixed width w
+C_BUMPLESS = 19  # 1: the reference model starts at the measured output (bumpless start); 0: at r(0)
+C_REF_ACCEL = 20  # acceleration bound of the reference shaper [rad/s^2] (position task); 0 = r drives the model
+C_PDOMAIN = 21  # the model is evaluated at |x3| <= C_PDOMAIN * P_s (of the model); inf = at the measured x3 as is
+N_CTRL = 22
 
-# --- Filter schemes (Scenario.estimator; derivation in docs/MODEL.md, "Digital filters") ----------
-EST_FOH = 0  # "foh": first-order hold with a direct feed-through term, O(h^2) to the analog filter (default)
-EST_ZOH = 1  # "zoh": zero-order hold, top derivative from the current sample (wave 1's scheme; biased by O(h))
-EST_ANALOG = 2  # "analog": the continuous filters integrated with the plant by its RK4 (the reference)
-ESTIMATORS = ("foh", "zoh", "analog")  # name -> code is the index
+# --- Estimators (Scenario.estimator; docs/MODEL.md, "Digital filters" and "Estimators") ------------------
+# The first three are the paper's state-variable filter (SVF) in three schemes, the reference model in the same one;
+# the others form the derivatives without differentiating the output, their reference model runs "foh".
+EST_FOH = 0  # "foh": SVF, first-order hold with a direct feed-through term, O(h^2) to the analog filter
+EST_ZOH = 1  # "zoh": SVF, zero-order hold, top derivative from the current sample (wave 1's scheme; biased by O(h))
+EST_ANALOG = 2  # "analog": the continuous SVF integrated with the plant by its RK4 (the reference)
+EST_STATE = 3  # "state": y^(i) = L_f^i h(x_meas), the model's Lie derivatives of the measured state
+EST_ESO = 4  # "eso": extended-state observer of the velocity and a lumped disturbance acceleration
+ESTIMATORS = ("foh", "zoh", "analog", "state", "eso")  # name -> code is the index
+SVF_ESTIMATORS = ("foh", "zoh", "analog")
+
+# --- CLF laws (Scenario.law; docs/MODEL.md, "Laws") --------------------------------------------------
+LAW_SONTAG = 0  # "sontag": Sontag's universal formula (the paper's)
+LAW_LIN_SONTAG = 1  # "lin-sontag": Lin & Sontag's universal formula for |u| <= the current limit
+LAWS = ("sontag", "lin-sontag")  # name -> code is the index
 
 # --- Filter block (one per scenario, shape (N_FB, MAX_ORDER, MAX_ORDER)): discretised filters ------
 # Digital form of each filter (state w, input v held or interpolated, see filters.py):
@@ -52,7 +70,12 @@ FB_VEC = 2  # rows of vectors:
 FBV_C_REF, FBV_C_EST, FBV_E_REF, FBV_E_EST = 0, 1, 2, 3  # coefficients c and input vectors E, in block FB_VEC
 FB_VEC2 = 3  # more rows:
 FBV_D_REF, FBV_D_EST = 0, 1  # feed-through vectors D, in block FB_VEC2
-N_FB = 4
+# The extended-state observer ("eso"), the same digital form with two states (velocity, disturbance) and two
+# inputs v = (model acceleration a_m, measured velocity): w_{k+1} = Phi w_k + E v_k, state z_k = w_k + D v_k.
+FB_PHI_OBS = 4  # Phi (2 x 2)
+FB_E_OBS = 5  # E (2 states x 2 inputs)
+FB_D_OBS = 6  # D (2 states x 2 inputs)
+N_FB = 7
 
 # --- Reference signal spec row ------------------------------------------------
 R_KIND = 0  # one of REF_* below
@@ -98,7 +121,12 @@ I_TF = 24  # friction torque at the sample [N*m]
 I_FRIC_ON = 25  # 1 if a friction event is active
 I_XM = 26  # measured plant states x1..x4 (with noise), 4 slots
 I_QUIET = 30  # 1 if the sample counts for the quiet RMSE: past the start-up, away from friction and its settling
-N_INFO = 31
+I_AM = 31  # model acceleration (d_m x3 - B x2)/J of the measured state [rad/s^2], the observer's input
+I_W = 32  # boundary-layer width in use (the fixed w, or the adaptive one) [unit of s]
+I_E_TRUE = 33  # true tracking error y - y_d (the plant's output, no sensor noise): what the metrics *_true use
+I_RM = 34  # the reference model's input: r, or the shaped reference p (C_REF_ACCEL > 0)
+I_E_R = 35  # true output minus the raw reference r (no reference model): what the metric rmse_r uses
+N_INFO = 36
 QUIET_STARTUP = 0.2  # [s] the start-up transient excluded from the quiet RMSE
 QUIET_GUARD = 0.2  # [s] settling time excluded after each friction event ends
 
@@ -131,7 +159,11 @@ M_LOST_BOUND = 23  # bound on the windowed RMS of e [output unit]; inf = detecti
 M_LOST_EMA = 24  # exponential moving mean of e^2 over LOST_TRACK_WINDOW, from t = QUIET_STARTUP on
 M_LOST = 25  # 1 once the windowed RMS of e has exceeded the bound
 M_T_LOST = 26  # time it first did [s]; -1 if never
-N_METRICS = 27
+M_SUM_E2_TRUE = 27  # sum of the true error's squares (I_E_TRUE): the sensor noise left out
+M_SUM_E2_QUIET_TRUE = 28  # the same over the quiet samples
+M_MAX_E_FRIC_TRUE = 29  # max |true error| while a friction event is active
+M_SUM_ER2 = 30  # sum of (y - r)^2, the true output against the raw reference (I_E_R)
+N_METRICS = 31
 LOST_TRACK_WINDOW = 0.1  # [s] time constant of the windowed (exponential moving) RMS of e
 
 DIV_NONE = 0
@@ -157,7 +189,9 @@ L_UAPP = 24
 L_TF = 25
 L_UMIN = 26  # smallest applied current [mA] over the control periods the sample stands for (its log interval)
 L_UMAX = 27  # largest
-N_LOG = 28
+L_W = 28  # boundary-layer width in use
+L_RM = 29  # the reference model's input (r, or the shaped reference)
+N_LOG = 30
 
 # --- The envs' per-lane buffers (ehss_gym.envs.lanes) ---------------------------------------------
 # Per-agent-step statistics and reward-weight slots of the kernel.

@@ -20,6 +20,10 @@ control period, T the simulated time):
   the signal to track). ``t_lost_track`` [s]: when it first did (None if never). A diverged run stops first
   and is reported as diverged; a lost track only flags a run that goes on (a saturated oscillation within
   the state bounds, for instance).
+- ``rmse_true``, ``rmse_quiet_true``, ``max_abs_e_friction_true``: the same with the true error (the
+  plant's output, no sensor noise; e above is the error the controller measures). ``rmse_r``: the true
+  output against the raw reference r instead of the reference model's y_d (independent of the reference
+  model: of its start, its lag and a shaper).
 - ``iae``: sum |e| h;  ``itae``: sum t |e| h.
 - ``max_abs_e``: max |e|; ``max_abs_e_friction``: max |e| while friction is on.
 - ``recovery_on`` / ``recovery_off``: settling time after the first friction
@@ -121,10 +125,15 @@ def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray 
         "lost_track": bool(a[L.M_LOST] > 0.0),
         "t_lost_track": float(a[L.M_T_LOST]) if a[L.M_LOST] > 0.0 else None,
         "rmse_quiet": math.sqrt(a[L.M_SUM_E2_QUIET] / a[L.M_STEPS_QUIET]) if a[L.M_STEPS_QUIET] else math.nan,
+        "rmse_true": float(math.sqrt(a[L.M_SUM_E2_TRUE] / steps)),
+        "rmse_r": float(math.sqrt(a[L.M_SUM_ER2] / steps)),
+        "rmse_quiet_true": (math.sqrt(a[L.M_SUM_E2_QUIET_TRUE] / a[L.M_STEPS_QUIET]) if a[L.M_STEPS_QUIET]
+                            else math.nan),
         "iae": float(a[L.M_SUM_ABS_E]),
         "itae": float(a[L.M_SUM_T_ABS_E]),
         "max_abs_e": float(a[L.M_MAX_E]),
         "max_abs_e_friction": float(a[L.M_MAX_E_FRIC]) if a[L.M_STEPS_FRIC] else math.nan,
+        "max_abs_e_friction_true": float(a[L.M_MAX_E_FRIC_TRUE]) if a[L.M_STEPS_FRIC] else math.nan,
         "tv_u": float(a[L.M_TV_U]),
         "tv_u_rate": float(a[L.M_TV_U] / T),
         "peak_u": float(a[L.M_PEAK_UCMD]),

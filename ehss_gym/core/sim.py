@@ -25,12 +25,14 @@ import numpy as np
 
 from . import layout as L
 from .control import check_state, controller_apply, controller_update, integrate_lanes
-from .filters import butterworth_coefficients, padded_filter
+from .filters import butterworth_coefficients, observer_filter, padded_filter
 from .metrics import summarize
 from .params import PlantParams
 from .physics import N_LANE_CONST, jit, jit_noalloc, lane_constants
 from .signals import Reference, paper_reference
-from .validate import check_even_n, check_finite, check_positive
+from .validate import check_bool, check_choice, check_even_n, check_finite, check_positive
+
+LAYER_GAIN_MAX = 100.0  # largest adaptive boundary-layer gain accepted (w_eff = gain * noise std of s)
 
 TASKS = {"velocity": 3, "position": 4}  # task -> relative degree m of its output
 UNITS = {"velocity": "rad/s", "position": "rad"}  # task -> unit of its output y (and of e, y_d)
@@ -75,12 +77,29 @@ class Scenario:
         noise_std: measurement noise std of (x1 [rad], x2 [rad/s], x3 [Pa], x4 [m^2]).
         seed: noise seed (integer >= 0).
         ref_model_hz: reference-model cutoff [Hz] (Table I: 20).
-        estimator_hz: output-derivative estimator cutoff [Hz] (Table I: 1000).
-        estimator: how the reference model and the estimator (continuous filters in the paper) run:
-            "foh" (default: first-order-hold discretisation with a feed-through term, O(h^2) to the
-            analog filters), "zoh" (zero-order hold with the top derivative from the current sample:
+        estimator_hz: cutoff of the paper's state-variable filter (SVF) [Hz] (Table I: 1000).
+        estimator: how the output derivatives are estimated. The paper's SVF (its reference model runs the
+            same way): "foh" (default: first-order-hold discretisation with a feed-through term, O(h^2) to
+            the analog filters), "zoh" (zero-order hold with the top derivative from the current sample:
             biased by O(h), wave 1's scheme) or "analog" (the continuous filters integrated with the
-            plant's RK4; the reference). See docs/MODEL.md, "Digital filters".
+            plant's RK4; the reference). Without differentiating the output (reference model "foh"):
+            "state" (the model's Lie derivatives of the measured state, y^(i) = L_f^i h(x_meas)) or "eso"
+            (an extended-state observer of the velocity and a lumped disturbance acceleration, bandwidth
+            ``observer_hz``). See docs/MODEL.md, "Digital filters" and "Estimators".
+        observer_hz: error bandwidth of the "eso" observer [Hz] (unused by the other estimators).
+        law: "sontag" (Sontag's universal formula, the paper's) or "lin-sontag" (Lin & Sontag's formula for
+            controls bounded by ``current_limit``, which must then be finite). See docs/MODEL.md, "Laws".
+        layer_gain: adaptive boundary layer: the width of the smooth sign is max(smoothing, layer_gain *
+            the running noise std of s), in [0, LAYER_GAIN_MAX]; 0 = the fixed width ``smoothing``.
+        bumpless: True = the reference model starts at the measured output (and the estimated derivatives)
+            instead of at its steady state for r(0) (a bumpless start, as servo drives do).
+        ref_accel: position task: acceleration bound a [rad/s^2] of the reference shaper, which turns r into a
+            reference the valve can follow (|p''| <= a; r itself wherever |r''| <= a/2) ahead of the reference
+            model; 0 = none (the paper's: r drives the reference model). See docs/MODEL.md, "Reference shaper".
+        pressure_domain: the controller evaluates its model (Lie derivatives, F, G) at the measured state with
+            the load pressure projected into |x3| <= pressure_domain * P_s of the model, in (0, 1]; None = at the
+            measured x3 as is (before issue 14). Outside it a model with a lower P_s than the plant's reverses
+            the sign of G. See docs/MODEL.md, "The model's pressure domain".
         omega_max: divergence bound on |x2| [rad/s].
         pressure_bound: divergence bound on |x3| as a multiple of P_s.
         lost_track: lost-track bound as a multiple of the reference's amplitude (> 0; None = never flagged): the
@@ -109,6 +128,12 @@ class Scenario:
     ref_model_hz: float = 20.0
     estimator_hz: float = 1000.0
     estimator: str = "foh"
+    observer_hz: float = 200.0
+    law: str = "sontag"
+    layer_gain: float = 0.0
+    bumpless: bool = False
+    ref_accel: float = 0.0
+    pressure_domain: float | None = None  # the paper's loop; the env's default (0.95) is in envs.config
     omega_max: float = 1e3
     pressure_bound: float = 1.5
     lost_track: float | None = 1.0
@@ -116,15 +141,28 @@ class Scenario:
     def __post_init__(self):
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {sorted(TASKS)}, got {self.task!r}")
-        if self.estimator not in L.ESTIMATORS:
-            raise ValueError(f"estimator must be one of {list(L.ESTIMATORS)}, got {self.estimator!r}")
+        check_choice("estimator", self.estimator, L.ESTIMATORS)
+        check_choice("law", self.law, L.LAWS)
         object.__setattr__(self, "n", check_even_n(self.n))
         for name in ("fr", "sigma", "control_period", "t_end", "log_interval", "ref_model_hz", "estimator_hz",
-                     "omega_max", "pressure_bound"):
+                     "observer_hz", "omega_max", "pressure_bound"):
             object.__setattr__(self, name, check_positive(name, getattr(self, name)))
         object.__setattr__(self, "smoothing", check_finite("smoothing", self.smoothing, low=0.0))
+        object.__setattr__(self, "layer_gain", check_finite("layer_gain", self.layer_gain, low=0.0,
+                                                            high=LAYER_GAIN_MAX))
+        object.__setattr__(self, "bumpless", check_bool("bumpless", self.bumpless))
+        object.__setattr__(self, "ref_accel", check_finite("ref_accel", self.ref_accel, low=0.0))
+        if self.pressure_domain is not None:
+            object.__setattr__(self, "pressure_domain", check_finite("pressure_domain", self.pressure_domain, low=0.0,
+                                                                     high=1.0, low_open=True))
+        if self.ref_accel > 0.0 and (self.task != "position" or self.estimator == "analog"):
+            raise ValueError(f"ref_accel shapes the position task's reference for a digital reference model: it must "
+                             f"be 0 for task {self.task!r} with estimator {self.estimator!r}, got {self.ref_accel:g}")
         if self.current_limit is not None:
             object.__setattr__(self, "current_limit", check_positive("current_limit", self.current_limit))
+        elif self.law == "lin-sontag":
+            raise ValueError("law 'lin-sontag' bounds the current by current_limit, which must then be a finite "
+                             "number > 0 (mA), got None")
         if isinstance(self.substeps, bool) or not float(self.substeps).is_integer() or self.substeps < 1:
             raise ValueError(f"substeps must be an integer >= 1, got {self.substeps!r}")
         object.__setattr__(self, "substeps", int(self.substeps))
@@ -197,14 +235,31 @@ def ctrl_row(sc: Scenario) -> np.ndarray:
     row[L.C_P_BOUND] = sc.pressure_bound
     row[L.C_BASE] = 1.0
     row[L.C_EST] = L.ESTIMATORS.index(sc.estimator)
+    row[L.C_LAW] = L.LAWS.index(sc.law)
+    row[L.C_LAYER_GAIN] = sc.layer_gain
+    row[L.C_BUMPLESS] = 1.0 if sc.bumpless else 0.0
+    row[L.C_REF_ACCEL] = sc.ref_accel
+    row[L.C_PDOMAIN] = math.inf if sc.pressure_domain is None else sc.pressure_domain
     return row
 
 
-def filter_block(order: int, ref_hz: float, est_hz: float, h: float, scheme: str = "foh") -> np.ndarray:
-    """The (N_FB, 4, 4) filter block (layout FB_*) read by the controller kernels."""
-    cr, pr, er, dr = padded_filter(order, ref_hz, h, scheme)
-    ce, pe, ee, de = padded_filter(order - 1, est_hz, h, scheme)
+def filter_block(order: int, ref_hz: float, est_hz: float, h: float, scheme: str = "foh",
+                 observer_hz: float = 200.0) -> np.ndarray:
+    """The (N_FB, 4, 4) filter block (layout FB_*) read by the controller kernels.
+
+    ``scheme`` is the estimator (Scenario.estimator): an SVF scheme runs the reference model and the SVF that
+    way; with "state" or "eso" the reference model runs "foh" (the SVF rows are then unused), and "eso" adds
+    its observer (bandwidth ``observer_hz`` [Hz]).
+    """
+    svf = scheme if scheme in L.SVF_ESTIMATORS else "foh"
+    cr, pr, er, dr = padded_filter(order, ref_hz, h, svf)
+    ce, pe, ee, de = padded_filter(order - 1, est_hz, h, svf)
     f = np.zeros((L.N_FB, L.MAX_ORDER, L.MAX_ORDER))
+    if scheme == "eso":
+        po, eo, do = observer_filter(float(observer_hz), float(h))
+        f[L.FB_PHI_OBS, :2, :2] = po
+        f[L.FB_E_OBS, :2, :2] = eo
+        f[L.FB_D_OBS, :2, :2] = do
     f[L.FB_PHI_REF] = pr
     f[L.FB_PHI_EST] = pe
     f[L.FB_VEC, L.FBV_C_REF] = cr
@@ -218,7 +273,7 @@ def filter_block(order: int, ref_hz: float, est_hz: float, h: float, scheme: str
 
 def scenario_filter_block(sc: Scenario) -> np.ndarray:
     """The filter block of a scenario."""
-    return filter_block(sc.order, sc.ref_model_hz, sc.estimator_hz, sc.control_period, sc.estimator)
+    return filter_block(sc.order, sc.ref_model_hz, sc.estimator_hz, sc.control_period, sc.estimator, sc.observer_hz)
 
 
 @jit
@@ -273,9 +328,9 @@ class LoopArrays:
         cache = {}
         filt = np.empty((len(scenarios), L.N_FB, L.MAX_ORDER, L.MAX_ORDER))
         for i, s in enumerate(scenarios):
-            key = (s.order, s.ref_model_hz, s.estimator_hz, s.estimator)
+            key = (s.order, s.ref_model_hz, s.estimator_hz, s.estimator, s.observer_hz)
             if key not in cache:
-                cache[key] = filter_block(s.order, s.ref_model_hz, s.estimator_hz, h, s.estimator)
+                cache[key] = filter_block(*key[:3], h, s.estimator, s.observer_hz)
             filt[i] = cache[key]
         return cls(
             z0=np.stack([initial_state(s, f) for s, f in zip(scenarios, filt)]),
@@ -293,7 +348,10 @@ def accumulate(acc, info, h, k):
     """Fold one control step's info into the metrics accumulator (layout M_*)."""
     e = info[L.I_E]
     ae = abs(e)
+    et = info[L.I_E_TRUE]
     t = info[L.I_T]
+    acc[L.M_SUM_E2_TRUE] += et * et
+    acc[L.M_SUM_ER2] += info[L.I_E_R] * info[L.I_E_R]
     acc[L.M_STEPS] += 1.0
     acc[L.M_SUM_E2] += e * e
     acc[L.M_SUM_ABS_E] += ae * h
@@ -304,12 +362,15 @@ def accumulate(acc, info, h, k):
         acc[L.M_STEPS_FRIC] += 1.0
         if ae > acc[L.M_MAX_E_FRIC]:
             acc[L.M_MAX_E_FRIC] = ae
+        if abs(et) > acc[L.M_MAX_E_FRIC_TRUE]:
+            acc[L.M_MAX_E_FRIC_TRUE] = abs(et)
     else:
         acc[L.M_STEPS_NOFRIC] += 1.0
         acc[L.M_SUM_E2_NOFRIC] += e * e
     if info[L.I_QUIET] > 0.0:
         acc[L.M_STEPS_QUIET] += 1.0
         acc[L.M_SUM_E2_QUIET] += e * e
+        acc[L.M_SUM_E2_QUIET_TRUE] += et * et
     if t >= L.QUIET_STARTUP:
         if info[L.I_FRIC_ON] == 0.0:
             acc[L.M_STEPS_SETTLED] += 1.0
@@ -353,6 +414,8 @@ def write_log(row, z, info):
     row[L.L_UCMD] = info[L.I_UCMD]
     row[L.L_UAPP] = info[L.I_UAPP]
     row[L.L_TF] = info[L.I_TF]
+    row[L.L_W] = info[L.I_W]
+    row[L.L_RM] = info[L.I_RM]
     row[L.L_UMIN] = info[L.I_UAPP]  # the envelope of the sample's log interval starts here
     row[L.L_UMAX] = info[L.I_UAPP]
 
@@ -521,6 +584,8 @@ class Trajectory:
                              doc="smallest applied current over each sample's log interval [mA]")
     u_applied_max = property(lambda self: self.log[:, L.L_UMAX],
                              doc="largest applied current over each sample's log interval [mA]")
+    width = property(lambda self: self.log[:, L.L_W], doc="boundary-layer width in use [unit of s]")
+    r_model = property(lambda self: self.log[:, L.L_RM], doc="the reference model's input (r, or the shaped r)")
     e = property(lambda self: self.log[:, L.L_E], doc="tracking error y - y_d")
 
     @property

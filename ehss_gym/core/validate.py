@@ -62,6 +62,13 @@ def check_choice(name: str, value, valid):
     return value
 
 
+def check_bool(name: str, value) -> bool:
+    """``value`` if it is a bool (numpy's too), else a ValueError."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
 def check_even_n(n, name: str = "n") -> int:
     """An even integer power factor >= 2, or a ValueError."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer, float)) or not float(n).is_integer() \

@@ -1,7 +1,10 @@
 """Every default of ``EHSSTracking-v0`` and the one validated record of an env's settings (:class:`EnvConfig`).
 
-The defaults are the reproduction study's recommendation (``reports/paper/recommended_defaults.json``, made by
-``ehss reproduce``; a test checks that :data:`DEFAULTS` restate it); the evidence is in docs/ENV.md.
+The defaults are the recommendation of two studies, restated here (tests check both): the reproduction study
+(``reports/paper/recommended_defaults.json``, made by ``ehss reproduce``: period, substeps, current limit, n, f_r,
+smoothing, the SVF cutoff) and the noise study (``reports/noise/recommended.json``, made by ``ehss noise``: per
+task the estimator, the law and its sigma, the observer bandwidth, the adaptive boundary layer, the bumpless start
+and the reference shaper). The evidence is in docs/ENV.md.
 """
 
 from __future__ import annotations
@@ -12,8 +15,8 @@ import numpy as np
 
 from ehss_gym.core import layout as L
 from ehss_gym.core.scenarios import PHYSICAL_FIELDS, controller_mismatch, paper_scenario
-from ehss_gym.core.sim import TASKS, Scenario
-from ehss_gym.core.validate import check_choice, check_even_n, check_finite, check_int, check_positive
+from ehss_gym.core.sim import LAYER_GAIN_MAX, TASKS, Scenario
+from ehss_gym.core.validate import check_bool, check_choice, check_even_n, check_finite, check_int, check_positive
 
 
 @dataclass(frozen=True)
@@ -22,10 +25,17 @@ class TaskDefaults:
 
     Attributes:
         fr: combined-error cutoff f_r [Hz].
-        sigma: CLF scale sigma [unit of s].
+        sigma: CLF scale sigma of the default law [unit of s].
         smoothing: sign(s) smoothing width w [unit of s].
-        estimator_hz: output-derivative estimator cutoff [Hz].
+        estimator_hz: cutoff of the paper's state-variable filter [Hz].
         error_scale: tracking-error scale of the reward and observation [output unit].
+        estimator: output-derivative estimator (core.layout.ESTIMATORS).
+        law: CLF law (core.layout.LAWS).
+        sigma_by_law: (law, sigma) pairs: the sigma a law gets when the law is chosen and sigma is not.
+        observer_hz: error bandwidth of the "eso" observer [Hz].
+        layer_gain: adaptive boundary-layer gain (0 = the fixed width ``smoothing``).
+        bumpless: the reference model starts at the measured output.
+        ref_accel: acceleration bound of the reference shaper [rad/s^2] (position; 0 = none).
     """
 
     fr: float
@@ -33,6 +43,17 @@ class TaskDefaults:
     smoothing: float
     estimator_hz: float
     error_scale: float
+    estimator: str = "foh"
+    law: str = "sontag"
+    sigma_by_law: tuple = ()
+    observer_hz: float = 200.0
+    layer_gain: float = 0.0
+    bumpless: bool = False
+    ref_accel: float = 0.0
+
+    def sigma_for(self, law: str) -> float:
+        """The default sigma of ``law`` (the task's sigma for its own default law)."""
+        return dict(self.sigma_by_law).get(law, self.sigma) if law != self.law else self.sigma
 
 
 @dataclass(frozen=True)
@@ -47,7 +68,7 @@ class EnvDefaults:
         substeps: RK4 plant steps per control period.
         agent_period: control periods per agent step.
         residual_scale: current of a unit action [mA] when current_limit is None (else the current limit).
-        estimator: filter scheme of the reference model and the derivative estimator ("foh", "zoh", "analog").
+        pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (None = anywhere).
         scenario: "random" or "paper".
         reward_weights: track, effort, rate, tv, tv_u, divergence weights.
         lost_track: lost-track bound as a multiple of the reference's amplitude (see ``Scenario.lost_track``).
@@ -62,24 +83,42 @@ class EnvDefaults:
     substeps: int = 1
     agent_period: int = 5
     residual_scale: float = 10.0
-    estimator: str = "foh"
+    pressure_domain: float | None = 0.95
     scenario: str = "random"
     reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("tv_u", 0.0),
                              ("divergence", 10.0))
     lost_track: float = 1.0
     terminate_on_lost_track: bool = False
+    # Per task, the noise study's choice (reports/noise/recommended.json; tests/test_noise.py checks it): velocity the
+    # paper's SVF with Sontag and the adaptive layer, position the 1 kHz observer with Sontag, the adaptive layer and
+    # the 100 rad/s^2 reference shaper; no bumpless start (it removes no lost episode, the start-up rule's criterion).
     velocity: TaskDefaults = field(default_factory=lambda: TaskDefaults(
-        fr=60.0, sigma=1e5, smoothing=1e3, estimator_hz=1000.0, error_scale=1e-2))
+        fr=60.0, sigma=1e5, smoothing=1e3, estimator_hz=1000.0, error_scale=1e-2, estimator="foh", law="sontag",
+        sigma_by_law=(("sontag", 1e5), ("lin-sontag", 3e6)), observer_hz=200.0, layer_gain=3.0, bumpless=False,
+        ref_accel=0.0))
     position: TaskDefaults = field(default_factory=lambda: TaskDefaults(
-        fr=20.0, sigma=1e6, smoothing=100.0, estimator_hz=1000.0, error_scale=1e-2))
+        fr=20.0, sigma=1e6, smoothing=100.0, estimator_hz=1000.0, error_scale=1e-2, estimator="eso", law="sontag",
+        sigma_by_law=(("sontag", 1e6), ("lin-sontag", 1e7)), observer_hz=1000.0, layer_gain=3.0, bumpless=False,
+        ref_accel=100.0))
 
 
 DEFAULTS = EnvDefaults()
 MODES = ("residual", "direct")
 SCENARIOS = ("random", "paper")
 REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence")
-# settings whose default depends on the task (residual_scale: on the current limit); None selects that default
-TASK_DEPENDENT = ("fr", "sigma", "smoothing", "estimator_hz", "error_scale", "residual_scale")
+# settings whose default depends on the task (residual_scale: on the current limit, sigma: on the law too); None
+# selects that default
+TASK_DEPENDENT = ("fr", "sigma", "smoothing", "estimator_hz", "error_scale", "residual_scale", "estimator", "law",
+                  "observer_hz", "layer_gain", "bumpless", "ref_accel")
+# The settings issue 14 added, at the values that reproduce the loop before them (a policy trained before them, whose
+# recorded env_kwargs lack them, acts in its own loop with these; the estimator was already recorded).
+PRE_ISSUE14_ENV = {"law": "sontag", "layer_gain": 0.0, "bumpless": False, "ref_accel": 0.0, "pressure_domain": None}
+
+
+def recorded_loop(env_kwargs: dict) -> dict:
+    """The env settings a recorded policy acts in: ``env_kwargs`` with issue 14's settings it lacks (it was trained
+    before them) at :data:`PRE_ISSUE14_ENV`, so that a change of the env's defaults does not change its loop."""
+    return {**PRE_ISSUE14_ENV, **env_kwargs}
 
 
 @dataclass(frozen=True)
@@ -99,6 +138,12 @@ class EnvConfig:
     current_limit: float | None
     estimator_hz: float
     estimator: str
+    observer_hz: float
+    law: str
+    layer_gain: float
+    bumpless: bool
+    ref_accel: float
+    pressure_domain: float | None
     scenario: object
     reward_weights: dict
     error_scale: float
@@ -107,8 +152,9 @@ class EnvConfig:
     terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track
 
     KEYS = ("task", "n", "fr", "sigma", "smoothing", "mode", "residual_scale", "agent_period", "control_period",
-            "substeps", "current_limit", "estimator_hz", "estimator", "scenario", "reward_weights", "error_scale",
-            "episode_seconds", "lost_track", "terminate_on_lost_track")
+            "substeps", "current_limit", "estimator_hz", "estimator", "observer_hz", "law", "layer_gain", "bumpless",
+            "ref_accel", "pressure_domain", "scenario", "reward_weights", "error_scale", "episode_seconds",
+            "lost_track", "terminate_on_lost_track")
 
     @classmethod
     def from_kwargs(cls, kwargs: dict) -> EnvConfig:
@@ -123,7 +169,8 @@ class EnvConfig:
         n = kwargs.get("n", d.n)
         n = check_even_n(n)
         fr = check_positive("fr", kwargs.get("fr", td.fr))
-        sigma = check_positive("sigma", kwargs.get("sigma", td.sigma))
+        law = check_choice("law", kwargs.get("law", td.law), L.LAWS)
+        sigma = check_positive("sigma", kwargs.get("sigma", td.sigma_for(law)))
         smoothing = check_finite("smoothing", kwargs.get("smoothing", td.smoothing), low=0.0)
         limit = kwargs.get("current_limit", d.current_limit)
         if limit is not None:
@@ -136,7 +183,8 @@ class EnvConfig:
         h = check_finite("control_period", kwargs.get("control_period", d.control_period), low=1e-7, high=1e-2)
         substeps = check_int("substeps", kwargs.get("substeps", d.substeps), 1)
         est = check_positive("estimator_hz", kwargs.get("estimator_hz", td.estimator_hz))
-        scheme = check_choice("estimator", kwargs.get("estimator", d.estimator), L.ESTIMATORS)
+        scheme = check_choice("estimator", kwargs.get("estimator", td.estimator), L.ESTIMATORS)
+        loop = _loop_settings(kwargs, td, d)
         scenario = kwargs.get("scenario", d.scenario)
         if not (isinstance(scenario, Scenario) or scenario in SCENARIOS):
             raise ValueError(f"scenario must be one of {list(SCENARIOS)} or an ehss_gym.Scenario, got {scenario!r}")
@@ -161,8 +209,10 @@ class EnvConfig:
             raise ValueError(f"terminate_on_lost_track must be True or False, got {stop_lost!r}")
         cfg = cls(task=task, n=int(n), fr=fr, sigma=sigma, smoothing=smoothing, mode=mode, residual_scale=scale,
                   agent_period=agent_period, control_period=h, substeps=substeps, current_limit=limit,
-                  estimator_hz=est, estimator=scheme, scenario=scenario, reward_weights=rw, error_scale=err,
-                  episode_seconds=eps, lost_track=lost, terminate_on_lost_track=bool(stop_lost))
+                  estimator_hz=est, estimator=scheme, law=law, **loop, scenario=scenario, reward_weights=rw,
+                  error_scale=err, episode_seconds=eps, lost_track=lost, terminate_on_lost_track=bool(stop_lost))
+        cfg.template()  # the cross-field checks of the core record (lin-sontag needs a limit, ref_accel a position
+        # task with a digital reference model), with its messages
         if isinstance(scenario, Scenario):
             cfg.check_pinned(scenario)
         return cfg
@@ -182,7 +232,9 @@ class EnvConfig:
                                        smoothing=self.smoothing, current_limit=self.current_limit,
                                        control_period=self.control_period, substeps=self.substeps,
                                        estimator_hz=self.estimator_hz, estimator=self.estimator,
-                                       lost_track=self.lost_track))
+                                       lost_track=self.lost_track, observer_hz=self.observer_hz, law=self.law,
+                                       layer_gain=self.layer_gain, bumpless=self.bumpless, ref_accel=self.ref_accel,
+                                       pressure_domain=self.pressure_domain))
 
     def check_pinned(self, sc: Scenario) -> None:
         """A pinned Scenario must carry exactly these controller settings."""
@@ -197,3 +249,17 @@ class EnvConfig:
         if sc.n_steps < self.agent_period:
             raise ValueError(f"scenario t_end ({sc.t_end:g} s) is shorter than one agent step ({self.agent_dt:g} s)")
 
+
+
+def _loop_settings(kwargs: dict, td: TaskDefaults, d: EnvDefaults) -> dict:
+    """The observer, boundary-layer, start-up, shaper and model-domain settings, validated (the ranges are the core
+    record's, :class:`ehss_gym.core.sim.Scenario`)."""
+    out = {"observer_hz": check_positive("observer_hz", kwargs.get("observer_hz", td.observer_hz)),
+           "layer_gain": check_finite("layer_gain", kwargs.get("layer_gain", td.layer_gain), low=0.0,
+                                      high=LAYER_GAIN_MAX),
+           "bumpless": check_bool("bumpless", kwargs.get("bumpless", td.bumpless)),
+           "ref_accel": check_finite("ref_accel", kwargs.get("ref_accel", td.ref_accel), low=0.0)}
+    pd = kwargs.get("pressure_domain", d.pressure_domain)
+    out["pressure_domain"] = None if pd is None else check_finite("pressure_domain", pd, low=0.0, high=1.0,
+                                                                  low_open=True)
+    return out

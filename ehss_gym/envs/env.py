@@ -56,10 +56,14 @@ class EHSSTrackingEnv(gym.Env):
     with Coulomb friction events T_f (never observed). The output y is x2 (task "velocity", relative
     degree m = 3) or x1 ("position", m = 4). Every control period h (``control_period``) the digital
     controller samples (with sensor noise), forms the tracking errors e = y - y_d and their estimates
-    from the state-variable filter, the combined error s = e^(m-1) + lambda_{m-2} e^(m-2) + ... and
-    the Sontag current on V = (s/sigma)^n / n (:mod:`ehss_gym.core.control`)::
+    (``estimator``: by default an extended-state observer; the paper's state-variable filter is "foh"),
+    the combined error s = e^(m-1) + lambda_{m-2} e^(m-2) + ... and the CLF current on
+    V = (s/sigma)^n / n (:mod:`ehss_gym.core.control`; ``law``: Sontag's formula by default)::
 
         u_base = -psi/G - sgn_w(s) sign(G) hypot(psi/G, |s/sigma|^(n-1) |G| / sigma)
+
+    (y_d: the reference model's output, by default started at the measured output; position: driven by
+    the reference shaper's feasible version of r.)
 
     and applies, held over the period (ZOH, ``substeps`` RK4 steps)::
 
@@ -129,8 +133,7 @@ class EHSSTrackingEnv(gym.Env):
 
     Args (keyword only; unknown names or bad values raise ValueError listing what is valid; defaults
     in :data:`DEFAULTS`):
-        task: "velocity" (default) or "position" (its base law tracks the paper's run unsaturated but loses
-            track on a sixth of the randomised scenarios: see docs/ENV.md).
+        task: "velocity" (default) or "position" (see docs/ENV.md for what each task's base law achieves).
         n: CLF power factor, even >= 2 (default 2).
         fr: combined-error cutoff f_r [Hz] (default 60 velocity, 20 position).
         sigma: CLF scale [unit of s] (default 1e5 velocity, 1e6 position; 1 = the paper's law).
@@ -141,11 +144,24 @@ class EHSSTrackingEnv(gym.Env):
         control_period: h [s], in [1e-7, 1e-2] (default 5e-5).
         substeps: RK4 plant steps per control period, >= 1 (default 1).
         current_limit: |u| limit [mA] or None = unlimited (default 10).
-        estimator_hz: output-derivative estimator cutoff [Hz] (default 1000, the paper's).
-        estimator: how the reference model and the estimator run: "foh" (default; first-order-hold
-            discretisation, O(h^2) to the paper's continuous filters), "zoh" (wave 1's zero-order hold,
-            biased by O(h); kept to show the effect) or "analog" (continuous filters integrated with the
-            plant). See docs/MODEL.md, "Digital filters".
+        estimator_hz: cutoff of the paper's state-variable filter (SVF) [Hz] (default 1000, the paper's).
+        estimator: how the output derivatives are estimated (default "foh" velocity, "eso" position): "foh"
+            (the paper's SVF, first-order-hold discretisation, O(h^2) to its continuous filters), "zoh" (wave 1's
+            zero-order hold, biased by O(h)), "analog" (continuous filters integrated with the plant), "state"
+            (the model's Lie derivatives of the measured state) or "eso" (an extended-state observer of the
+            velocity and a lumped disturbance acceleration). See docs/MODEL.md, "Digital filters" and "Estimators".
+        observer_hz: error bandwidth of the "eso" observer [Hz] (default 200 velocity, where it is unused, 1000
+            position).
+        law: "sontag" (default, both tasks; Sontag's universal formula, the paper's) or "lin-sontag" (Lin &
+            Sontag's formula for controls bounded by current_limit). Without ``sigma`` each law gets its own
+            default sigma (:attr:`TaskDefaults.sigma_by_law`). See docs/MODEL.md, "Laws".
+        layer_gain: adaptive boundary layer: width max(smoothing, layer_gain * running noise std of s), in
+            [0, 100] (default 3 both tasks; 0: the fixed width ``smoothing``).
+        bumpless: the reference model starts at the measured output instead of at r(0) (default False).
+        ref_accel: position task: the reference shaper's acceleration bound [rad/s^2], 0 = none (default 100
+            position, 0 velocity). See docs/MODEL.md, "Reference shaper".
+        pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (default 0.95;
+            None = at the measured pressure as is, the loop before issue 14).
         scenario: "random" (default; the training distribution of :mod:`ehss_gym.core.scenarios`), "paper",
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
@@ -173,7 +189,10 @@ class EHSSTrackingEnv(gym.Env):
         wave 1's scheme is ``"zoh"``), to the study's recommendation on the corrected loop: h = 50 us,
         f_r = 60 Hz and smoothing 1e3 (velocity), f_r = 20 Hz, sigma = 1e6, smoothing 100 and a 1 kHz
         estimator (position). Policies record every setting they were trained with, the estimator
-        included; those of wave 1 (without it) were retrained.
+        included; those of wave 1 (without it) were retrained. Issue 14 (noise and the current bound) added
+        the settings estimator "state"/"eso", observer_hz, law, layer_gain, bumpless, ref_accel and
+        pressure_domain, and made its noise study's choices the defaults (``ehss noise``; docs/ENV.md); a policy
+        recorded without them acts with :data:`ehss_gym.envs.config.PRE_ISSUE14_ENV`.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -181,8 +200,10 @@ class EHSSTrackingEnv(gym.Env):
     def __init__(self, *, task: str = "velocity", mode: str = DEFAULTS.mode, n: int = DEFAULTS.n,
                  fr: float | None = None, sigma: float | None = None, smoothing: float | None = None,
                  current_limit: float | None = DEFAULTS.current_limit, control_period: float = DEFAULTS.control_period,
-                 substeps: int = DEFAULTS.substeps, estimator: str = DEFAULTS.estimator,
-                 estimator_hz: float | None = None, agent_period: int = DEFAULTS.agent_period,
+                 substeps: int = DEFAULTS.substeps, estimator: str | None = None,
+                 estimator_hz: float | None = None, observer_hz: float | None = None, law: str | None = None,
+                 layer_gain: float | None = None, bumpless: bool | None = None, ref_accel: float | None = None,
+                 pressure_domain: float | None = DEFAULTS.pressure_domain, agent_period: int = DEFAULTS.agent_period,
                  residual_scale: float | None = None, scenario: str | Scenario = DEFAULTS.scenario,
                  reward_weights: dict | None = None, error_scale: float | None = None,
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,

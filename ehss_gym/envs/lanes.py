@@ -68,7 +68,7 @@ class Lanes:
         self.ctrl[:] = base
         self.events = self._empty_events(B, MAX_EVENTS)
         self.filt = np.tile(filter_block(cfg.order, tmpl.ref_model_hz, cfg.estimator_hz, cfg.control_period,
-                                         cfg.estimator), (B, 1, 1, 1))
+                                         cfg.estimator, cfg.observer_hz), (B, 1, 1, 1))
         self.c = np.zeros((self.n_chunks, N_LANE_CONST, self.chunk))
         for i in range(self.n_chunks):
             lane_constants(np.ascontiguousarray(self.plant[i * self.chunk:(i + 1) * self.chunk]), self.c[i])

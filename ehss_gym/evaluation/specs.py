@@ -4,7 +4,9 @@ A :class:`PolicySpec` names a policy, its kind, the env settings it acts in and 
 (:mod:`ehss_gym.evaluation.loading` turns a run into an object with ``predict``). Forms of a ``--policies``
 entry (:func:`parse_policy`):
 
-- ``clf-n<even n>`` and ``pid``: the scripted laws of :mod:`ehss_gym.controllers` (both tasks);
+- ``clf-n<even n>`` and ``pid``: the scripted laws of :mod:`ehss_gym.controllers` (both tasks); the CLF law's
+  variants by name, ``<law>-n<k>`` and ``<law>-<estimator>-n<k>`` (e.g. ``lin-sontag-n4``, ``sontag-foh-n2``:
+  :func:`ehss_gym.controllers.parse_scripted`);
 - ``sb3:PATH``: a model of any stable-baselines3 (or sb3-contrib) algorithm, its algorithm read from the .zip and
   its env settings, the mode included, from the env spec saved with it (:func:`saved_env_kwargs`; an error
   without one);
@@ -31,8 +33,10 @@ import numpy as np
 import yaml
 
 from ehss_gym.agents.safeweights import shipped_models
+from ehss_gym.controllers import parse_scripted
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
+from ehss_gym.envs.config import recorded_loop
 
 from .loading import PolicyError, load_safe, make_env
 from .suites import TASKS
@@ -41,7 +45,8 @@ REFERENCE_POLICY = "clf-n2"  # the law the primary score is normalised by
 SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "pid")
 LEARNED_KINDS = ("residual-ppo", "ppo-direct", "sb3")  # sb3: any algorithm, its mode from the saved env spec
 ZOO_ARGS = "args.yml"  # rl-zoo3 saves its command line (env_kwargs included) in <run>/<env id>/args.yml
-CONTROLLER_KEYS = ("fr", "sigma", "smoothing", "current_limit", "control_period", "substeps", "estimator_hz")
+CONTROLLER_KEYS = ("fr", "sigma", "smoothing", "current_limit", "control_period", "substeps", "estimator_hz",
+                   "estimator", "observer_hz", "law", "layer_gain", "bumpless", "ref_accel", "pressure_domain")
 CLF_RE = re.compile(r"^clf-n(\d+)$")
 _SEED_RE = re.compile(r"^(.*?)[-_](?:seed|s)(\d+)$")
 _GENERIC = ("policy", "model", "best_model", "final_model", "best", "final", "checkpoints")
@@ -91,18 +96,20 @@ def valid_forms() -> str:
     """Every accepted form of a ``--policies`` entry, with the shipped model names (for error messages)."""
     names = sorted(shipped_models())
     shipped = ", ".join(names) if names else "none shipped yet"
-    return ("clf-n<even n >= 2> (e.g. clf-n2, clf-n4, clf-n6), pid, residual-ppo:PATH, ppo-direct:PATH, sb3:PATH "
-            "(any SB3 algorithm, the mode from its saved env spec; PATH = an SB3 .zip, a safe-weights stem PATH "
-            f"with PATH.safetensors + PATH.json, or a glob matching several training seeds), or a shipped model name "
-            f"({shipped})")
+    return ("clf-n<even n >= 2> (e.g. clf-n2, clf-n4, clf-n6), the CLF variants <law>-n<k> and "
+            "<law>-<estimator>-n<k> (e.g. lin-sontag-n4, sontag-foh-n2), pid, residual-ppo:PATH, ppo-direct:PATH, "
+            "sb3:PATH (any SB3 algorithm, the mode from its saved env spec; PATH = an SB3 .zip, a safe-weights stem "
+            f"PATH with PATH.safetensors + PATH.json, or a glob matching several training seeds), or a shipped model "
+            f"name ({shipped})")
 
 
 def scripted_spec(name: str, label: str | None = None, env_overrides: dict | None = None,
                   gains: dict | None = None) -> PolicySpec:
-    """``clf-n<n>`` or ``pid`` as a :class:`PolicySpec` (runs on both tasks).
+    """A scripted CLF law (``clf-n<n>`` or a variant, :func:`ehss_gym.controllers.parse_scripted`) or ``pid`` as a
+    :class:`PolicySpec` (runs on both tasks).
 
     Args:
-        name: "clf-n<even n>" or "pid".
+        name: "clf-n<even n>", "<law>-n<k>", "<law>-<estimator>-n<k>" or "pid".
         label: report name (default ``name``); needed when ``env_overrides`` change the law.
         env_overrides: env settings changed from the defaults (e.g. ``{"sigma": 1.0}``: the paper's scale).
         gains: PID only: task -> (kp [mA per output unit], ki [mA per unit*s], kd [mA per unit/s]) instead of
@@ -112,16 +119,18 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
         PolicyError: an unknown name or an odd power factor.
     """
     over = dict(env_overrides or {})
-    m = CLF_RE.match(name)
-    if m:
+    kw = parse_scripted(name) if name != "pid" else None
+    if kw is not None:
         try:
-            n = check_even_n(int(m.group(1)))
+            n = check_even_n(kw["n"])
         except ValueError:
             raise PolicyError(f"unknown policy {name!r}: the CLF power factor must be an even integer >= 2 "
                               f"(clf-n2, clf-n4, clf-n6, ...)") from None
-        src = f"scripted Sontag/CLF law, n = {n}" + (f", {over}" if over else "")
+        law = {k: kw[k] for k in ("law", "estimator") if k in kw}
+        what = "the env's default CLF law" if not law else ", ".join(f"{k} {v}" for k, v in law.items())
+        src = f"scripted CLF law ({what}), n = {n}" + (f", {over}" if over else "")
         return PolicySpec(name=label or name, kind="clf", runs=[{"kind": "clf", "n": n}],
-                          env_kwargs={"n": n, "mode": "residual", **over}, source=src)
+                          env_kwargs={**kw, **over}, source=src)
     if name == "pid":
         run = {"kind": "pid"}
         if gains:
@@ -262,6 +271,7 @@ def _run_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
                               f"{_kind_of_mode(mode)}:{path} (residual-ppo = mode 'residual', ppo-direct = mode "
                               "'direct'), or sb3:PATH (the mode read from the saved env spec)")
     kw["mode"] = mode
+    kw = recorded_loop(kw)  # a model recorded without issue 14's settings acts in the loop before them
     for k in _NOT_ENV:
         kw.pop(k, None)
     return kw
@@ -351,6 +361,14 @@ def shipped_specs() -> list[PolicySpec]:
     return out
 
 
+def _scripted_name(text: str) -> bool:
+    """True if ``text`` names a scripted CLF law (a malformed variant raises PolicyError with its reason)."""
+    try:
+        return parse_scripted(text) is not None
+    except ValueError as exc:
+        raise PolicyError(f"unknown policy {text!r}: {exc}") from exc
+
+
 def parse_policy(text: str) -> PolicySpec:
     """One ``--policies`` entry as a :class:`PolicySpec`.
 
@@ -367,7 +385,7 @@ def parse_policy(text: str) -> PolicySpec:
         if not path:
             raise PolicyError(f"policy {text!r} needs a PATH after the colon; valid: {valid_forms()}")
         return learned_spec(kind, path, spec_text=text)
-    if CLF_RE.match(text) or text == "pid":
+    if text == "pid" or _scripted_name(text):
         return scripted_spec(text)
     models = shipped_models()
     shipped = {s.name: s for s in shipped_specs()} if models else {}
@@ -432,6 +450,15 @@ def controller_settings(env_kwargs: dict, task: str) -> dict:
     return {k: getattr(cfg, k) for k in CONTROLLER_KEYS}
 
 
+def _tag_value(v) -> str:
+    """A setting's value in a spec label: numbers as %g, None as "none", strings and booleans as they are."""
+    if v is None:
+        return "none"
+    if isinstance(v, (bool, str)):
+        return str(v)
+    return format(v, "g")
+
+
 def matched_clf_specs(specs: Sequence[PolicySpec], tasks: Sequence[str]) -> list[PolicySpec]:
     """CLF laws n = 2, 4, 6 at the controller settings of learned policies that differ from the defaults.
 
@@ -451,7 +478,7 @@ def matched_clf_specs(specs: Sequence[PolicySpec], tasks: Sequence[str]) -> list
             diff = {k: v for k, v in mine.items() if v != default[k]}
             if not diff:
                 continue
-            tag = ",".join(f"{k}={'none' if v is None else format(v, 'g')}" for k, v in diff.items())
+            tag = ",".join(f"{k}={_tag_value(v)}" for k, v in diff.items())
             for n in (2, 4, 6):
                 label = f"clf-n{n}@{tag}"
                 if label in have:

@@ -37,7 +37,9 @@ class Record:
 def params_of(sc: Scenario) -> dict:
     return {"task": sc.task, "fr": sc.fr, "n": sc.n, "sigma": sc.sigma, "smoothing": sc.smoothing,
             "limit": sc.current_limit, "h": sc.control_period, "substeps": sc.substeps, "t_end": sc.t_end,
-            "estimator_hz": sc.estimator_hz, "estimator": sc.estimator}
+            "estimator_hz": sc.estimator_hz, "estimator": sc.estimator, "observer_hz": sc.observer_hz, "law": sc.law,
+            "layer_gain": sc.layer_gain, "bumpless": sc.bumpless, "ref_accel": sc.ref_accel,
+            "pressure_domain": sc.pressure_domain, "noisy": any(v > 0 for v in sc.noise_std)}
 
 
 @nb.njit(cache=True)
@@ -179,11 +181,13 @@ class Runner:
     """Batches scenarios by time grid into ``simulate_batch`` calls (jobs of an
     :class:`~ehss_gym.core.execution.Executor`), with one tqdm bar over batches."""
 
-    def __init__(self, max_batch: int = 64, progress: bool = True, executor: Executor | None = None):
+    def __init__(self, max_batch: int = 64, progress: bool = True, desc: str = "ehss reproduce",
+                 executor: Executor | None = None):
         """Batches of at most ``max_batch`` runs on ``executor`` (default: in this process, nothing stored)."""
         self.max_batch = max_batch
+        self.desc = desc
         self.executor = executor or Executor()
-        self.bar = tqdm(total=0, desc="ehss reproduce", unit="batch", disable=not progress, file=sys.stderr)
+        self.bar = tqdm(total=0, desc=desc, unit="batch", disable=not progress, file=sys.stderr)
         self.n_runs = 0
         self.sim_seconds = 0.0
         self.by_group: dict[str, float] = {}  # wall time [s] per study part (a batch shared out by its runs)
@@ -213,7 +217,7 @@ class Runner:
                 for b in batches]
         t0 = time.perf_counter()
         # locally, in this process: simulate_batch spreads each batch over numba's threads, as before
-        results = self.executor.map(jobs, desc="ehss reproduce", in_process=self.executor.backend.name == "local")
+        results = self.executor.map(jobs, desc=self.desc, in_process=self.executor.backend.name == "local")
         dt = time.perf_counter() - t0
         self.sim_seconds += dt
         out: list[Record | None] = [None] * len(items)
