@@ -6,6 +6,7 @@ import json
 import math
 import os
 import pathlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -246,6 +247,20 @@ def test_results_do_not_depend_on_workers():
     assert any(r[("const", e)]["rmse"] != r[("clf-n2", e)]["rmse"] for e in ("heldout-0", "heldout-1"))
 
 
+def test_a_law_evaluated_on_both_tasks_acts_on_each_with_its_own_object():
+    """A scripted law's item (its description) is the same for both tasks; the object made from it is not: a worker
+    that ran the velocity episodes first must not score the position ones with the velocity PID (it did, at
+    first, under the execution layer's cache)."""
+    key = ("task", "episode", "score", "rmse", "tv_u_rate")
+    for workers in (1, 2):
+        mixed = ev.evaluate([ev.parse_policy("pid")], replace(TINY, tasks=("velocity", "position")), workers=workers,
+                            progress=False)
+        alone = ev.evaluate([ev.parse_policy("pid")], replace(TINY, tasks=("position",)), workers=workers,
+                            progress=False)
+        pos = [tuple(r[k] for k in key) for r in mixed.rows if r["task"] == "position" and r["policy"] == "pid"]
+        assert pos and pos == [tuple(r[k] for k in key) for r in alone.rows if r["policy"] == "pid"]
+
+
 # ---------------------------------------------------------------------------------------------------
 # The CLI end to end (--quick is what CI runs)
 
@@ -308,26 +323,29 @@ def test_each_model_is_loaded_once(tmp_path, monkeypatch):
     real = loading.load_policy
 
     def counting(path):
-        calls.append(os.path.basename(str(path)))
+        calls.append(str(path))
         return real(path)
 
     monkeypatch.setattr(loading, "load_policy", counting)
     spec = ev.parse_policy(f"residual-ppo:{tmp_path}/once-seed*")
     ev.evaluate([ev.parse_policy("clf-n2"), spec], TINY, workers=1, progress=False)
-    assert sorted(calls) == ["once-seed0", "once-seed1"]  # parsing, the shape check and the episodes share a load
-    # worker processes get the loaded model as bytes and rebuild it without reading the file
+    # parsing, the shape check and the episodes share a load
+    assert sorted(os.path.basename(c) for c in calls) == ["once-seed0", "once-seed1"]
+    # worker processes (local or on other machines) get a safe-weights model as the bytes of its two files, not a
+    # pickle, and rebuild it through the safe-weights loader from a private copy, never reading the model's files
     pol = loading.load_run(spec.runs[0], "velocity", spec.env_kwargs_for("velocity"))
     item = loading.portable(spec.runs[0], pol)
-    assert item[0] == "bytes"
+    assert item[0] == "safe" and item[1]["safetensors"] == (tmp_path / "once-seed0.safetensors").read_bytes()
+    assert item[1]["json"] == (tmp_path / "once-seed0.json").read_text()
     copy = loading.restore(item, "velocity", spec.env_kwargs_for("velocity"))
     obs = np.random.default_rng(0).standard_normal((5, 15)).astype(np.float32)
     assert np.array_equal(copy.predict(obs)[0], pol.predict(obs)[0])
-    assert len(calls) == 2
+    assert len(calls) == 3 and os.path.dirname(calls[-1]) != str(tmp_path)
     # a scripted law travels as its description (rebuilt where it runs); a changed file is loaded again
     assert loading.portable({"kind": "clf", "n": 2}, None) == ("build", {"kind": "clf", "n": 2})
     os.utime(tmp_path / "once-seed0.json", ns=(1, 1))
     loading.load_safe(spec.runs[0])
-    assert len(calls) == 3
+    assert len(calls) == 4
 
 
 def test_evaluation_imports_no_higher_layer():

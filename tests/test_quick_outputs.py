@@ -21,7 +21,8 @@ def captured(monkeypatch, tmp_path):
     monkeypatch.setattr(evaluate, "evaluate", lambda *a, **k: fake_res)
     monkeypatch.setattr(evaluate, "write_report", fake_write_report)
     monkeypatch.setattr(reproduce, "main_reproduce",
-                        lambda out, quick=False, progress=True, cmd=None: seen.setdefault("reproduce", out))
+                        lambda out, quick=False, progress=True, cmd=None, executor=None:
+                        seen.setdefault("reproduce", out))
 
     def fake_fidelity(out, docs, quick=False, progress=True, cmd=""):
         seen["fidelity"] = (out, docs)

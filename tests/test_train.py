@@ -20,7 +20,7 @@ from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import env_kwargs_for, get_spec
 from ehss_gym.train import launch, options, runs
 from ehss_gym.train.callbacks import capture_rng, restore_rng
-from ehss_gym.train.config import Config, build_parser, config_from_args
+from ehss_gym.train.config import Config, Launch, build_parser, config_from_args
 from ehss_gym.train.loop import make_env
 from ehss_gym.train.vec_env import NativeVecEnv
 from stable_baselines3.common.monitor import Monitor
@@ -257,43 +257,35 @@ def test_resume_after_sigkill(tmp_path):
                      "--hp", "gamma=0.9"]) == 2
 
 
-def test_multi_seed_launches_one_process_per_seed(tmp_path, monkeypatch, capsys):
-    """--seeds starts one child per seed, at most --jobs at a time (children faked here; see the slow test)."""
-    started, alive = [], []
+def test_multi_seed_makes_one_job_per_seed(tmp_path, monkeypatch, capsys):
+    """--seeds makes one training job per seed on the chosen backend, each with its seed and run folder, in fresh
+    worker processes, at most --jobs at a time (the jobs faked here; the Ray tests train two for real)."""
+    seen = {}
 
-    class Fake:
-        def __init__(self, argv, **kw):
-            started.append(argv)
-            alive.append(self)
-            assert len(alive) <= 2
-            self.polls = 0
+    def fake_map(self, jobs, context=None, desc="jobs", fresh_process=False, in_process=None):
+        seen.update(jobs=jobs, fresh=fresh_process, workers=self.backend.workers, backend=self.backend.name)
+        self.computed += len(jobs)
+        return [{"summary": {"run_dir": j.config["out"], "run_name": os.path.basename(j.config["out"]),
+                             "timesteps": 64, "wall_s": 0.0, "best_step": 0, "best_validation": VAL,
+                             "base_validation": VAL}, "weights": {}} for j in jobs]
 
-        def poll(self):
-            self.polls += 1
-            if self.polls < 2:
-                return None
-            if self in alive:
-                alive.remove(self)
-            return 0
-
-        def kill(self):
-            raise AssertionError("no child should be left to kill")
-
-    monkeypatch.setattr(launch.subprocess, "Popen", Fake)
-    monkeypatch.setattr(launch.time, "sleep", lambda s: None)
+    monkeypatch.setattr(launch.Executor, "map", fake_map)
     assert cli_main(["train", "--seeds", "0-2", "--jobs", "2", "--out", str(tmp_path), "--timesteps", "64",
                      *TINY]) == 0
-    seeds = [a[a.index("--seed") + 1] for a in started]
-    assert seeds == ["0", "1", "2"]
-    outs = [a[a.index("--out") + 1] for a in started]
-    assert len(set(outs)) == 3 and all(os.path.dirname(o) == str(tmp_path) for o in outs)
+    jobs = seen["jobs"]
+    assert [j.seed for j in jobs] == [0, 1, 2] and seen["fresh"] and seen["workers"] == 2
+    assert seen["backend"] == "local"
     tiny = dict(n_envs=2, eval_episodes=1, eval_seconds=0.1, hp={"n_steps": 64, "batch_size": 64, "n_epochs": 1})
-    assert all(os.path.basename(o) == Config(seed=int(s), **tiny).run_name() for o, s in zip(outs, seeds))
-    assert all("--hp" in a and "--no-progress" in a for a in started)
-    # each child's flags rebuild its Config exactly (the options derive from the dataclass)
-    for a, o, s in zip(started, outs, seeds):
-        child = config_from_args(build_parser().parse_args(a[3:]))
-        assert child == Config(seed=int(s), out=o, progress=False, timesteps=64, **tiny)
+    outs = [j.config["out"] for j in jobs]
+    assert all(os.path.dirname(o) == str(tmp_path) for o in outs)
+    assert all(os.path.basename(o) == Config(seed=s, **tiny).run_name() for o, s in zip(outs, (0, 1, 2)))
+    # each job's config rebuilds its Config exactly (the seed passed on its own)
+    for j, o in zip(jobs, outs):
+        assert Config(**j.config, seed=j.seed) == Config(seed=j.seed, out=o, timesteps=64, **tiny)
+    assert "3 seed(s) trained" in capsys.readouterr().out
+
+
+VAL = {"score": 1.0, "rel_rmse": 1.0, "rel_fric": 1.0, "rel_tv": 1.0}
 
 
 @pytest.mark.slow
@@ -338,7 +330,7 @@ def test_every_config_field_is_an_option_with_its_docstring():
     p = build_parser(argparse.ArgumentParser(), launch=True)
     actions = {a.dest: a for a in p._actions if a.dest != "help"}
     docs = options.field_docs(Config)
-    assert set(actions) == {f.name for f in dataclasses.fields(Config)} | {"seeds", "jobs"}
+    assert set(actions) == {f.name for f in dataclasses.fields(Config)} | {f.name for f in dataclasses.fields(Launch)}
     for f in dataclasses.fields(Config):
         assert docs[f.name] and actions[f.name].help.startswith(docs[f.name]), f.name
     assert "--no-progress" in actions["progress"].option_strings and "--resume" in actions["resume"].option_strings
@@ -533,3 +525,21 @@ def test_training_report_command_refuses_bad_input(tmp_path, capsys):
     args = p.parse_args(["training-report", "--runs", str(tmp_path / "empty"), "--out", str(tmp_path / "out")])
     assert args.func(args) == 2
     assert "no finished runs" in capsys.readouterr().err
+
+
+def test_train_config_file_gives_defaults_that_flags_override_and_bad_files_are_named(tmp_path):
+    path = tmp_path / "best_config.json"
+    path.write_text(json.dumps({"agent": "residual-ppo", "n": 4, "timesteps": 4096, "hp": {"gamma": 0.95}}))
+    p = build_parser(argparse.ArgumentParser(), launch=True)
+    cfg = config_from_args(p.parse_args(["--config", str(path), "--timesteps", "128", "--seed", "2"]))
+    assert cfg == Config(n=4, timesteps=128, seed=2, hp={"gamma": 0.95})
+    path.write_text(json.dumps({"n": 4, "learning_rate": 1e-3}))
+    with pytest.raises(runs.RunError, match=r"--config .*must be a JSON object of Config fields.*\['learning_rate'\]"):
+        config_from_args(p.parse_args(["--config", str(path)]))
+    path.write_text("{not json")
+    with pytest.raises(runs.RunError, match="not JSON"):
+        config_from_args(p.parse_args(["--config", str(path)]))
+    with pytest.raises(runs.RunError, match="cannot read it"):
+        config_from_args(p.parse_args(["--config", str(tmp_path / "missing.json")]))
+    path.write_text(json.dumps({"n": 3}))
+    assert cli_main(["train", "--config", str(path), "--out", str(tmp_path / "r")]) == 2  # validated like a flag

@@ -17,6 +17,7 @@ import pickle
 import random
 import shutil
 import time
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -126,8 +127,11 @@ class HeldoutEval(BaseCallback):
     """
 
     def __init__(self, run_dir: str, env_kwargs: dict, scenarios: list, base: list[dict], reference: list[dict],
-                 eval_freq: int, wall: WallClock):
+                 eval_freq: int, wall: WallClock, on_eval: Callable[[dict], None] | None = None):
+        """Evaluate every ``eval_freq`` steps on ``scenarios``; ``on_eval(row)`` is told each history row (with
+        ``best_score``, the best so far: ``ehss tune`` reports it to Ray Tune)."""
         super().__init__()
+        self.on_eval = on_eval
         self.run_dir = run_dir
         self.env_kwargs = env_kwargs
         self.scenarios = scenarios
@@ -173,6 +177,8 @@ class HeldoutEval(BaseCallback):
             self.best_step = row["step"]
             self._save_best(row["step"])
         self.write_history()
+        if self.on_eval is not None:
+            self.on_eval({**row, "best_score": self.best_score})
         return row
 
     def _save_best(self, step: int) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 from dataclasses import dataclass
 
@@ -124,10 +125,22 @@ class Launch:
     """several seeds, e.g. 0-4 or 0,2,5: one process per seed, at most --jobs at a time; each run goes to <out or
     runs>/<run name>"""
     jobs: int | None = None
-    """parallel processes for --seeds (default: the usable cores)"""
+    """parallel seeds with --seeds on the local backend (default: the usable cores); with --backend ray on a
+    local Ray instance, its CPUs"""
+    backend: str = "local"
+    """where the seeds of --seeds train: local (this machine, a fresh process per seed) or ray (a Ray cluster:
+    --address, else RAY_ADDRESS, else a local Ray instance; pip install 'ehss-gym[ray]'); see docs/RAY.md"""
+    address: str | None = None
+    """the Ray cluster to join (HOST:PORT; with --backend ray)"""
+    store: str | None = None
+    """where each seed's job result is kept (default <out or runs>/jobs): a rerun skips the finished seeds"""
+    no_store: bool = False
+    """keep no job results (every seed trains again)"""
+    config: str | None = None
+    """a JSON file of Config fields, e.g. the best_config.json of ehss tune; the flags given override it"""
 
     def validate(self) -> Launch:
-        """Raise RunError for a bad --jobs; returns self."""
+        """Raise RunError for a bad --jobs; returns self (the backend is checked by the execution layer)."""
         if self.jobs is not None and self.jobs < 1:
             raise runs.RunError(f"--jobs must be an integer >= 1, got {self.jobs!r}")
         return self
@@ -143,8 +156,34 @@ def build_parser(parser: argparse.ArgumentParser | None = None, launch: bool = F
     return p
 
 
+def read_config_file(path: str) -> dict:
+    """The Config fields in JSON file ``path`` (``ehss train --config``; e.g. ``ehss tune``'s best_config.json).
+
+    Raises:
+        RunError: a missing or malformed file, or a key that is not a Config field (named, with the fields).
+    """
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except OSError as exc:
+        raise runs.RunError(f"--config {path}: cannot read it ({exc.strerror})") from None
+    except ValueError as exc:
+        raise runs.RunError(f"--config {path}: not JSON ({exc})") from None
+    names = {f.name for f in dataclasses.fields(Config)}
+    if not isinstance(data, dict) or set(data) - names:
+        bad = sorted(set(data) - names) if isinstance(data, dict) else type(data).__name__
+        raise runs.RunError(f"--config {path}: must be a JSON object of Config fields ({', '.join(sorted(names))});"
+                            f" got {bad}")
+    return data
+
+
 def config_from_args(args: argparse.Namespace, **overrides) -> Config:
-    """A validated Config from parsed options; ``overrides`` (e.g. ``seed``, ``out``) replace parsed values."""
+    """A validated Config from parsed options: the ``--config`` file's values (``ehss train``), then the flags
+    given, then ``overrides`` (e.g. ``seed``, ``out``)."""
+    path = getattr(args, "config", None)
+    if path is not None:
+        given = {f.name for f in dataclasses.fields(Config) if getattr(args, f.name, None) is not None}
+        overrides = {**{k: v for k, v in read_config_file(path).items() if k not in given}, **overrides}
     return options.from_namespace(Config, args, **overrides).validate()
 
 

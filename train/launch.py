@@ -1,50 +1,39 @@
-"""``ehss train``: one training run, or several seeds side by side, one process per seed.
+"""``ehss train``: one training run, or several seeds side by side, each seed a job of the execution layer.
 
     ehss train --agent {residual-ppo,ppo} --task velocity --n 2 --timesteps T --seed S [--out runs/NAME] [--resume]
-    ehss train --seeds 0-4 [--jobs J] [...]   # one process per usable core; runs go to <out or runs>/<run name>
+    ehss train --seeds 0-4 [--jobs J] [--backend ray [--address HOST:PORT]] [...]   # runs go to <out or runs>/<name>
 
-Each seed runs ``python -m ehss_gym.train.loop`` with the seed's :class:`~ehss_gym.train.config.Config` as
-flags (:func:`ehss_gym.train.options.to_argv`) and its output in ``<run>/train.log``. Every seed's settings
-are validated, and its folder checked against ``--resume``, before any process starts.
+Each seed is a :func:`~ehss_gym.train.jobs.train_job` on the chosen backend (:mod:`ehss_gym.core.execution`):
+locally, a fresh worker process per seed, at most ``--jobs`` at a time; on Ray, one task per seed (retried, and
+resumed from its last checkpoint, if its worker dies). Its output goes to ``<run>/train.log``. Every seed's
+settings are validated, and its folder checked against ``--resume``, before any job starts; a seed whose job
+result is already in the store (``<out or runs>/jobs``) is not trained again.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import os
-import subprocess
 import sys
-import time
 
-from tqdm.auto import tqdm
+from ehss_gym.core.execution import Backend, ExecutionError, Executor, Store, job_key
 
-from . import options, runs
+from . import runs
 from .config import Config, Launch, config_from_args, launch_from_args
+from .jobs import materialize, seed_job
 from .loop import describe, train
 
-# one thread per library in each child: the seeds share the cores
-CHILD_THREADS = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
 
-
-def usable_cores() -> int:
-    """CPU cores this process may run on."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
-
-
-def child_argv(cfg: Config) -> list[str]:
-    """The command line of one seed's training process."""
-    return [sys.executable, "-m", "ehss_gym.train.loop", *options.to_argv(dataclasses.replace(cfg, progress=False))]
-
-
-def plan_seeds(args, seeds: list[int], parent: str) -> list[tuple[int, Config]]:
-    """(seed, Config with its run folder) of every seed, validated and checked against ``--resume``."""
+def plan_seeds(args, seeds: list[int], parent: str, store: Store | None = None) -> list[tuple[int, Config]]:
+    """(seed, Config with its run folder) of every seed, validated and checked against ``--resume`` (a seed whose
+    result ``store`` holds is finished: it is not checked)."""
     plans = []
     for s in seeds:
         cfg = config_from_args(args, seed=s, out="")
         cfg = dataclasses.replace(cfg, out=os.path.join(parent, cfg.run_name()))
+        if store is not None and store.load(job_key(seed_job(cfg))) is not None:
+            plans.append((s, cfg))
+            continue
         man = runs.latest_checkpoint(cfg.out)
         if cfg.resume and man is None:
             raise runs.RunError(f"--resume: no checkpoint in {cfg.out} for seed {s}; run without --resume to start")
@@ -55,37 +44,20 @@ def plan_seeds(args, seeds: list[int], parent: str) -> list[tuple[int, Config]]:
     return plans
 
 
-def run_seeds(plans: list[tuple[int, Config]], jobs: int, progress: bool = True) -> list[int]:
-    """Train every planned seed in its own process, at most ``jobs`` at a time; the seeds that failed."""
-    env = {**os.environ, **CHILD_THREADS}
-    pending = list(plans)
-    running: list[tuple[int, str, subprocess.Popen, float]] = []
-    failed = []
-    bar = tqdm(total=len(plans), desc="seeds", unit="run", disable=not progress)
-    try:
-        while pending or running:
-            while pending and len(running) < jobs:
-                s, cfg = pending.pop(0)
-                os.makedirs(cfg.out, exist_ok=True)
-                with open(os.path.join(cfg.out, "train.log"), "a") as log:
-                    proc = subprocess.Popen(child_argv(cfg), stdout=log, stderr=subprocess.STDOUT, env=env)
-                running.append((s, cfg.out, proc, time.perf_counter()))
-            time.sleep(0.5)
-            for item in list(running):
-                s, out, proc, t0 = item
-                rc = proc.poll()
-                if rc is None:
-                    continue
-                running.remove(item)
-                bar.update(1)
-                bar.write(f"seed {s}: exit {rc} after {time.perf_counter() - t0:.0f} s -> {out}")
-                if rc != 0:
-                    failed.append(s)
-    finally:
-        for _, _, proc, _ in running:  # only our own children, by their handles
-            proc.kill()
-        bar.close()
-    return failed
+def run_seeds(plans: list[tuple[int, Config]], executor: Executor) -> list[dict]:
+    """Train every planned seed on ``executor`` (a fresh process per seed locally); their job results, with the
+    weights of seeds trained on another machine written into their run folders."""
+    results = executor.map([seed_job(cfg) for _, cfg in plans], desc="seeds", fresh_process=True)
+    for res in results:
+        materialize(res)
+    return results
+
+
+def launch_executor(launch: Launch, parent: str, progress: bool) -> Executor:
+    """The executor of a ``--seeds`` launch: its backend, and its store in ``<parent>/jobs`` (or ``--store``)."""
+    backend = Backend(launch.backend, launch.address, workers=launch.jobs).validate()
+    store = None if launch.no_store else Store(launch.store or os.path.join(parent, "jobs"))
+    return Executor(backend, store, progress=progress)
 
 
 def run_from_args(args, prog: str = "ehss train") -> int:
@@ -93,23 +65,32 @@ def run_from_args(args, prog: str = "ehss train") -> int:
     try:
         launch: Launch = launch_from_args(args)
         if launch.seeds is None:
+            if launch.backend != "local" or launch.address is not None:
+                raise runs.RunError("--backend and --address run the seeds of --seeds; one --seed trains here")
             summary = train(config_from_args(args))
             print(describe(summary))
             return 0
         if args.seed is not None:
             raise runs.RunError("give either --seed or --seeds, not both")
         seeds = runs.parse_seeds(launch.seeds)
-        plans = plan_seeds(args, seeds, args.out or "runs")
-    except runs.RunError as exc:
+        parent = args.out or "runs"
+        executor = launch_executor(launch, parent, progress=args.progress is not False)
+        plans = plan_seeds(args, seeds, parent, executor.store)
+        with executor:
+            where = f"{executor.workers()} parallel job(s) on the {launch.backend} backend"
+            print(f"training {len(seeds)} seeds {seeds} with {where}; logs in <run>/train.log")
+            results = run_seeds(plans, executor)
+    except (runs.RunError, ExecutionError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
-    jobs = launch.jobs or usable_cores()
-    print(f"training {len(seeds)} seeds {seeds} with {jobs} parallel process(es); logs in <run>/train.log")
-    failed = run_seeds(plans, jobs, progress=args.progress is not False)
-    if failed:
-        print(f"{prog}: seeds {failed} failed; see their train.log", file=sys.stderr)
+    except RuntimeError as exc:  # a seed's job failed; the seeds finished before it are in the store
+        print(f"{prog}: error: {exc}; see its train.log", file=sys.stderr)
         return 1
+    for res in results:
+        print(describe(res["summary"]))
+    print(f"{executor.computed} seed(s) trained, {executor.skipped} already finished (in {executor.store.root})"
+          if executor.store is not None else f"{executor.computed} seed(s) trained")
     return 0
 
 
-__all__ = ["usable_cores", "child_argv", "plan_seeds", "run_seeds", "run_from_args"]
+__all__ = ["plan_seeds", "run_seeds", "launch_executor", "run_from_args"]

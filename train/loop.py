@@ -29,6 +29,7 @@ import json
 import os
 import pickle
 import sys
+from collections.abc import Callable
 
 import gymnasium as gym
 import torch
@@ -148,9 +149,13 @@ def rollout_note(timesteps: int, start: int, rollout: int) -> str | None:
     return None
 
 
+def train(cfg: Config, on_eval: Callable[[dict], None] | None = None) -> dict:
+    """Run (or resume) one training run; returns the summary dict (also written to summary.json).
 
-def train(cfg: Config) -> dict:
-    """Run (or resume) one training run; returns the summary dict (also written to summary.json)."""
+    Args:
+        cfg: the run's settings.
+        on_eval: called with every held-out validation row (:class:`~ehss_gym.train.callbacks.HeldoutEval`).
+    """
     cfg.validate()
     spec, full, name, run_dir = cfg.spec(), cfg.full(), cfg.run_name(), cfg.run_dir()
     manifest = open_run(cfg)
@@ -169,7 +174,7 @@ def train(cfg: Config) -> dict:
     # --- callbacks: wall clock, progress, held-out validation (best model), checkpoints ----------------
     scenarios, base, reference = validation(cfg, env_kwargs)
     wall = WallClock()
-    evaluator = HeldoutEval(run_dir, env_kwargs, scenarios, base, reference, cfg.eval_freq, wall)
+    evaluator = HeldoutEval(run_dir, env_kwargs, scenarios, base, reference, cfg.eval_freq, wall, on_eval)
     checkpoint = Checkpoint(run_dir, cfg.checkpoint_freq, {"wall": wall, "eval": evaluator},
                             lambda: env_generators(venv))
     progress = ProgressBar(cfg.timesteps, desc=name, disable=not cfg.progress)

@@ -12,9 +12,10 @@ import sys
 
 from ehss_gym._version import __version__
 
-from . import bench, evaluate, fidelity, noise, reproduce, simulate, train, training_report
+from . import bench, evaluate, fidelity, noise, reproduce, simulate, train, training_report, tune
 
-COMMANDS = (simulate, reproduce, noise, evaluate, train, training_report, bench, fidelity)  # each: register(subparsers)
+# each exposes register(subparsers)
+COMMANDS = (simulate, reproduce, noise, evaluate, train, training_report, tune, bench, fidelity)
 
 
 def build_parser() -> argparse.ArgumentParser:

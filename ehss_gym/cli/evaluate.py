@@ -9,6 +9,7 @@ import sys
 import warnings
 from dataclasses import replace
 
+from ehss_gym.core.execution import Executor, add_backend_arguments, backend_from_args, store_from_args
 from ehss_gym.core.util import report_folder
 from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, PolicyWarning, default_specs, evaluate, parse_policies
 from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
@@ -49,6 +50,7 @@ def register(sub) -> None:
     p.add_argument("--quick", action="store_true",
                    help="small CI form: 8 held-out episodes, 3+2 sweep levels of 1 episode, paper run cut at 12 s")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_backend_arguments(p)
     p.set_defaults(func=cmd_evaluate)
 
 
@@ -101,14 +103,17 @@ def cmd_evaluate(args) -> int:
             specs = default_specs() if args.policies is None else parse_policies(args.policies)
             for w in caught:
                 print(f"{prog}: warning: {w.message}", file=sys.stderr)
-            res = evaluate(specs, cfg, workers=args.workers, progress=not args.no_progress,
-                           command=_command_line(args))
-    except ValueError as exc:  # PolicyError, SafeWeightsError, bad settings
+            with Executor(backend_from_args(args, args.workers), store_from_args(args),
+                          progress=not args.no_progress) as executor:
+                res = evaluate(specs, cfg, workers=args.workers, progress=not args.no_progress,
+                               command=_command_line(args), executor=executor)
+    except ValueError as exc:  # PolicyError, SafeWeightsError, ExecutionError (backend, address), bad settings
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     except RuntimeError as exc:  # a policy that misbehaved while running (e.g. a NaN action)
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
+    print(f"{prog}: {executor.computed} job(s) computed, {executor.skipped} from the store", file=sys.stderr)
     for note in res.notes:
         print(f"{prog}: note: {note}", file=sys.stderr)
     path = write_report(res, report_folder(args.out, args.quick, DEFAULT_OUT))

@@ -15,18 +15,21 @@ import os
 import sys
 import time
 
+from ehss_gym.core.execution import ExecutionError, Executor, add_backend_arguments, backend_from_args, store_from_args
 from ehss_gym.core.util import report_folder
 from ehss_gym.reporting.paper import write_report
 from ehss_gym.study.config import StudyConfig
 from ehss_gym.study.stages import run_study
 
 
-def main_reproduce(out: str, quick: bool = False, progress: bool = True, cmd: str | None = None) -> str:
-    """Run the study and write the report; returns REPORT.md's path."""
+def main_reproduce(out: str, quick: bool = False, progress: bool = True, cmd: str | None = None,
+                   executor: Executor | None = None) -> str:
+    """Run the study (its simulation batches on ``executor``, default in this process) and write the report;
+    returns REPORT.md's path."""
     t0 = time.perf_counter()
     cfg = StudyConfig.quick_config() if quick else StudyConfig.full()
     cmd = cmd or ("ehss reproduce" + (" --quick" if quick else "") + f" --out {out}")
-    st = run_study(cfg, progress=progress)
+    st = run_study(cfg, progress=progress, executor=executor)
     return write_report(st, out, cmd, t_start=t0)
 
 
@@ -41,8 +44,13 @@ def cmd_reproduce(args) -> int:
     if os.path.exists(out) and not os.path.isdir(out):
         print(f"ehss reproduce: error: --out must be a folder, {out!r} is a file", file=sys.stderr)
         return 2
-    path = main_reproduce(out, quick=args.quick, progress=not args.no_progress)
-    print(f"wrote {path}")
+    try:
+        with Executor(backend_from_args(args), store_from_args(args)) as executor:
+            path = main_reproduce(out, quick=args.quick, progress=not args.no_progress, executor=executor)
+    except ExecutionError as exc:
+        print(f"ehss reproduce: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {path} ({executor.computed} simulation batch(es) computed, {executor.skipped} from the store)")
     return 0
 
 
@@ -54,4 +62,5 @@ def register(sub):
     p.add_argument("--quick", action="store_true",
                    help="tiny grids and durations (CI smoke run; numbers not meaningful)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_backend_arguments(p)
     p.set_defaults(func=cmd_reproduce)

@@ -3,9 +3,10 @@
 Every policy acts in the Gymnasium env ``EHSSTracking-v0`` (:class:`ehss_gym.envs.env.EHSSTrackingEnv`) through
 SB3's ``predict(obs, state, episode_start, deterministic=True)``; every episode is pinned to a scenario
 (``reset(options={"scenario": ...})``), so all policies see exactly the same references, friction
-events, plants and sensor noise. Episodes run in worker processes (``spawn``) across the cores; the
-split of episodes into jobs does not depend on the number of workers, so results are identical for
-any ``--workers``.
+events, plants and sensor noise. The episodes run as jobs of the execution layer (:mod:`ehss_gym.core.execution`):
+in this process, in ``spawn`` worker processes across the cores, or as Ray tasks (``--backend ray``); the split
+of episodes into jobs depends neither on the number of workers nor on the backend, so results are identical
+for any ``--workers`` and on both backends.
 
 The pieces: the suites and their episodes (:mod:`~ehss_gym.evaluation.suites`), the policy specs
 (:mod:`~ehss_gym.evaluation.specs`), loading a spec's runs (:mod:`~ehss_gym.evaluation.loading`), the primary
@@ -14,24 +15,24 @@ cuts the work into jobs, runs them and gathers the :class:`Results`; the report 
 :mod:`ehss_gym.reporting.comparison`'s.
 
 **Loading**: every run is loaded once, in this process, to check that it fits the env
-(:func:`~ehss_gym.evaluation.specs.check_fit`); the worker processes get the loaded models as bytes when the
-pool starts, so no worker reads a model file (a model that cannot be pickled is loaded at most once per worker).
+(:func:`~ehss_gym.evaluation.specs.check_fit`); the workers get each policy once, as the jobs' shared context
+(:func:`~ehss_gym.evaluation.loading.portable`: a safe-weights model as its two files' bytes), so no worker reads
+a model file (a model that cannot be pickled is loaded at most once per worker).
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
-import multiprocessing as mp
-import os
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
-import numba
 import numpy as np
-from tqdm import tqdm
 
+from ehss_gym.core.execution import Backend, Executor, canonical, usable_cores
+from ehss_gym.core.execution import Job as ExecJob
 from ehss_gym.envs.rollout import rollout as run_rollout
 
 from .loading import PolicyError, load_run, portable, restore
@@ -106,41 +107,26 @@ class Results:
     notes: list = field(default_factory=list)
 
 
-class _Policies:
-    """The policy objects of one process's jobs, each made once from its item (see :func:`loading.restore`)."""
-
-    def __init__(self, items: dict, in_worker: bool):
-        """Hold the items; nothing is made yet.
-
-        Args:
-            items: (policy, run, task) -> item (see :func:`run_jobs`).
-            in_worker: this is a worker process (a learned policy then gets one torch thread).
-        """
-        self.items = items
-        self.in_worker = in_worker
-        self.objects: dict = {}
-
-    def get(self, job: Job):
-        """The policy object of ``job``'s (policy, run, task), made on first use."""
-        if job.key not in self.objects:
-            self.objects[job.key] = restore(self.items[job.key], job.task, job.env_kwargs)
-            if self.in_worker and "torch" in sys.modules:  # a learned policy: one torch thread per worker process
-                sys.modules["torch"].set_num_threads(1)
-        return self.objects[job.key]
+_MADE: dict = {}  # this process's policy objects, by (digest of their item, (policy, run, task))
 
 
-_WORKER_POLICIES: _Policies | None = None
+def item_digest(item: tuple) -> str:
+    """SHA-256 of a policy item (:func:`ehss_gym.evaluation.loading.portable`): part of its jobs' addresses."""
+    how, what = item
+    return hashlib.sha256(json.dumps([how, canonical(what)]).encode()).hexdigest()
 
 
-def _worker_init(items: dict) -> None:
-    """A worker process: its policies (sent once, when the pool starts) and one thread (the parallelism is across
-    processes)."""
-    global _WORKER_POLICIES
-    _WORKER_POLICIES = _Policies(items, in_worker=True)
-    try:
-        numba.set_num_threads(1)
-    except Exception:  # numba's thread layer may refuse in exotic set-ups; one thread is only a preference
-        pass
+def _eval_job(config: dict, seed: int, items: dict) -> dict:
+    """An executor job (:mod:`ehss_gym.core.execution`): one :class:`Job`'s episodes with its policy, made once
+    per process from its item in ``items``; plain data back (per-episode metrics, traces or None)."""
+    job: Job = config["job"]
+    # one object per item *and* (policy, run, task): a scripted law's item is the same for both tasks, its object
+    # is built for one
+    made = (config["item"], job.key)
+    if made not in _MADE:
+        _MADE[made] = restore(items[job.key], job.task, job.env_kwargs)
+    res, traces = rollout(_MADE[made], job.env_kwargs, job.episodes, job.trace, job.policy)
+    return {"metrics": res, "traces": traces}
 
 
 def rollout(policy, env_kwargs: dict, episodes: Sequence[Episode], trace: bool = False, name: str = "policy"):
@@ -160,17 +146,6 @@ def rollout(policy, env_kwargs: dict, episodes: Sequence[Episode], trace: bool =
     """
     res = run_rollout(policy, env_kwargs, [ep.physical for ep in episodes], trace=trace, name=name)
     return [r.metrics for r in res], ([r.trace for r in res] if trace else None)
-
-
-def _run_job(job: Job, policy):
-    """Run one job with ``policy``: (job_id, per-episode metrics, traces or None)."""
-    res, traces = rollout(policy, job.env_kwargs, job.episodes, job.trace, job.policy)
-    return job.job_id, res, traces
-
-
-def _run_in_worker(job: Job):
-    """:func:`_run_job` in a worker process, with the policy this worker made (once) from its item."""
-    return _run_job(job, _WORKER_POLICIES.get(job))
 
 
 def make_jobs(specs: Sequence[PolicySpec], episodes: Sequence[Episode], chunk: int) -> list[Job]:
@@ -194,43 +169,34 @@ def make_jobs(specs: Sequence[PolicySpec], episodes: Sequence[Episode], chunk: i
 
 def default_workers() -> int:
     """The cores this process may run on."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:
-        return max(1, os.cpu_count() or 1)
+    return usable_cores()
 
 
-def run_jobs(jobs: Sequence[Job], items: dict, workers: int, progress: bool = True) -> dict:
-    """Run jobs in ``workers`` spawned processes (in this process when 1).
+def run_jobs(jobs: Sequence[Job], items: dict, executor: Executor, in_process: bool = False) -> dict:
+    """Run jobs on ``executor``'s backend (:mod:`ehss_gym.core.execution`), longest first.
 
     Args:
         jobs: the jobs.
         items: (policy, run, task) -> how to make the policy (:func:`ehss_gym.evaluation.loading.portable`, or
             ("object", policy) in this process).
-        workers: processes.
-        progress: show a progress bar on stderr.
+        executor: where they run (its store, if any, keeps each job's result under its content address).
+        in_process: run them in this process whatever the backend (policies that cannot travel).
 
     Returns:
         job_id -> (per-episode metrics, traces or None).
     """
-    total = sum(len(j.episodes) for j in jobs)
-    bar = tqdm(total=total, unit="ep", desc="ehss evaluate", disable=not progress, file=sys.stderr)
-    out = {}
-    order = sorted(jobs, key=lambda j: -j.cost)  # longest first keeps the pool busy to the end
-    if workers <= 1:
-        policies = _Policies(items, in_worker=False)
-        for job in order:
-            jid, res, tr = _run_job(job, policies.get(job))
-            out[jid] = (res, tr)
-            bar.update(len(job.episodes))
-    else:
-        ctx = mp.get_context("spawn")
-        with ctx.Pool(workers, initializer=_worker_init, initargs=(items,)) as pool:
-            for jid, res, tr in pool.imap_unordered(_run_in_worker, order, chunksize=1):
-                out[jid] = (res, tr)
-                bar.update(len(jobs[jid].episodes))
-    bar.close()
-    return out
+    order = sorted(jobs, key=lambda j: -j.cost)  # longest first keeps the workers busy to the end
+    digests = {k: item_digest(item) if item[0] != "object" else f"object-{id(item[1])}" for k, item in items.items()}
+    ejobs = [ExecJob(_eval_job, {"job": j, "item": digests[j.key]}, seed=0, label=f"{j.policy}/{j.task}#{j.job_id}")
+             for j in order]
+    store = executor.store
+    if any(item[0] == "object" for item in items.values()):  # a Python object has no content address
+        executor.store = None
+    try:
+        results = executor.map(ejobs, context=items, desc="ehss evaluate", in_process=True if in_process else None)
+    finally:
+        executor.store = store
+    return {j.job_id: (r["metrics"], r["traces"]) for j, r in zip(order, results)}
 
 
 def _complete_specs(specs: list, cfg: EvalConfig, notes: list) -> list:
@@ -286,7 +252,7 @@ def _load_runs(specs: list, cfg: EvalConfig, notes: list) -> dict:
 
 
 def _policy_items(specs: list, loaded: dict, workers: int, notes: list) -> tuple[dict, int]:
-    """How each process gets each policy: (items for :func:`run_jobs`, workers).
+    """How each process gets each policy: (items for :func:`run_jobs`, workers; 1 = in this process).
 
     Scripted laws are built afresh from their description where their episodes run; loaded models are handed
     over (in this process) or sent as bytes (to workers). An object that does not pickle keeps the episodes in
@@ -322,7 +288,7 @@ def _gather(jobs: Sequence[Job], done: dict) -> tuple[list, dict]:
 
 
 def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None = None, workers: int | None = None,
-             progress: bool = True, command: str = "ehss evaluate") -> Results:
+             progress: bool = True, command: str = "ehss evaluate", executor: Executor | None = None) -> Results:
     """Evaluate policies on the configured suites (see the module docstring).
 
     Args:
@@ -332,6 +298,8 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
         workers: processes (default: the cores available); 1 runs in this process.
         progress: show a tqdm progress bar on stderr.
         command: the command line recorded in the report.
+        executor: where the episodes run (:mod:`ehss_gym.core.execution`; its backend, and its store if it has
+            one); default: this machine's processes, ``workers`` of them, nothing stored.
 
     Raises:
         PolicyError: a policy that cannot be loaded, whose shapes do not fit the env, or (among ``specs``) that acts
@@ -348,10 +316,14 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
     specs = [s for s in specs if s.tasks]
     episodes = build_episodes(cfg)
     jobs = make_jobs(specs, episodes, cfg.chunk)
-    workers = max(1, min(default_workers() if workers is None else int(workers), len(jobs)))
-    items, workers = _policy_items(specs, loaded, workers, notes)
+    executor = executor or Executor(Backend("local", workers=workers), progress=progress)
+    remote = executor.backend.name != "local"
+    workers = max(1, min(executor.workers(), len(jobs)))
+    # off this process (worker processes, Ray), a policy travels as its item; in it, as the object itself
+    items, travel = _policy_items(specs, loaded, max(2, workers) if remote else workers, notes)
+    workers = workers if travel > 1 else 1
     t0 = time.perf_counter()
-    done = run_jobs(jobs, items, workers, progress)
+    done = run_jobs(jobs, items, executor, in_process=travel == 1)
     rows, traces = _gather(jobs, done)
     t1 = time.perf_counter()
     score_rows(rows)

@@ -11,8 +11,10 @@ A run is what :attr:`ehss_gym.evaluation.specs.PolicySpec.runs` holds per traini
 - any object with ``predict``, used as it is.
 
 Safe-weights models are loaded once per process (:func:`load_safe` remembers them by the identity of their two
-files, so spec parsing, the shape checks and the episodes share one load). Worker processes get the loaded
-objects as bytes from :func:`portable` and rebuild them with :func:`restore`: they read no model file unless an
+files, so spec parsing, the shape checks and the episodes share one load). Worker processes (local ones, or Ray
+workers on other machines) get what :func:`portable` makes of a loaded run and rebuild it with :func:`restore`:
+a safe-weights model as the bytes of its two files (no pickle; loaded through the safe-weights checks from a
+private copy, so no worker needs the model's files), other objects as pickles; they read no model file unless an
 object cannot be pickled, and then load it at most once each.
 """
 
@@ -23,6 +25,7 @@ import importlib
 import json
 import os
 import pickle
+import tempfile
 import zipfile
 
 import numpy as np
@@ -176,15 +179,21 @@ def portable(run, policy) -> tuple:
         policy: what :func:`load_run` made of it in this process.
 
     Returns:
-        ("build", run) for a scripted law (rebuilt in the worker: no file, no tuning), ("bytes", pickle) for a
-        loaded model or object that pickles, or ("load", run) for a model that does not pickle (the worker
-        loads it from its file).
+        ("build", run) for a scripted law (rebuilt in the worker: no file, no tuning), ("safe", files) for a
+        safe-weights model (the bytes of its two files: no pickle, and a worker on another machine needs no copy
+        of them), ("bytes", pickle) for another loaded model or object that pickles, or ("load", run) for a model
+        that does not pickle (the worker loads it from its file).
 
     Raises:
         pickle.PicklingError, TypeError, AttributeError: a Python object given as a policy does not pickle.
     """
     if isinstance(run, dict):
         return ("build", run)
+    if isinstance(run, str) and not run.endswith(".zip"):
+        st_path, js_path = model_paths(run)
+        with open(st_path, "rb") as f, open(js_path, encoding="utf-8") as g:
+            return ("safe", {"name": os.path.basename(js_path)[:-len(".json")], "safetensors": f.read(),
+                             "json": g.read()})
     try:
         return ("bytes", pickle.dumps(policy, protocol=pickle.HIGHEST_PROTOCOL))
     except Exception:  # e.g. a model with a lambda inside; a plain object has no file to fall back on
@@ -202,6 +211,13 @@ def restore(item: tuple, task: str, env_kwargs: dict):
         env_kwargs: the env settings it acts in.
     """
     how, what = item
+    if how == "safe":  # through the safe-weights loader (hashes and shapes checked), from a private folder
+        with tempfile.TemporaryDirectory(prefix="ehss-policy-") as tmp:
+            stem = os.path.join(tmp, what["name"])
+            with open(stem + ".safetensors", "wb") as f, open(stem + ".json", "w", encoding="utf-8") as g:
+                f.write(what["safetensors"])
+                g.write(what["json"])
+            return load_policy(stem)
     if how == "bytes":
         return pickle.loads(what)
     if how == "object":  # in the process that loaded it

@@ -13,8 +13,9 @@ import numpy as np
 from tqdm import tqdm
 
 from ehss_gym.core import layout as L
+from ehss_gym.core.execution import Executor, Job
 from ehss_gym.core.physics import lie_derivatives
-from ehss_gym.core.sim import Scenario, lambdas, simulate_batch
+from ehss_gym.core.sim import Scenario, Trajectory, lambdas, simulate_batch
 
 
 @dataclass
@@ -163,18 +164,37 @@ def probe_summary(r: Record) -> Record:
     return r
 
 
-class Runner:
-    """Batches scenarios by time grid into ``simulate_batch`` calls, with one tqdm bar over batches."""
+def batch_job(config: dict, seed: int, context) -> list[dict]:
+    """An executor job (:mod:`ehss_gym.core.execution`): one ``simulate_batch`` call of the study, as plain data
+    per run (params, metrics, features; with ``keep`` the trajectory's log and accumulators too). The scenarios
+    carry their own noise seeds, so ``seed`` is unused."""
+    out = []
+    for tr in simulate_batch(list(config["scenarios"])):
+        d = {"params": params_of(tr.scenario), "metrics": tr.metrics(), "features": features_of(tr)}
+        if config["keep"]:
+            d["log"], d["acc"] = tr.log, tr.acc
+        out.append(d)
+    return out
 
-    def __init__(self, max_batch: int = 64, progress: bool = True, desc: str = "ehss reproduce"):
+
+class Runner:
+    """Batches scenarios by time grid into ``simulate_batch`` calls (jobs of an
+    :class:`~ehss_gym.core.execution.Executor`), with one tqdm bar over batches."""
+
+    def __init__(self, max_batch: int = 64, progress: bool = True, desc: str = "ehss reproduce",
+                 executor: Executor | None = None):
+        """Batches of at most ``max_batch`` runs on ``executor`` (default: in this process, nothing stored)."""
         self.max_batch = max_batch
+        self.desc = desc
+        self.executor = executor or Executor()
         self.bar = tqdm(total=0, desc=desc, unit="batch", disable=not progress, file=sys.stderr)
         self.n_runs = 0
         self.sim_seconds = 0.0
-        self.by_group: dict[str, float] = {}  # wall time [s] per study part (a batch is timed under its first run)
+        self.by_group: dict[str, float] = {}  # wall time [s] per study part (a batch shared out by its runs)
 
-    def run(self, items: Sequence[tuple[str, Scenario]], keep: bool = False) -> list[Record]:
-        """Simulate (group, scenario) pairs; returns Records in the same order."""
+    def batches(self, items: Sequence[tuple[str, Scenario]]) -> list[list[int]]:
+        """Indices of ``items`` cut into batches of one time grid each (fixed order: results do not depend on
+        where the batches run)."""
         groups: dict[tuple, list[int]] = {}
         for i, (_, sc) in enumerate(items):
             groups.setdefault(sc.grid(), []).append(i)
@@ -186,19 +206,27 @@ class Runner:
             n_b = -(-len(idx) // self.max_batch)
             size = -(-len(idx) // n_b)
             batches += [idx[k:k + size] for k in range(0, len(idx), size)]
+        return batches
+
+    def run(self, items: Sequence[tuple[str, Scenario]], keep: bool = False) -> list[Record]:
+        """Simulate (group, scenario) pairs; returns Records in the same order."""
+        batches = self.batches(items)
         self.bar.total += len(batches)
         self.bar.refresh()
+        jobs = [Job(batch_job, {"scenarios": [items[i][1] for i in b], "keep": keep}, 0, label=items[b[0]][0])
+                for b in batches]
+        t0 = time.perf_counter()
+        # locally, in this process: simulate_batch spreads each batch over numba's threads, as before
+        results = self.executor.map(jobs, desc=self.desc, in_process=self.executor.backend.name == "local")
+        dt = time.perf_counter() - t0
+        self.sim_seconds += dt
         out: list[Record | None] = [None] * len(items)
-        for b in batches:
-            t0 = time.perf_counter()
-            trajs = simulate_batch([items[i][1] for i in b])
-            dt = time.perf_counter() - t0
-            self.sim_seconds += dt
+        for b, res in zip(batches, results):
             g = items[b[0]][0]
-            self.by_group[g] = self.by_group.get(g, 0.0) + dt
-            for i, tr in zip(b, trajs):
-                out[i] = Record(items[i][0], params_of(tr.scenario), tr.metrics(), features_of(tr),
-                                tr if keep else None)
+            self.by_group[g] = self.by_group.get(g, 0.0) + dt * len(b) / max(1, len(items))
+            for i, d in zip(b, res):
+                traj = Trajectory(items[i][1], d["log"], d["acc"]) if keep else None
+                out[i] = Record(items[i][0], d["params"], d["metrics"], d["features"], traj)
             self.n_runs += len(b)
             self.bar.update(1)
         return out

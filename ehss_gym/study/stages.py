@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+from ehss_gym.core.execution import Executor
 from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, heldout_scenarios, paper_scenario, sample_scenario
 from ehss_gym.core.signals import sine
 from ehss_gym.core.sim import Scenario
@@ -290,10 +291,16 @@ STAGES = (stage_paper_sweep, stage_robust_velocity, stage_substeps_position, sta
           stage_position_probe, stage_lost_track_maps, stage_final)
 
 
-def run_study(cfg: StudyConfig, progress: bool = True) -> Study:
-    """Run every stage in order; later stages use the settings chosen from earlier ones."""
+def run_study(cfg: StudyConfig, progress: bool = True, executor: Executor | None = None) -> Study:
+    """Run every stage in order; later stages use the settings chosen from earlier ones.
+
+    Args:
+        cfg: the study's settings.
+        progress: show a progress bar.
+        executor: where the simulation batches run (:mod:`ehss_gym.core.execution`; default in this process).
+    """
     st = Study(cfg)
-    runner = Runner(progress=progress)
+    runner = Runner(progress=progress, executor=executor)
     t_start = time.perf_counter()
     try:
         for stage in STAGES:
