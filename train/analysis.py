@@ -401,7 +401,9 @@ def ship(groups: dict, models_dir: str, made_by: str) -> list[str]:
                 blob = f.read()
             cfg = read_json(js)
             cfg["name"] = name
-            cfg["env_kwargs"] = resolved_env_kwargs(cfg["env_kwargs"])  # pin the env defaults it was trained with
+            # pin the env defaults it was trained with: a run from before issue 14 recorded none of its settings
+            # (recorded_loop fills in the loop of then, not today's defaults)
+            cfg["env_kwargs"] = resolved_env_kwargs(recorded_loop(cfg["env_kwargs"]))
             cfg["metadata"] = {"run_name": r["summary"]["run_name"], "seed": r["config"]["seed"],
                                "hp_overrides": r["config"].get("hp") or {},
                                "step": r["summary"]["best_step"], "validation": r["summary"]["best_validation"],

@@ -142,7 +142,15 @@ def trial_rows(results) -> list[dict]:
                "score": float(m.get("score", math.nan)), "train_s": float(m.get("time_total_s", math.nan))}
         row.update({k: r.config.get(k) for k in SEARCH_SPACE})
         rows.append(row)
-    return sorted(rows, key=lambda d: (math.isnan(d[METRIC]), d[METRIC]))
+    # ties (a budget too short to leave the base law scores 1.0 for every trial) go to the earlier trial: Tune lists
+    # a restored search in another order, and the best trial must not depend on it
+    return sorted(rows, key=lambda d: (math.isnan(d[METRIC]), d[METRIC], _trial_number(d["trial"])))
+
+
+def _trial_number(name: str) -> int:
+    """The trial's number, the last field of ``trainable_<id>_<number>`` (0 if the name has none)."""
+    tail = name.rsplit("_", 1)[-1]
+    return int(tail) if tail.isdigit() else 0
 
 
 def best_config(settings: TuneSettings, rows: list[dict]) -> dict:

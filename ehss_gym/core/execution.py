@@ -378,9 +378,15 @@ def thread_env(threads: int) -> dict:
 
 
 def numba_cache_dir() -> str:
-    """A numba cache folder on the local disk of whichever node reads the variable (``/tmp`` is per node)."""
+    """A numba cache folder on the local disk of whichever node reads the variable (``/tmp`` is per node), one per
+    version of the package's source (:func:`code_fingerprint`).
+
+    Per version because numba revalidates a cached kernel against its own file only: after an edit of a module
+    whose constants it compiled in (the buffer indices of ``core/layout.py``), a shared folder would hand the
+    workers stale machine code that indexes the new buffers with the old offsets (a heap corruption, not an error).
+    """
     user = os.environ.get("USER") or (str(os.getuid()) if hasattr(os, "getuid") else "user")
-    return os.path.join(tempfile.gettempdir(), f"ehss-gym-numba-{user}")
+    return os.path.join(tempfile.gettempdir(), f"ehss-gym-numba-{user}-{code_fingerprint()[:12]}")
 
 
 def set_threads(threads: int) -> None:
