@@ -32,24 +32,14 @@ from ehss_gym.envs.rollout import rollout
 from . import bias as B
 from .noise_config import NS, TASKS, NoiseStudyConfig
 from .noise_rules import choose_estimator_law, choose_ls_sigma, choose_startup, is_lost, summary
-from .records import Record, Runner
+from .records import RecordStore, Runner
 
 
 @dataclass
-class NoiseStudy:
-    """The study's runs (group -> records), its choices and its timings."""
+class NoiseStudy(RecordStore):
+    """The study's runs (group -> records), its choices and its timings (:class:`~.records.RecordStore`)."""
 
-    cfg: NoiseStudyConfig
-    records: dict = field(default_factory=dict)
-    rec: dict = field(default_factory=dict)
-    timings: dict = field(default_factory=dict)
-
-    def add(self, records) -> None:
-        for r in records:
-            self.records.setdefault(r.group, []).append(r)
-
-    def group(self, name: str) -> list[Record]:
-        return self.records.get(name, [])
+    cfg: NoiseStudyConfig = field(kw_only=True)
 
     def cell(self, name: str) -> dict:
         return summary(self.group(name), self.cfg.lost_rms)
@@ -410,7 +400,7 @@ STAGES = (stage_startup, stage_ls_sigma, stage_grid, stage_choose, stage_final, 
 
 def run_noise_study(cfg: NoiseStudyConfig, progress: bool = True) -> NoiseStudy:
     """Run every stage in order."""
-    st = NoiseStudy(cfg)
+    st = NoiseStudy(cfg=cfg)
     runner = Runner(progress=progress, desc="ehss noise")
     t0 = time.perf_counter()
     try:

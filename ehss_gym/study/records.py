@@ -177,6 +177,25 @@ def batch_job(config: dict, seed: int, context) -> list[dict]:
     return out
 
 
+@dataclass
+class RecordStore:
+    """A study's runs by group (group -> list of :class:`Record`), its choices (``rec``) and its timings [s]; the
+    reproduction and the noise study keep their state in a subclass that adds their config."""
+
+    records: dict = field(default_factory=dict)
+    rec: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+    def add(self, records) -> None:
+        """File ``records`` under their groups."""
+        for r in records:
+            self.records.setdefault(r.group, []).append(r)
+
+    def group(self, name: str) -> list[Record]:
+        """The records of group ``name`` (empty if none ran)."""
+        return self.records.get(name, [])
+
+
 class Runner:
     """Batches scenarios by time grid into ``simulate_batch`` calls (jobs of an
     :class:`~ehss_gym.core.execution.Executor`), with one tqdm bar over batches."""

@@ -15,7 +15,7 @@ from ehss_gym.core.signals import sine
 from ehss_gym.core.sim import Scenario
 
 from .config import CONFIGS, NS, StudyConfig
-from .records import Record, Runner, probe_summary
+from .records import RecordStore, Runner, probe_summary
 from .rules import (
     admissible_sigmas,
     choose_limit,
@@ -30,20 +30,10 @@ from .rules import (
 
 
 @dataclass
-class Study:
-    """The study's runs (group -> records), its choices and its timings."""
+class Study(RecordStore):
+    """The study's runs (group -> records), its choices and its timings (:class:`~.records.RecordStore`)."""
 
-    cfg: StudyConfig
-    records: dict = field(default_factory=dict)  # group -> list[Record]
-    rec: dict = field(default_factory=dict)  # recommendation
-    timings: dict = field(default_factory=dict)
-
-    def add(self, records) -> None:
-        for r in records:
-            self.records.setdefault(r.group, []).append(r)
-
-    def group(self, name: str) -> list[Record]:
-        return self.records.get(name, [])
+    cfg: StudyConfig = field(kw_only=True)
 
 
 def sweep_base(cfg: StudyConfig, **kw) -> Scenario:
@@ -299,7 +289,7 @@ def run_study(cfg: StudyConfig, progress: bool = True, executor: Executor | None
         progress: show a progress bar.
         executor: where the simulation batches run (:mod:`ehss_gym.core.execution`; default in this process).
     """
-    st = Study(cfg)
+    st = Study(cfg=cfg)
     runner = Runner(progress=progress, executor=executor)
     t_start = time.perf_counter()
     try:
