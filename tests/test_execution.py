@@ -91,6 +91,38 @@ def test_store_skips_complete_jobs_and_keeps_results_exact(tmp_path):
         assert (x["y"] == y["y"]).all() and x["pair"] == y["pair"] and x["pid"] == y["pid"]
 
 
+def test_a_result_being_written_is_neither_listed_nor_loaded_until_it_is_complete(tmp_path, monkeypatch):
+    """The store's half of a killed sweep: a writer between its last byte and the rename into place (where a SIGKILL
+    can land) leaves a temporary folder that holds a result file; no reader may count or serve it."""
+    store, job = Store(tmp_path), Job(square_job, {"a": 2.0}, 1)
+    key, seen = job_key(job), {}
+    real_replace = os.replace
+
+    def replace_seen_first(src, dst):
+        seen.update(keys=store.keys(), text=store.load(key))  # what a reader sees just before the rename
+        real_replace(src, dst)
+
+    monkeypatch.setattr(ex.os, "replace", replace_seen_first)
+    store.save(key, job, '{"x":1}')
+    assert seen == {"keys": [], "text": None}
+    assert store.keys() == [key] and store.load(key) == '{"x":1}'
+
+
+def test_a_writer_killed_before_its_rename_leaves_nothing_counted_as_a_result(tmp_path):
+    """A temporary folder left by a killed writer (result file complete, never renamed) is not a result: the key
+    stays missing, the job runs again and its result is then stored normally."""
+    store, job = Store(tmp_path), Job(square_job, {"a": 2.0}, 1)
+    key = job_key(job)
+    left = os.path.join(tmp_path, key[:2], f".tmp-{key[:8]}-killed")
+    os.makedirs(left)
+    with open(os.path.join(left, "result.json"), "w") as f:
+        f.write(ex.dumps(square_job({"a": 2.0}, 1, None)))
+    assert store.keys() == [] and store.load(key) is None
+    with Executor(Backend(workers=1), store) as e:
+        e.map([job])
+    assert (e.computed, e.skipped) == (1, 0) and store.keys() == [key]
+
+
 def test_local_worker_processes_give_the_in_process_results(tmp_path):
     jobs = [Job(square_job, {"a": 1.5}, s) for s in range(3)]
     with Executor(Backend(workers=1)) as e:

@@ -220,8 +220,9 @@ def loads(text: str):
 class Store:
     """Content-addressed results: ``<root>/<key[:2]>/<key>/`` holding ``result.json`` and ``job.json``.
 
-    A folder is written under a temporary name and renamed into place, so it is either complete or absent:
-    a killed run leaves no half result, and a complete one is never computed again.
+    A folder is written under a temporary name (``.tmp-...``, its files flushed to disk), then renamed into place,
+    so it is either complete or absent: a killed run leaves no half result, and a complete one is never computed
+    again. Readers look only at folders named by a key, never at a temporary one, whatever it holds.
     """
 
     def __init__(self, root: str):
@@ -234,38 +235,75 @@ class Store:
 
     def load(self, key: str) -> str | None:
         """The stored result text of ``key``, or None when there is none."""
-        path = os.path.join(self.folder(key), RESULT)
-        if not os.path.isfile(path):
+        if not is_key(key):
             return None
-        with open(path, encoding="utf-8") as f:
-            return f.read()
+        try:
+            with open(os.path.join(self.folder(key), RESULT), encoding="utf-8") as f:
+                return f.read()
+        except FileNotFoundError:
+            return None
 
     def save(self, key: str, job: Job, text: str) -> None:
         """Write the result text of ``job`` (address ``key``) atomically; a result already there is kept."""
         final = self.folder(key)
         if os.path.isdir(final):
             return
-        os.makedirs(os.path.dirname(final), exist_ok=True)
-        tmp = tempfile.mkdtemp(dir=os.path.dirname(final), prefix=f".tmp-{key[:8]}-")
+        parent = os.path.dirname(final)
+        os.makedirs(parent, exist_ok=True)
+        tmp = tempfile.mkdtemp(dir=parent, prefix=f"{TMP_PREFIX}{key[:8]}-")
         try:
-            with open(os.path.join(tmp, "job.json"), "w", encoding="utf-8") as f:
-                json.dump({"fn": job.name, "label": job.label, "seed": int(job.seed), "key": key}, f)
-            with open(os.path.join(tmp, RESULT), "w", encoding="utf-8") as f:
-                f.write(text)
+            _write_synced(os.path.join(tmp, "job.json"),
+                          json.dumps({"fn": job.name, "label": job.label, "seed": int(job.seed), "key": key}))
+            _write_synced(os.path.join(tmp, RESULT), text)
+            _fsync_dir(tmp)
             os.replace(tmp, final)
         except OSError:
             # another process completed the same job first (the rename found a folder): its result stands
             shutil.rmtree(tmp, ignore_errors=True)
             if not os.path.isdir(final):
                 raise
+        else:
+            _fsync_dir(parent)  # the rename itself survives a crash
 
     def keys(self) -> list[str]:
-        """The addresses of the complete results."""
+        """The addresses of the complete results (never a folder still being written, nor one a killed writer
+        left under its temporary name)."""
         if not os.path.isdir(self.root):
             return []
         return sorted(k for d in os.listdir(self.root) if len(d) == 2 and os.path.isdir(os.path.join(self.root, d))
                       for k in os.listdir(os.path.join(self.root, d))
-                      if os.path.isfile(os.path.join(self.root, d, k, RESULT)))
+                      if is_key(k) and k.startswith(d) and os.path.isfile(os.path.join(self.root, d, k, RESULT)))
+
+
+TMP_PREFIX = ".tmp-"
+_HEX = frozenset("0123456789abcdef")
+
+
+def is_key(name: str) -> bool:
+    """Whether ``name`` is a content address (64 lower-case hex digits, :func:`job_key`)."""
+    return len(name) == 64 and _HEX.issuperset(name)
+
+
+def _write_synced(path: str, text: str) -> None:
+    """Write ``text`` to ``path`` and flush it to the disk (a rename after it never publishes a short file)."""
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _fsync_dir(path: str) -> None:
+    """Flush a folder's entries to the disk (where the platform lets a folder be opened)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # Windows opens no folders; its rename is durable enough for a cache
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 # --- backends --------------------------------------------------------------------------------------------------
