@@ -1,5 +1,77 @@
+"""Test-session settings: tests write only under pytest's tmp_path, never into the checkout or the home folder.
+
+The session records the files of the checkout (minus git's folder, virtual environments and the caches Python,
+pytest and ruff keep by design) and the entries of the home folder (its top level and ``~/.ray``, where Ray keeps
+its token) when it starts, and fails when it ends if a test added or removed one: a command run without its
+output folder, store or cache pointed at tmp_path shows up here, on the first run, instead of on a later one.
+"""
+
 import os
 import sys
 
+import pytest
+from hypothesis import settings
+from hypothesis.database import InMemoryExampleDatabase
+
 # tests/reference.py is a plain helper module next to the tests
 sys.path.insert(0, os.path.dirname(__file__))
+
+# hypothesis keeps its examples in ./.hypothesis by default (the checkout): in memory for the session instead
+settings.register_profile("session-memory", database=InMemoryExampleDatabase())
+settings.load_profile("session-memory")
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SKIPPED_DIRS = {".git", "__pycache__", ".pytest_cache", ".ruff_cache"}
+EDITOR_FILES = (".swp", ".swo", "~")  # an editor's files, saved beside the sources while the tests run
+_BEFORE = "_ehss_before"
+
+
+def checkout_files(root: str = ROOT) -> set[str]:
+    """Paths of the files under ``root``, minus git's folder, virtual environments, caches and editor files."""
+    out = set()
+    for folder, dirs, names in os.walk(root):
+        dirs[:] = [d for d in dirs if d not in SKIPPED_DIRS and not d.endswith(".egg-info")
+                   and not os.path.isfile(os.path.join(folder, d, "pyvenv.cfg"))]
+        out.update(os.path.relpath(os.path.join(folder, n), root) for n in names
+                   if not n.endswith(EDITOR_FILES) and not n.startswith(".#"))
+    return out
+
+
+def home_entries(home: str | None = None) -> set[str]:
+    """The entries of the home folder's top level and of ``~/.ray``."""
+    home = home or os.path.expanduser("~")
+    out = set()
+    for sub in ("", ".ray"):
+        folder = os.path.join(home, sub)
+        if os.path.isdir(folder):
+            out.update(os.path.join(sub, n) for n in os.listdir(folder))
+    return out
+
+
+def _snapshot() -> dict:
+    return {"checkout": checkout_files(), "home": home_entries()}
+
+
+def _is_controller(config) -> bool:
+    return not hasattr(config, "workerinput")  # an xdist worker has workerinput; the controller checks once
+
+
+def pytest_sessionstart(session):
+    if _is_controller(session.config):
+        setattr(session.config, _BEFORE, _snapshot())
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_sessionfinish(session, exitstatus):
+    before = getattr(session.config, _BEFORE, None)
+    if before is None or session.config.option.collectonly:
+        return
+    after = _snapshot()
+    changes = [f"{what}: {sign} {p}" for what in ("checkout", "home")
+               for sign, paths in (("+", after[what] - before[what]), ("-", before[what] - after[what]))
+               for p in sorted(paths)]
+    if changes:
+        shown = "\n  ".join(changes[:40]) + ("\n  ..." if len(changes) > 40 else "")
+        session.config.get_terminal_writer().line(
+            f"\nERROR: the tests changed files outside pytest's tmp_path ({len(changes)}):\n  {shown}", red=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED

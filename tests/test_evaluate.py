@@ -82,7 +82,7 @@ def test_missing_model_file(tmp_path):
     (["--policies", "ppo-direct:/no/such/model.zip"], "/no/such/model.zip"),
 ])
 def test_cli_bad_policy_exit_2(argv, needle, capsys, tmp_path):
-    rc = main(["evaluate", *argv, "--out", str(tmp_path / "out"), "--no-progress"])
+    rc = main(["evaluate", *argv, "--out", str(tmp_path / "out"), "--store", str(tmp_path / "jobs"), "--no-progress"])
     assert rc == 2
     err = capsys.readouterr().err
     assert needle in err and "error" in err
@@ -155,7 +155,7 @@ def test_corrupt_or_tampered_model_exit_2(tmp_path, capsys):
     bad_zip = tmp_path / "broken.zip"
     bad_zip.write_bytes(b"not a zip")
     argv = ["--suite", "heldout", "--tasks", "velocity", "--episodes", "1", "--out", str(tmp_path / "o"),
-            "--no-progress"]
+            "--store", str(tmp_path / "jobs"), "--no-progress"]
     assert main(["evaluate", "--policies", f"residual-ppo:{bad_zip}", *argv]) == 2
     err = capsys.readouterr().err
     assert "'residual-ppo:broken (sb3 zip)'" in err and "not a loadable stable-baselines3 model" in err
@@ -171,7 +171,8 @@ def test_safe_weights_shape_mismatch_cli(tmp_path, capsys):
     # trained on the position task (17 observations) but labelled velocity (15)
     export_policy(_ppo(task="position"), tmp_path / "mislabelled", env_kwargs={"task": "velocity", "mode": "residual"})
     rc = main(["evaluate", "--policies", f"residual-ppo:{tmp_path}/mislabelled", "--suite", "heldout", "--tasks",
-               "velocity", "--episodes", "1", "--out", str(tmp_path / "out"), "--no-progress"])
+               "velocity", "--episodes", "1", "--out", str(tmp_path / "out"), "--store", str(tmp_path / "jobs"),
+               "--no-progress"])
     assert rc == 2
     err = capsys.readouterr().err
     assert "mislabelled" in err and "(17,)" in err and "(15,)" in err and "What fits" in err
@@ -267,7 +268,7 @@ def test_a_law_evaluated_on_both_tasks_acts_on_each_with_its_own_object():
 
 def test_cli_quick_writes_the_report(tmp_path, capsys):
     out = tmp_path / "cmp"
-    rc = main(["evaluate", "--quick", "--out", str(out), "--no-progress"])
+    rc = main(["evaluate", "--quick", "--out", str(out), "--store", str(tmp_path / "jobs"), "--no-progress"])
     assert rc == 0
     for f in ("REPORT.md", "episodes.csv", "summary.csv", "figures/scores_heldout.png", "figures/scores_paper.png",
               "figures/paper_traces_velocity.png", "figures/paper_traces_position.png",

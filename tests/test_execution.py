@@ -181,7 +181,8 @@ COMMANDS = {"evaluate": ["evaluate", "--quick", "--policies", "clf-n2", "--suite
 
 @pytest.mark.parametrize("cmd", sorted(COMMANDS))
 def test_an_unknown_backend_exits_2_naming_it(cmd, tmp_path, capsys):
-    assert cli_main([*COMMANDS[cmd], "--out", str(tmp_path), "--backend", "dask"]) == 2
+    argv = [*COMMANDS[cmd], "--out", str(tmp_path), "--store", str(tmp_path / "jobs")]
+    assert cli_main([*argv, "--backend", "dask"]) == 2
     err = capsys.readouterr().err
     assert "--backend must be one of local, ray, got 'dask'" in err
 
@@ -196,7 +197,8 @@ def test_ray_asked_for_without_ray_installed_exits_2_saying_how_to_install_it(cm
         return real(name, *a)
 
     monkeypatch.setattr(ex.importlib, "import_module", no_ray)
-    argv = ["tune", "--trials", "1"] if cmd == "tune" else [*COMMANDS[cmd], "--backend", "ray"]
+    argv = ["tune", "--trials", "1"] if cmd == "tune" else [*COMMANDS[cmd], "--backend", "ray", "--store",
+                                                              str(tmp_path / "jobs")]
     assert cli_main([*argv, "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "needs Ray, which is not installed" in err and "pip install 'ehss-gym[ray]'" in err
@@ -205,12 +207,29 @@ def test_ray_asked_for_without_ray_installed_exits_2_saying_how_to_install_it(cm
 @pytest.mark.parametrize("cmd", sorted(COMMANDS) + ["tune"])
 def test_an_unreachable_address_exits_2_naming_it(cmd, tmp_path, capsys):
     pytest.importorskip("ray")
-    argv = ["tune", "--trials", "1"] if cmd == "tune" else [*COMMANDS[cmd], "--backend", "ray"]
+    argv = ["tune", "--trials", "1"] if cmd == "tune" else [*COMMANDS[cmd], "--backend", "ray", "--store",
+                                                              str(tmp_path / "jobs")]
     t0 = time.perf_counter()
     assert cli_main([*argv, "--out", str(tmp_path), "--address", "127.0.0.1:9"]) == 2
     err = capsys.readouterr().err
     assert "--address 127.0.0.1:9: no Ray cluster reachable there" in err
     assert time.perf_counter() - t0 < 60  # not Ray's own minute-long connection retries
+
+
+def test_an_unreachable_address_is_an_error_even_when_the_store_holds_every_result(tmp_path, capsys):
+    """A command asked to reach a cluster says it cannot, rather than answering from the store without trying."""
+    pytest.importorskip("ray")
+    jobs = [Job(square_job, {"a": 1.0}, s) for s in range(2)]
+    with Executor(Backend(workers=1), tmp_path / "store") as e:
+        e.map(jobs)
+    with pytest.raises(ExecutionError, match="--address 127.0.0.1:9: no Ray cluster reachable there"):
+        with Executor(Backend("ray", address="127.0.0.1:9"), tmp_path / "store") as e:
+            e.map(jobs)
+    argv = [*COMMANDS["evaluate"], "--out", str(tmp_path / "out"), "--store", str(tmp_path / "jobs")]
+    assert cli_main(argv) == 0
+    capsys.readouterr()
+    assert cli_main([*argv, "--backend", "ray", "--address", "127.0.0.1:9"]) == 2
+    assert "--address 127.0.0.1:9: no Ray cluster reachable there" in capsys.readouterr().err
 
 
 def test_address_without_the_ray_backend_and_a_malformed_address_are_refused():

@@ -270,7 +270,7 @@ def test_quick_report_renders(tmp_path):
     from ehss_gym import __version__
 
     out = tmp_path / "paper"
-    assert main(["reproduce", "--quick", "--out", str(out), "--no-progress"]) == 0
+    assert main(["reproduce", "--quick", "--out", str(out), "--store", str(tmp_path / "jobs"), "--no-progress"]) == 0
     text = (out / "REPORT.md").read_text()
     assert "ehss reproduce --quick" in text and f"ehss-gym {__version__}" in text and "QUICK MODE" in text
     for cid in R.CLAIMS:

@@ -483,8 +483,15 @@ class Executor:
     """
 
     def __init__(self, backend: Backend | None = None, store: Store | str | None = None, progress: bool = False):
-        """Run on ``backend`` (default local), keep results in ``store`` (a Store or its root; None: keep none)."""
+        """Run on ``backend`` (default local), keep results in ``store`` (a Store or its root; None: keep none).
+
+        Raises:
+            ExecutionError: bad backend settings, or a Ray cluster's address that does not answer (checked here, so
+                a command asked to reach a cluster says so even when the store holds every result it needs).
+        """
         self.backend = (backend or Backend()).validate()
+        if self.backend.name == "ray" and self.backend.ray_address() is not None:
+            check_address(self.backend.ray_address())
         self.store = Store(store) if isinstance(store, (str, os.PathLike)) else store
         self.progress = progress
         self.computed = 0
