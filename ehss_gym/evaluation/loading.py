@@ -29,10 +29,20 @@ import tempfile
 import zipfile
 
 import numpy as np
+import yaml
 
 from ehss_gym.agents.safeweights import SafePolicy, load_policy, model_paths
 from ehss_gym.controllers import CLFPolicy, PIDPolicy
-from ehss_gym.envs import EHSSTrackingEnv, EnvConfig
+from ehss_gym.envs import ENV_ID, EHSSTrackingEnv, EnvConfig
+
+ZOO_ARGS = "args.yml"  # rl-zoo3 saves its command line (env_kwargs included) in <run>/<env id>/args.yml
+ZOO_CONFIG = "config.yml"  # ... and the hyperparameters it trained with (the config file's env_kwargs) beside it
+# rl-zoo3's algorithm names (its --algo, recorded in args.yml) -> (package, class)
+ZOO_ALGOS = {"a2c": ("stable_baselines3", "A2C"), "ddpg": ("stable_baselines3", "DDPG"),
+             "dqn": ("stable_baselines3", "DQN"), "ppo": ("stable_baselines3", "PPO"),
+             "sac": ("stable_baselines3", "SAC"), "td3": ("stable_baselines3", "TD3"), "ars": ("sb3_contrib", "ARS"),
+             "qrdqn": ("sb3_contrib", "QRDQN"), "tqc": ("sb3_contrib", "TQC"), "trpo": ("sb3_contrib", "TRPO"),
+             "ppo_lstm": ("sb3_contrib", "RecurrentPPO"), "crossq": ("sb3_contrib", "CrossQ")}
 
 
 class PolicyError(ValueError):
@@ -92,11 +102,35 @@ def load_safe(path: str) -> SafePolicy:
     return _load_safe_once(os.path.abspath(js_path[:-5]), identity)
 
 
+class ZooLoader(yaml.SafeLoader):
+    """yaml's safe loader plus the one tag rl-zoo3's ``args.yml`` uses (an OrderedDict, as [key, value] pairs)."""
+
+
+ZooLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict",
+                          lambda loader, node: dict(loader.construct_sequence(node.value[0], deep=True)))
+
+
+def zoo_params_dir(zip_path: str) -> str:
+    """The folder where rl-zoo3 keeps the records of the run a model .zip belongs to: ``<run>/EHSSTracking-v0``."""
+    return os.path.join(os.path.dirname(os.path.abspath(zip_path)), ENV_ID)
+
+
+def read_zoo_record(path: str) -> dict | None:
+    """An rl-zoo3 record (``args.yml`` or ``config.yml``) as a dict; None when the file is absent or unreadable."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            d = yaml.load(f, Loader=ZooLoader)
+    except (OSError, yaml.YAMLError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
 def _load_vecnormalize(zip_path: str):
-    """The VecNormalize statistics saved next to an SB3 .zip, or None."""
+    """The VecNormalize statistics saved next to an SB3 .zip (or where rl-zoo3 keeps them), or None."""
     stem = zip_path[:-4]
     folder = os.path.dirname(os.path.abspath(zip_path))
-    for cand in (stem + "_vecnormalize.pkl", stem + ".vecnormalize.pkl", os.path.join(folder, "vecnormalize.pkl")):
+    for cand in (stem + "_vecnormalize.pkl", stem + ".vecnormalize.pkl", os.path.join(folder, "vecnormalize.pkl"),
+                 os.path.join(zoo_params_dir(zip_path), "vecnormalize.pkl")):
         if os.path.isfile(cand):
             with open(cand, "rb") as f:  # SB3's own format; .zip users accept pickle (see safeweights)
                 return pickle.load(f)
@@ -122,13 +156,32 @@ def sb3_algorithm(path: str) -> tuple[str, str]:
                           f"policy class): {type(exc).__name__}: {exc}") from None
     parts = module.split(".")
     if len(parts) < 2 or parts[0] not in ("stable_baselines3", "sb3_contrib"):
-        raise PolicyError(f"{path}: the policy class comes from {module!r}, not from stable_baselines3 or sb3_contrib")
+        return _custom_policy_algorithm(path, module, data)
     sub = parts[1]
     if sub == "common" and parts[0] == "sb3_contrib":  # sb3_contrib.common.{recurrent,maskable}.policies
         return parts[0], "RecurrentPPO" if "recurrent" in parts else "MaskablePPO"
     if sub == "common":  # ActorCriticPolicy: PPO or A2C; PPO saves a clip range
         return parts[0], "PPO" if "clip_range" in data else "A2C"
     return parts[0], _ALGO_CLASSES.get(sub, sub.upper())
+
+
+def _custom_policy_algorithm(path: str, module: str, data: dict) -> tuple[str, str]:
+    """(package, algorithm class) of a model whose policy class is not SB3's own (e.g. the agents' policy,
+    ``ehss_gym.agents.factory.AgentMlpPolicy``, which rl-zoo3 trains from the shipped config file): the algorithm
+    rl-zoo3 recorded in its ``args.yml``, else PPO when the model saved PPO's clip range.
+
+    Raises:
+        PolicyError: neither says which algorithm saved the model.
+    """
+    args = read_zoo_record(os.path.join(zoo_params_dir(path), ZOO_ARGS)) or {}
+    algo = str(args.get("algo", "")).lower()
+    if algo in ZOO_ALGOS:
+        return ZOO_ALGOS[algo]
+    if "clip_range" in data:
+        return "stable_baselines3", "PPO"
+    raise PolicyError(f"{path}: the policy class comes from {module!r}, not from stable_baselines3 or sb3_contrib, "
+                      f"and nothing says which algorithm saved it (neither rl-zoo3's {ENV_ID}/{ZOO_ARGS} naming it "
+                      "nor PPO's clip range in the model)")
 
 
 def _load_zip(path: str):
@@ -230,4 +283,5 @@ def make_env(env_kwargs: dict) -> EHSSTrackingEnv:
     return EHSSTrackingEnv(**env_kwargs)
 
 
-__all__ = ["PolicyError", "sb3_algorithm", "load_safe", "load_run", "portable", "restore", "make_env"]
+__all__ = ["PolicyError", "ZOO_ARGS", "ZOO_CONFIG", "ZOO_ALGOS", "ZooLoader", "zoo_params_dir", "read_zoo_record",
+           "sb3_algorithm", "load_safe", "load_run", "portable", "restore", "make_env"]

@@ -30,7 +30,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import yaml
 
 from ehss_gym.agents.safeweights import shipped_models
 from ehss_gym.controllers import parse_scripted
@@ -38,18 +37,17 @@ from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
 from ehss_gym.envs.config import recorded_loop
 
-from .loading import PolicyError, load_safe, make_env
+from .loading import ZOO_ARGS, ZOO_CONFIG, PolicyError, load_safe, make_env, read_zoo_record
 from .suites import TASKS
 
 REFERENCE_POLICY = "clf-n2"  # the law the primary score is normalised by
 SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "pid")
 LEARNED_KINDS = ("residual-ppo", "ppo-direct", "sb3")  # sb3: any algorithm, its mode from the saved env spec
-ZOO_ARGS = "args.yml"  # rl-zoo3 saves its command line (env_kwargs included) in <run>/<env id>/args.yml
 CONTROLLER_KEYS = ("fr", "sigma", "smoothing", "current_limit", "control_period", "substeps", "estimator_hz",
                    "estimator", "observer_hz", "law", "layer_gain", "bumpless", "ref_accel", "pressure_domain")
 CLF_RE = re.compile(r"^clf-n(\d+)$")
 _SEED_RE = re.compile(r"^(.*?)[-_](?:seed|s)(\d+)$")
-_GENERIC = ("policy", "model", "best_model", "final_model", "best", "final", "checkpoints")
+_GENERIC = ("policy", "model", "best_model", "final_model", "best", "final", "checkpoints", ENV_ID)
 _NOT_ENV = ("scenario", "render_mode")  # env kwargs a policy does not carry over (set per episode)
 
 
@@ -146,14 +144,6 @@ class PolicyWarning(UserWarning):
     """A policy that is evaluated on an assumption the harness could not check (printed, not an error)."""
 
 
-class _ZooLoader(yaml.SafeLoader):
-    """yaml's safe loader plus the one tag rl-zoo3's ``args.yml`` uses (an OrderedDict, as [key, value] pairs)."""
-
-
-_ZooLoader.add_constructor("tag:yaml.org,2002:python/object/apply:collections.OrderedDict",
-                           lambda loader, node: dict(loader.construct_sequence(node.value[0], deep=True)))
-
-
 def _read_record(path: str) -> dict | None:
     """The env settings a record file holds, or None: ``{"env_kwargs": ...}`` (ehss-gym's sidecar and run
     config.json), a Gymnasium EnvSpec JSON (``env.spec.to_json()``: ``{"id": ..., "kwargs": ...}``) or rl-zoo3's
@@ -162,20 +152,39 @@ def _read_record(path: str) -> dict | None:
     Raises:
         PolicyError: a record of another env.
     """
-    try:
-        with open(path, encoding="utf-8") as f:
-            d = yaml.load(f, Loader=_ZooLoader) if path.endswith(".yml") else json.load(f)
-    except (OSError, ValueError, yaml.YAMLError):
-        return None
+    if path.endswith(".yml"):
+        d = read_zoo_record(path)
+    else:
+        try:
+            with open(path, encoding="utf-8") as f:
+                d = json.load(f)
+        except (OSError, ValueError):
+            return None
     if not isinstance(d, dict):
         return None
     env_id = d.get("env_id", d.get("id", d.get("env")))
     kw = d.get("env_kwargs", d.get("kwargs") if "id" in d else None)
     if env_id is not None and str(env_id).split(":")[-1] != ENV_ID:
         raise PolicyError(f"the env spec saved in {path} is of {env_id!r}, not {ENV_ID!r}")
-    if kw is None and path.endswith(".yml") and env_id is not None:
-        kw = {}  # rl-zoo3 without --env-kwargs: the env's defaults
+    if path.endswith(".yml") and env_id is not None and not kw:
+        kw = _zoo_config_env_kwargs(os.path.join(os.path.dirname(path), ZOO_CONFIG))
     return dict(kw) if isinstance(kw, dict) else None
+
+
+def _zoo_config_env_kwargs(path: str) -> dict:
+    """The env kwargs of rl-zoo3's ``config.yml`` (its config file's ``env_kwargs``, which it trained with when no
+    ``--env-kwargs`` replaced them); {} when it lists none (the env's defaults).
+
+    Raises:
+        PolicyError: a config.yml that exists but cannot be read (its env settings would be guessed).
+    """
+    if not os.path.isfile(path):
+        return {}
+    d = read_zoo_record(path)
+    kw = d.get("env_kwargs", {}) if d is not None else None
+    if not isinstance(kw, dict):
+        raise PolicyError(f"cannot read the env_kwargs rl-zoo3 trained with from {path}")
+    return kw
 
 
 def saved_env_kwargs(zip_path: str) -> tuple[dict | None, str | None]:
@@ -183,7 +192,9 @@ def saved_env_kwargs(zip_path: str) -> tuple[dict | None, str | None]:
 
     Looked for, in this order: ``STEM.json`` next to the .zip (``{"env_kwargs": {...}}`` or a Gymnasium EnvSpec
     JSON, ``env.unwrapped.spec.to_json()``); ``config.json`` of its folder or the folder above (an ``ehss
-    train`` run); rl-zoo3's ``<folder>/EHSSTracking-v0/args.yml``.
+    train`` run); rl-zoo3's ``<folder>/EHSSTracking-v0/args.yml`` (its ``--env-kwargs``, else the config file's
+    ``env_kwargs`` it recorded in ``config.yml`` beside it: what rl-zoo3 trained with, and what ``rl_zoo3.enjoy``
+    replays).
     """
     stem = zip_path[:-4]
     folder = os.path.dirname(os.path.abspath(zip_path))
@@ -209,9 +220,14 @@ def _existing_model(p: str) -> str | None:
 def _model_files(pattern: str, spec_text: str) -> list[str]:
     """The model paths a PATH (or glob) names; PolicyError if none exists.
 
-    A safe-weights stem is preferred over an SB3 .zip in the same folder (a training run keeps both).
+    A safe-weights stem is preferred over an SB3 .zip in the same folder (a training run keeps both). An rl-zoo3
+    run folder (``logs/ppo/EHSSTracking-v0_1``) names its final model, ``EHSSTracking-v0.zip`` (its
+    ``best_model.zip`` or a checkpoint is named by its path).
     """
     has_glob = any(c in pattern for c in "*?[")
+    if not has_glob and os.path.isfile(os.path.join(pattern, ENV_ID, ZOO_ARGS)) \
+            and os.path.isfile(os.path.join(pattern, ENV_ID + ".zip")):
+        return [os.path.join(pattern, ENV_ID + ".zip")]  # an rl-zoo3 run folder: its final model, as rl_zoo3.enjoy
     if has_glob:
         cands = sorted(set(glob.glob(pattern)) | set(glob.glob(pattern + ".json")) | set(glob.glob(pattern + ".zip")))
     else:
@@ -234,12 +250,12 @@ def _model_files(pattern: str, spec_text: str) -> list[str]:
     return sorted(out)
 
 
-def _zip_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
-    """The env settings of an SB3 .zip from its saved env spec; without one, an error (``sb3:``) or the prefix's
-    mode at the env's defaults with a :class:`PolicyWarning`."""
+def _zip_env_kwargs(path: str, kind: str, spec_text: str) -> tuple[dict, str | None]:
+    """The env settings of an SB3 .zip from its saved env spec, and the file that holds them; without one, an error
+    (``sb3:``) or the prefix's mode at the env's defaults with a :class:`PolicyWarning` (and no file)."""
     kw, src = saved_env_kwargs(path)
     if kw is not None:
-        return kw
+        return kw, src
     if kind == "sb3":
         raise PolicyError(f"policy {spec_text!r}: no env spec saved with {path!r} (looked for {path[:-4]}.json, "
                           f"config.json and rl-zoo3's {ENV_ID}/{ZOO_ARGS}), so its mode and settings are unknown; "
@@ -251,14 +267,16 @@ def _zip_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
                   f"{kind}: prefix) at the env's default settings. If it was trained otherwise its score is wrong: "
                   f"save its env settings to {os.path.basename(path[:-4])}.json and use sb3:PATH",
                   PolicyWarning, stacklevel=3)
-    return {"mode": mode}
+    return {"mode": mode}, None
 
 
 def _run_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
     """The env kwargs a model was trained with, checked against the spec's mode (``sb3``: the saved mode)."""
     if path.endswith(".zip"):
-        kw = _zip_env_kwargs(path, kind, spec_text)
+        kw, src = _zip_env_kwargs(path, kind, spec_text)
+        pinned = src is not None and os.path.basename(src) == "config.json"  # an ehss train run's record
     else:
+        pinned = True  # safe weights
         pol = load_safe(path)
         if pol.env_id != ENV_ID:
             raise PolicyError(f"policy {spec_text!r}: model {path!r} was trained on {pol.env_id!r}, not {ENV_ID!r}")
@@ -271,9 +289,10 @@ def _run_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
                               f"{_kind_of_mode(mode)}:{path} (residual-ppo = mode 'residual', ppo-direct = mode "
                               "'direct'), or sb3:PATH (the mode read from the saved env spec)")
     kw["mode"] = mode
-    if kind != "sb3":  # our run folders and safe weights pin every env setting: a missing one predates issue 14
-        kw = recorded_loop(kw)  # ... so the model acts in the loop before issue 14's settings
-    # (a generic SB3 env spec lists only the kwargs that were passed: a missing setting is the env's default)
+    if pinned:  # our run folders and safe weights pin every env setting: a missing one predates that setting
+        kw = recorded_loop(kw)  # ... so the model acts in the loop it was trained in, not today's defaults
+    # a generic env spec (STEM.json, a Gymnasium EnvSpec, rl-zoo3's records) lists only the kwargs that were passed:
+    # a missing setting is the env's current default, as it was in training
     for k in _NOT_ENV:
         kw.pop(k, None)
     return kw
