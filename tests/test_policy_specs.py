@@ -113,3 +113,53 @@ def test_a_file_that_is_not_a_model_says_so(tmp_path, capsys):
         (tmp_path / "other.zip").write_bytes(fake.read_bytes())
         (tmp_path / "other.json").write_text(json.dumps({"id": "CartPole-v1", "kwargs": {}}))
         ev.parse_policy(f"sb3:{tmp_path / 'other.zip'}")
+
+
+# --- labels: LABEL=SPEC ---------------------------------------------------------------------------------------
+
+
+def _two_models_of_one_run(tmp_path):
+    """A run folder with a final and a best policy (safe weights), as ehss train writes them."""
+    from ehss_gym.agents.export import export_policy
+
+    run = tmp_path / "residual-ppo-velocity-n2-seed0"
+    for which in ("final", "best"):
+        (run / which).mkdir(parents=True)
+        export_policy(_ppo(), run / which / "policy", env_kwargs={"task": "velocity", "mode": "residual"})
+    return run
+
+
+def test_two_models_of_one_run_are_compared_under_their_labels(tmp_path, capsys):
+    """Before: 'policy names must be unique' (both are named after the run folder), and no way to label them."""
+    run = _two_models_of_one_run(tmp_path)
+    same = [f"residual-ppo:{run}/final/policy", f"residual-ppo:{run}/best/policy"]
+    with pytest.raises(PolicyError, match=r"more than once.*LABEL=SPEC"):
+        ev.parse_policies(["clf-n2", *same])
+    specs = ev.parse_policies(["clf-n2", f"final={same[0]}", f"best={same[1]}"])
+    assert [s.name for s in specs] == ["clf-n2", "final", "best"]
+    assert specs[1].runs == [f"{run}/final/policy"] and specs[2].runs == [f"{run}/best/policy"]
+    assert specs[1].kind == "residual-ppo" and "final/policy" in specs[1].source
+    rc = main(["evaluate", "--policies", "clf-n2", f"final={same[0]}", f"best={same[1]}", "--suite", "heldout",
+               "--tasks", "velocity", "--episodes", "1", "--out", str(tmp_path / "o"), "--store",
+               str(tmp_path / "jobs"), "--no-progress"])
+    assert rc == 0, capsys.readouterr().err
+    with open(tmp_path / "o" / "summary.csv") as f:
+        assert {"final", "best", "clf-n2"} <= {line.split(",")[2] for line in f.readlines()[1:]}
+
+
+@pytest.mark.parametrize("entries, needle", [
+    (["=clf-n2"], r"the label before '=' is empty"),
+    (["my law=clf-n4"], r"label 'my law' .*letters, digits"),
+    (["a=b=clf-n4"], r"label 'b' .*one label"),
+    (["clf-n2=clf-n4"], r"label 'clf-n2' .*is the name of a policy"),
+    (["pid=clf-n4"], r"label 'pid' .*is the name of a policy"),
+    (["A=clf-n4", "A=clf-n6"], r"policy name\(s\) \['A'\] given more than once"),
+    (["clf-n4", "clf-n4"], r"\['clf-n4'\] given more than once.*LABEL=SPEC"),
+    (["x=sac"], r"unknown policy 'sac'"),
+])
+def test_bad_or_duplicate_labels_are_refused_naming_them(entries, needle, tmp_path, capsys):
+    with pytest.raises(PolicyError, match=needle):
+        ev.parse_policies(entries)
+    assert main(["evaluate", "--policies", *entries, "--out", str(tmp_path / "o"), "--store", str(tmp_path / "jobs"),
+                 "--no-progress"]) == 2
+    assert "error" in capsys.readouterr().err and not (tmp_path / "o").exists()

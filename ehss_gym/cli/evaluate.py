@@ -32,8 +32,10 @@ def register(sub) -> None:
                                    "suite and robustness sweeps; write REPORT.md, CSVs and figures.")
     p.add_argument("--policies", nargs="+", default=None, metavar="SPEC",
                    help="comma- or space-separated: clf-n2, clf-n4, clf-n6, pid, residual-ppo:PATH, ppo-direct:PATH, "
-                        "sb3:PATH (any SB3 algorithm, its mode from the env spec saved with it), or a shipped model "
-                        "name (default: every shipped policy)")
+                        "sb3:PATH (any SB3 algorithm, its mode from the env spec saved with it; PATH may be an rl-zoo3 "
+                        "run folder), or a shipped model name; LABEL=SPEC names one in the report (e.g. "
+                        "final=residual-ppo:RUN/final/policy best=residual-ppo:RUN/best/policy) (default: every "
+                        "shipped policy)")
     p.add_argument("--suite", choices=("paper", "heldout", "robustness", "all"), default="all")
     p.add_argument("--tasks", type=_tasks, default=TASKS, help="comma-separated subset of velocity,position")
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,

@@ -42,6 +42,7 @@ from .specs import (
     SCRIPTED_DEFAULT,
     PolicySpec,
     check_fit,
+    check_unique_names,
     default_specs,
     learned_spec,
     matched_clf_specs,
@@ -201,10 +202,8 @@ def run_jobs(jobs: Sequence[Job], items: dict, executor: Executor, in_process: b
 
 def _complete_specs(specs: list, cfg: EvalConfig, notes: list) -> list:
     """The specs with the reference law and the CLF laws at the learned policies' settings added."""
+    check_unique_names(specs)
     names = [s.name for s in specs]
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise PolicyError(f"policy names must be unique, got {dup} more than once")
     if REFERENCE_POLICY not in names:
         specs.insert(0, scripted_spec(REFERENCE_POLICY))
         notes.append(f"{REFERENCE_POLICY} was added: the primary score is normalised by it.")

@@ -13,7 +13,9 @@ entry (:func:`parse_policy`):
 - ``residual-ppo:PATH`` and ``ppo-direct:PATH``: a model file (safe-weights stem or SB3 .zip) or a glob of
   several training seeds, checked against the mode it was trained in (a .zip with no saved env spec is scored
   in the prefix's mode at the env's defaults, with a printed :class:`PolicyWarning`);
-- the name of a model shipped in ``ehss_gym/models`` (``-seed<k>`` files grouped into one spec).
+- the name of a model shipped in ``ehss_gym/models`` (``-seed<k>`` files grouped into one spec);
+- ``LABEL=SPEC``: any of the above under the report name LABEL (two models of one run, which would otherwise share
+  the run's name).
 
 Learned policies trained at controller settings other than the env's defaults get the CLF laws at *their*
 settings as extra specs (:func:`matched_clf_specs`), so that each is compared with the laws it builds on.
@@ -27,7 +29,7 @@ import os
 import re
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -47,6 +49,7 @@ CONTROLLER_KEYS = ("fr", "sigma", "smoothing", "current_limit", "control_period"
                    "estimator", "observer_hz", "law", "layer_gain", "bumpless", "ref_accel", "pressure_domain")
 CLF_RE = re.compile(r"^clf-n(\d+)$")
 _SEED_RE = re.compile(r"^(.*?)[-_](?:seed|s)(\d+)$")
+LABEL_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}$")  # a policy's report name given as LABEL=SPEC
 _GENERIC = ("policy", "model", "best_model", "final_model", "best", "final", "checkpoints", ENV_ID)
 _NOT_ENV = ("scenario", "render_mode")  # env kwargs a policy does not carry over (set per episode)
 
@@ -97,8 +100,8 @@ def valid_forms() -> str:
     return ("clf-n<even n >= 2> (e.g. clf-n2, clf-n4, clf-n6), the CLF variants <law>-n<k> and "
             "<law>-<estimator>-n<k> (e.g. lin-sontag-n4, sontag-foh-n2), pid, residual-ppo:PATH, ppo-direct:PATH, "
             "sb3:PATH (any SB3 algorithm, the mode from its saved env spec; PATH = an SB3 .zip, a safe-weights stem "
-            f"PATH with PATH.safetensors + PATH.json, or a glob matching several training seeds), or a shipped model "
-            f"name ({shipped})")
+            f"PATH with PATH.safetensors + PATH.json, a glob matching several training seeds, or an rl-zoo3 run "
+            f"folder), or a shipped model name ({shipped}); any of them as LABEL=SPEC to name it in the report")
 
 
 def scripted_spec(name: str, label: str | None = None, env_overrides: dict | None = None,
@@ -390,13 +393,48 @@ def _scripted_name(text: str) -> bool:
         raise PolicyError(f"unknown policy {text!r}: {exc}") from exc
 
 
+def _split_label(text: str) -> tuple[str | None, str]:
+    """(label, spec) of a ``LABEL=SPEC`` entry, or (None, text): a label is what precedes the first '=' when that
+    holds no ':' or path separator (so a PATH with '=' in it stays a PATH)."""
+    head, sep, rest = text.partition("=")
+    if not sep or any(c in head for c in ":/\\"):
+        return None, text
+    return head.strip(), rest.strip()
+
+
+def _check_label(label: str, text: str) -> str:
+    """``label`` if it can name a policy in the report; PolicyError saying why not."""
+    if not label:
+        raise PolicyError(f"policy {text!r}: the label before '=' is empty; write LABEL=SPEC, e.g. "
+                          "final=residual-ppo:RUN/final/policy")
+    if not LABEL_RE.match(label):
+        raise PolicyError(f"policy label {label!r} in {text!r}: a label is 1-64 letters, digits, '_', '.', '+' or "
+                          "'-', starting with a letter or digit (one label per policy: LABEL=SPEC)")
+    try:
+        names_a_policy = label == "pid" or parse_scripted(label) is not None or label in shipped_models()
+    except ValueError:  # a malformed law variant is not a policy's name
+        names_a_policy = False
+    if names_a_policy:
+        raise PolicyError(f"policy label {label!r} in {text!r} is the name of a policy (a scripted law or a shipped "
+                          "model); choose another label")
+    return label
+
+
 def parse_policy(text: str) -> PolicySpec:
-    """One ``--policies`` entry as a :class:`PolicySpec`.
+    """One ``--policies`` entry as a :class:`PolicySpec`: a form of :func:`valid_forms`, or ``LABEL=SPEC`` for
+    the same under the report name LABEL (two models of one run, say, which would share their run's name).
 
     Raises:
-        PolicyError: an entry that is none of the accepted forms; the message names what would fit.
+        PolicyError: an entry that is none of the accepted forms, or a bad label; the message names what would fit.
     """
     text = text.strip()
+    label, spec_text = _split_label(text)
+    if label is not None:
+        _check_label(label, text)
+        second, _ = _split_label(spec_text)
+        if second is not None:
+            raise PolicyError(f"policy label {second!r} in {text!r}: one label per policy (LABEL=SPEC)")
+        return replace(parse_policy(spec_text), name=label)
     if not text:
         raise PolicyError(f"empty policy name; valid: {valid_forms()}")
     if ":" in text:
@@ -426,7 +464,19 @@ def parse_policies(items: Sequence[str]) -> list[PolicySpec]:
     tokens = [t for item in items for t in item.split(",") if t.strip()]
     if not tokens:
         raise PolicyError(f"--policies needs at least one policy; valid: {valid_forms()}")
-    return [parse_policy(t) for t in tokens]
+    specs = [parse_policy(t) for t in tokens]
+    check_unique_names(specs)
+    return specs
+
+
+def check_unique_names(specs: Sequence[PolicySpec]) -> None:
+    """PolicyError when two specs share a report name, saying how to label them apart."""
+    names = [s.name for s in specs]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise PolicyError(f"policy name(s) {dup} given more than once (two models of one run share the run's name); "
+                          "give each its own label with LABEL=SPEC, e.g. final=residual-ppo:RUN/final/policy "
+                          "best=residual-ppo:RUN/best/policy")
 
 
 def object_spec(name: str, policy, env_kwargs: dict | None = None, runs: Sequence | None = None) -> PolicySpec:
@@ -565,6 +615,6 @@ def check_fit(spec: PolicySpec, policy, task: str) -> None:
 
 
 __all__ = ["REFERENCE_POLICY", "SCRIPTED_DEFAULT", "PolicySpec", "PolicyError", "PolicyWarning", "saved_env_kwargs",
-           "valid_forms", "scripted_spec",
-           "learned_spec", "shipped_specs", "parse_policy", "parse_policies", "object_spec", "default_specs",
+           "valid_forms", "scripted_spec", "learned_spec", "shipped_specs", "parse_policy", "parse_policies",
+           "check_unique_names", "object_spec", "default_specs",
            "controller_settings", "matched_clf_specs", "check_fit"]
