@@ -9,6 +9,7 @@ import pytest
 
 from ehss_gym.cli import build_parser, main
 from ehss_gym.cli.args import scenario_from_args
+from ehss_gym.core.sim import PAPER_FRICTION
 from ehss_gym.envs.config import EnvConfig
 
 
@@ -114,3 +115,19 @@ def test_bode_needs_a_broadband_reference(tmp_path, capsys):
     rows = np.loadtxt(tmp_path / "c_bode.csv", delimiter=",", skiprows=1)
     assert open(tmp_path / "c_bode.csv").readline().startswith("frequency [Hz],magnitude [dB],phase [deg]")
     assert rows.shape[1] == 4 and np.all(np.isfinite(rows))
+
+
+def test_a_step_run_has_no_friction_unless_asked_so_its_settling_time_is_the_steps(tmp_path, capsys):
+    """Before: the paper's friction events (8-10 s) ran with every reference, and a step's settling time was the
+    friction's (9.5 s). They belong to the paper's sine run: other references get them only when asked."""
+    assert _scenario("--reference", "step").friction == ()
+    assert _scenario("--reference", "chirp").friction == () and _scenario("--reference", "multisine").friction == ()
+    assert _scenario().friction == PAPER_FRICTION  # the paper's sine run keeps its events
+    assert _scenario("--reference", "step", "--friction", "1.8:8:10").friction == ((1.8, 8.0, 10.0),)
+    rc = main(["simulate", "--reference", "step", "--t-end", "10", "--out", str(tmp_path / "s")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "friction none" in out
+    settling = float(re.search(r"step settling time\s+(\S+) s", out).group(1))
+    assert settling < 0.5  # the step's own response (the 10-90 % rise is about 20 ms)
+    help_text = build_parser()._subparsers._group_actions[0].choices["simulate"].format_help()
+    assert "none for step, chirp and multisine" in " ".join(help_text.split())

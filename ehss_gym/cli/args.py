@@ -124,7 +124,9 @@ def add_loop_arguments(p: argparse.ArgumentParser, *, t_end: float = 20.0):
     e.add_argument("--t-end", type=_finite("--t-end", 0.0), default=t_end, help="[s]")
     e.add_argument("--friction", type=parse_friction, nargs="*", default=None, metavar="AMP:START:END",
                    action=FrictionAction,
-                   help="friction events [N*m:s:s]; default the paper's 1.8:8:10; give none to disable")
+                   help="friction events [N*m:s:s]; default: the paper's 1.8:8:10 with the sine reference (the "
+                        "paper's run), none for step, chirp and multisine (a step's settling time and a Bode plot "
+                        "would be the friction's); give none to disable, or events to add them to any reference")
     e.add_argument("--noise", type=parse_noise, default=None, metavar="K | X1,X2,X3,X4",
                    help="sensor noise std: K times the randomised scenarios' largest (1e-5 rad, 1e-4 rad/s, 2e3 Pa, "
                         "1e-10 m^2), or the four stds [rad, rad/s, Pa, m^2]; default none")
@@ -228,6 +230,12 @@ def preset_scenario(preset: str, task: str) -> Scenario:
     return Scenario(task=task)
 
 
+def default_friction(reference: str) -> tuple:
+    """The friction events a reference family gets when ``--friction`` is not given: the paper's (1.8 N*m from 8 to
+    10 s) belong to the paper's sine run; a step, chirp or multi-sine response is measured without them."""
+    return PAPER_FRICTION if reference == "sine" else ()
+
+
 def scenario_from_args(args) -> Scenario:
     """The Scenario of ``ehss simulate``'s arguments: the preset's loop with every given setting on top.
 
@@ -240,6 +248,6 @@ def scenario_from_args(args) -> Scenario:
         changes["current_limit"] = None
     plant = PlantParams().scaled(**args.mismatch) if args.mismatch else PlantParams()
     return base.replace(**changes, t_end=args.t_end, reference=_reference(args, args.t_end),
-                        friction=PAPER_FRICTION if args.friction is None else tuple(args.friction),
+                        friction=default_friction(args.reference) if args.friction is None else tuple(args.friction),
                         noise_std=args.noise or (0.0, 0.0, 0.0, 0.0), seed=args.seed, plant=plant,
                         model=PlantParams() if args.mismatch else None)

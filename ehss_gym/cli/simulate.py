@@ -29,7 +29,7 @@ error above the reference's amplitude). The PNG, NPZ and CSV are written in ever
 examples:
   ehss simulate --out runs/default                      # the recommended loop on the paper's run: tracks
   ehss simulate --preset paper --t-end 0.05 --out runs/paper   # the printed law: diverges (exit {EXIT_DIVERGED})
-  ehss simulate --reference step --amplitude 0.5 --t-end 2 --friction none --out runs/step
+  ehss simulate --reference step --amplitude 0.5 --t-end 2 --out runs/step   # no friction unless --friction
   ehss simulate --reference chirp --omega-end 300 --t-end 20 --friction none --bode --out runs/chirp"""
 
 
@@ -80,7 +80,8 @@ def cmd_simulate(args) -> int:
     print(f"{sc.task} task ({args.preset} preset), n={sc.n}, f_r={sc.fr:g} Hz, sigma={sc.sigma:g}, "
           f"smoothing={sc.smoothing:g}, h={sc.control_period:g} s, substeps={sc.substeps}, limit={lim}, "
           f"estimator={sc.estimator} at {sc.estimator_hz:g} Hz, reference model {sc.ref_model_hz:g} Hz, "
-          f"t_end={sc.t_end:g} s; {sc.reference.description}")
+          f"t_end={sc.t_end:g} s; {sc.reference.description}; friction "
+          + (", ".join(f"{a:g} N*m from {t0:g} to {t1:g} s" for a, t0, t1 in sc.friction) or "none"))
     m = traj.metrics()
     print(format_summary(m, UNITS[sc.task]))
     written = [base + ".png", base + ".npz", base + ".csv"]
