@@ -13,8 +13,12 @@ import pytest
 from hypothesis import settings
 from hypothesis.database import InMemoryExampleDatabase
 
+from ehss_gym.core.execution import pin_blas
+
 # tests/reference.py is a plain helper module next to the tests
 sys.path.insert(0, os.path.dirname(__file__))
+
+pin_blas()  # as every ehss command: MKL's code path fixed before any test computes (tests/test_reproducible.py)
 
 # hypothesis keeps its examples in ./.hypothesis by default (the checkout): in memory for the session instead
 settings.register_profile("session-memory", database=InMemoryExampleDatabase())

@@ -41,6 +41,7 @@ from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
+from ehss_gym.core.execution import pin_blas
 from ehss_gym.core.util import atomic_write, atomic_write_text
 from ehss_gym.envs import ENV_ID
 from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
@@ -157,6 +158,7 @@ def train(cfg: Config, on_eval: Callable[[dict], None] | None = None) -> dict:
         on_eval: called with every held-out validation row (:class:`~ehss_gym.train.callbacks.HeldoutEval`).
     """
     cfg.validate()
+    pin_blas()  # before torch's first computation: the run's numbers do not depend on the CPU's instruction set
     spec, full, name, run_dir = cfg.spec(), cfg.full(), cfg.run_name(), cfg.run_dir()
     manifest = open_run(cfg)
     torch.set_num_threads(cfg.torch_threads)

@@ -20,7 +20,8 @@ Backends (:class:`Backend`):
   bound to 127.0.0.1 when there is none. Ray is an optional extra (``pip install 'ehss-gym[ray]'``).
 
 The pitfalls handled here rather than by the callers: one torch/OpenMP and one numba thread per job unless
-``threads`` says otherwise (jobs share the cores); numba's cache in a node-local folder on Ray workers
+``threads`` says otherwise (jobs share the cores); MKL's code path pinned (:data:`BLAS_ENV`: a learned policy's
+results do not depend on the machine's CPU); numba's cache in a node-local folder on Ray workers
 (:data:`NUMBA_CACHE_ENV`: numba's cache is not safe to share between machines over a shared file system); the
 seed passed to every job explicitly; Ray tasks retried when their worker dies (``max_retries``); results as
 plain data, model weights as safe-weights files (the jobs that train return their bytes, see
@@ -56,6 +57,11 @@ RAY_INSTALL = "pip install 'ehss-gym[ray]'"
 # every thread pool a job might start: torch/OpenMP, MKL, OpenBLAS and numba
 THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 NUMBA_CACHE_ENV = "NUMBA_CACHE_DIR"
+# MKL (torch's BLAS on x86) picks its kernels by CPU: an AVX-512 machine sums a layer's products in another order than
+# an AVX2 one, so a learned policy's actions, and the episodes they steer, differ in their last bits from machine to
+# machine. Its conditional-numerical-reproducibility mode pins one code path: AVX2's, which every x86 CPU of the last
+# decade runs (Intel and AMD alike). MKL reads it at its first call, so it is set before torch computes anything.
+BLAS_ENV = {"MKL_CBWR": "AVX2"}
 RESULT = "result.json"
 CONNECT_TIMEOUT = 3.0  # [s] to reach a Ray cluster's address before saying it is unreachable
 
@@ -415,6 +421,18 @@ def thread_env(threads: int) -> dict:
     return {v: str(threads) for v in THREAD_VARS}
 
 
+def pin_blas() -> dict:
+    """Pin MKL's code path (:data:`BLAS_ENV`) in this process's environment, and so in the processes it starts,
+    unless the user set the variable; effective when called before the process's first torch computation.
+
+    Returns:
+        The pinned variables as set (what a Ray worker's runtime environment gets).
+    """
+    for key, value in BLAS_ENV.items():
+        os.environ.setdefault(key, value)
+    return {key: os.environ[key] for key in BLAS_ENV}
+
+
 def numba_cache_dir() -> str:
     """A numba cache folder on the local disk of whichever node reads the variable (``/tmp`` is per node), one per
     version of the package's source (:func:`code_fingerprint`).
@@ -489,6 +507,7 @@ class Executor:
             ExecutionError: bad backend settings, or a Ray cluster's address that does not answer (checked here, so
                 a command asked to reach a cluster says so even when the store holds every result it needs).
         """
+        pin_blas()  # before any job computes here or in a worker process started from here
         self.backend = (backend or Backend()).validate()
         if self.backend.name == "ray" and self.backend.ray_address() is not None:
             check_address(self.backend.ray_address())
@@ -524,7 +543,7 @@ class Executor:
         if ray.is_initialized():  # the caller's own Ray session (a script, a test): used, and left running
             self._ray = ray
             return ray
-        env = {**thread_env(self.backend.threads), NUMBA_CACHE_ENV: numba_cache_dir()}
+        env = {**thread_env(self.backend.threads), NUMBA_CACHE_ENV: numba_cache_dir(), **pin_blas()}
         runtime_env = {"env_vars": env}
         if address is not None:
             try:
@@ -652,4 +671,4 @@ def _checked(job: Job, get: Callable[[], str]) -> str:
 __all__ = ["BACKENDS", "RAY_INSTALL", "DEFAULT_STORE", "ExecutionError", "Job", "Store", "Backend", "Executor",
            "canonical", "code_fingerprint", "job_key", "encode", "decode", "dumps", "loads", "usable_cores",
            "require_ray", "check_address", "backend_from_args", "store_from_args", "add_backend_arguments",
-           "thread_env", "numba_cache_dir", "set_threads", "run_one"]
+           "thread_env", "pin_blas", "BLAS_ENV", "numba_cache_dir", "set_threads", "run_one"]

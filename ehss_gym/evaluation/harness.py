@@ -31,7 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ehss_gym.core.execution import Backend, Executor, canonical, usable_cores
+from ehss_gym.core.execution import Backend, Executor, canonical, pin_blas, usable_cores
 from ehss_gym.core.execution import Job as ExecJob
 from ehss_gym.envs.rollout import rollout as run_rollout
 
@@ -305,6 +305,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
             on none of ``cfg.tasks``.
     """
     t_start = time.perf_counter()
+    pin_blas()  # before the first forward pass of a learned policy (the shape checks below)
     cfg = cfg or EvalConfig()
     notes: list = []
     named = set() if specs is None else {s.name for s in specs}
