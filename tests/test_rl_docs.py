@@ -79,3 +79,22 @@ def test_the_zoo_extra_has_what_rl_zoo3_enjoy_imports():
     text = open(os.path.join(ROOT, "pyproject.toml"), encoding="utf-8").read()  # (tomllib needs Python 3.11)
     zoo = re.search(r"^zoo = \[(.*?)\]", text, re.M).group(1)
     assert '"rl-zoo3"' in zoo and '"requests"' in zoo
+
+
+def test_sb3_refusing_the_native_vector_env_names_the_adapter_that_it_takes():
+    """Before: SB3 refused gym.make_vec(..., vectorization_mode="vector_entry_point") with 'not a Gymnasium
+    environment' and no hint; its message prints the env's type, which names NativeVecEnv now."""
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+
+    venv = gym.make_vec("ehss_gym:EHSSTracking-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    with pytest.raises(ValueError, match=r"EHSSTrackingVectorEnv.*ehss_gym\.train\.vec_env\.NativeVecEnv"):
+        PPO("MlpPolicy", venv, device="cpu")
+    assert "NativeVecEnv" in DOC and "vector_entry_point" in DOC
+
+
+def test_the_native_vector_env_training_example_runs(tmp_path):
+    code = re.search(r"<!-- rl-vec-example -->\s*```python\n(.*?)```", DOC, re.S).group(1)
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "trained 512 steps on 8 envs" in r.stdout

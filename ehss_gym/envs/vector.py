@@ -21,6 +21,9 @@ Conventions (Gymnasium 1.x):
   saturated, sat_fraction, friction_torque, clipped, n_clipped, diverged, lost_track every step; ``metrics``
   (and ``divergence_reason``) for sub-envs whose episode ended this step.
 - Rendering is not supported (``render_mode`` must be None); render a single env instead.
+- stable-baselines3 takes its own ``VecEnv``, not a Gymnasium vector env: give it
+  :class:`ehss_gym.train.vec_env.NativeVecEnv` (this env behind SB3's interface; the class's repr, which SB3's
+  refusal prints, says so).
 """
 
 from __future__ import annotations
@@ -39,9 +42,19 @@ from .lanes import Lanes
 from .observation import OBS_BOUND
 
 MAX_CHUNK = 128  # lanes integrated in lock-step by one thread
+SB3_HINT = ("a Gymnasium vector env, which stable-baselines3 does not take; SB3's VecEnv over it is "
+            "ehss_gym.train.vec_env.NativeVecEnv(num_envs, env_kwargs), see docs/RL.md")
 
 
-class EHSSTrackingVectorEnv(VectorEnv):
+class _HintedType(type):
+    """The vector env's type, whose repr says what to give stable-baselines3 instead: SB3 refuses a Gymnasium vector
+    env with a message that shows only the env's type (``stable_baselines3.common.vec_env.patch_gym._patch_env``)."""
+
+    def __repr__(cls) -> str:
+        return f"<class '{cls.__module__}.{cls.__qualname__}'> ({SB3_HINT})"
+
+
+class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
     """N independent EHSS loops as one Gymnasium vector env (see the module docstring).
 
     Args:
