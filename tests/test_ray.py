@@ -7,13 +7,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import sys
+import tempfile
 import threading
 import time
+import uuid
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from conftest import home_entries
 from ehss_gym.train.config import Config, build_parser, config_from_args
 
 from ehss_gym.cli import main as cli_main
@@ -29,14 +34,40 @@ TINY = ["--n-envs", "2", "--eval-episodes", "1", "--eval-seconds", "0.1", "--hp"
 
 
 @pytest.fixture(scope="module")
-def ray_instance():
-    """A local Ray instance of 2 CPUs bound to 127.0.0.1 (the commands use it instead of starting their own)."""
-    ray.init(address="local", num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", log_to_driver=False,
-             runtime_env={"env_vars": {**thread_env(1), NUMBA_CACHE_ENV: numba_cache_dir()}})
-    # the test module's job functions travel by value (Ray's workers cannot import tests/)
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    yield ray
-    ray.shutdown()
+def ray_instance(tmp_path_factory):
+    """A local Ray instance of 2 CPUs bound to 127.0.0.1 (the commands use it instead of starting their own).
+
+    Its token and session files stay out of the home folder: a new local instance writes a token to
+    ~/.ray/auth_token unless RAY_AUTH_TOKEN_PATH names one, and every later ``ray start --head`` on the machine then
+    demands it from its clients. The session folder is a short one under the system's temp folder (Ray's socket
+    paths must fit in 107 bytes, which pytest's tmp_path does not leave room for), removed afterwards.
+    """
+    token = tmp_path_factory.mktemp("ray-auth") / "auth_token"
+    token.write_text(uuid.uuid4().hex)
+    session = tempfile.mkdtemp(prefix="ray-")
+    home_before = home_entries()
+    with pytest.MonkeyPatch.context() as env:
+        # Ray turns token mode on for a new local instance by setting RAY_AUTH_MODE here (its config in this process
+        # reads the variable when Ray loads, so it is Ray that must set it); removed again afterwards
+        env.delenv("RAY_AUTH_MODE", raising=False)
+        env.setenv("RAY_AUTH_TOKEN_PATH", str(token))
+        env.setenv("RAY_TMPDIR", session)
+        ray.init(address="local", num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1",
+                 log_to_driver=False, runtime_env={"env_vars": {**thread_env(1), NUMBA_CACHE_ENV: numba_cache_dir()}})
+        # the test module's job functions travel by value (Ray's workers cannot import tests/)
+        ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+        try:
+            yield SimpleNamespace(ray=ray, home_before=home_before, session=session)
+        finally:
+            ray.shutdown()
+            shutil.rmtree(session, ignore_errors=True)
+
+
+def test_the_ray_instance_leaves_the_home_folder_as_it_found_it(ray_instance):
+    """Before: ~/.ray/auth_token appeared, after which a plain ``ray start --head`` cluster refused the commands."""
+    assert ray_instance.ray.get(ray_instance.ray.remote(lambda: 42).remote()) == 42
+    assert home_entries() == ray_instance.home_before
+    assert os.path.isdir(os.path.join(ray_instance.session, "ray"))  # Ray's session files went where they were sent
 
 
 def _csvs(folder) -> dict:
