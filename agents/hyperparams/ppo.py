@@ -12,9 +12,10 @@ zero_init_action=True, so the policy starts as the base law), network, log_std_i
 is the agent's), n_envs and env_kwargs. Differences:
 
 - rl-zoo3 evaluates on its own (EvalCallback on training scenarios, --eval-freq) instead of ehss train's
-  held-out validation with best-model keeping, writes its own checkpoints and no safe weights (export the zip
-  with ehss_gym.agents.export.export_policy), and steps a DummyVecEnv (ehss train steps the native vector env:
-  the same numbers, faster)
+  held-out validation with best-model keeping, writes its own checkpoints and no safe weights (ehss evaluate
+  --policies sb3:logs/ppo/EHSSTracking-v0_1 scores the run folder as it is, in the loop it trained in;
+  ehss_gym.agents.export.export_policy makes safe weights of its zip), and steps a DummyVecEnv (ehss train
+  steps the native vector env: the same numbers, faster)
 - rl-zoo3 draws a random seed unless --seed is given; ehss train's default is 0
 - --env-kwargs on rl-zoo3's command line replaces env_kwargs below as a whole (the agent's settings with it);
   for another task or n, edit a copy of this file (ehss train --task/--n keep the agent's settings)
