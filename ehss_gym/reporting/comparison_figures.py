@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -60,6 +61,29 @@ def _styles(names: Sequence[str]) -> dict:
             for i, n in enumerate(names)}
 
 
+LABEL_CHARS = 34  # bar charts: a longer policy name is wrapped at its commas (a law at a learned policy's settings)
+CHAR_WIDTH = 0.065  # [in] of a character of the 8-point tick labels, a bound on DejaVu Sans's mean width
+LINE_HEIGHT = 0.15  # [in] of a line of those labels
+
+
+def _wrap(name: str) -> str:
+    """A policy name in lines of at most :data:`LABEL_CHARS` characters, broken after its commas and its '@'."""
+    lines, cur = [], ""
+    for part in re.split(r"(?<=[,@])", name):
+        if cur and len(cur) + len(part) > LABEL_CHARS:
+            lines.append(cur)
+            cur = part
+        else:
+            cur += part
+    return "\n".join([*lines, cur])
+
+
+def _label_size(names: Sequence[str]) -> tuple[float, int]:
+    """(width [in] of the widest wrapped tick label, most lines of one) for the bar charts' figure sizes."""
+    wrapped = [_wrap(n).split("\n") for n in names] or [[""]]
+    return max(len(line) for w in wrapped for line in w) * CHAR_WIDTH, max(len(w) for w in wrapped)
+
+
 def _legend_outside(fig, ax, ncol: int = 1) -> None:
     """The legend of ``ax``'s lines to the right of the axes, off the data."""
     handles, labels = ax.get_legend_handles_labels()
@@ -75,7 +99,10 @@ def _score_bars(res: Results, folder: str, col: dict, suite: str):
     tasks = [t for t in TASKS if any(d["suite"] == suite and d["task"] == t for d in res.summary)]
     if not tasks:
         return None
-    fig, axes = plt.subplots(1, len(tasks), figsize=(5.2 * len(tasks), 0.45 * len(names) + 2.2), squeeze=False)
+    label_w, lines = _label_size(names)  # the panels keep their width beside the policy names
+    row = max(0.45, LINE_HEIGHT * lines + 0.15)
+    fig, axes = plt.subplots(1, len(tasks), figsize=((5.2 + label_w) * len(tasks), row * len(names) + 2.2),
+                             squeeze=False)
     for ax, task in zip(axes[0], tasks):
         block = [d for d in res.summary if d["suite"] == suite and d["task"] == task]
         block.sort(key=lambda d: -d["rank"])
@@ -87,7 +114,7 @@ def _score_bars(res: Results, folder: str, col: dict, suite: str):
                 label="mean, 95 % CI")
         ax.plot([d["score_iqm"] for d in block], y, "kD", ms=4, label="IQM")
         ax.axvline(1.0, color="gray", ls="--", lw=1)
-        ax.set_yticks(y, [d["policy"] for d in block], fontsize=8)
+        ax.set_yticks(y, [_wrap(d["policy"]) for d in block], fontsize=8)
         ax.set_xlabel(f"primary score (lower is better; {REFERENCE_POLICY} = 1)")
         if means.max() / max(means.min(), 1e-9) > 20:
             ax.set_xscale("log")
@@ -114,7 +141,10 @@ def _metric_bars(res: Results, folder: str, col: dict, task: str):
         return None
     keys = (("rmse", f"RMSE [{UNITS[task]}]"), ("max_abs_e_friction", f"max |e| in friction [{UNITS[task]}]"),
             ("tv_u_rate", "control TV [mA/s]"))
-    fig, axes = plt.subplots(1, 3, figsize=(14, 0.4 * len(block) + 2.2))
+    label_w, lines = _label_size([d["policy"] for d in block])
+    row = max(0.4, LINE_HEIGHT * lines + 0.15)
+    # the policy names once, on the first panel (the three share the rows)
+    fig, axes = plt.subplots(1, 3, figsize=(14 + label_w, row * len(block) + 2.2), sharey=True)
     block.sort(key=lambda d: -d["rank"])
     for ax, (key, label) in zip(axes, keys):
         vals, los, his = [], [], []
@@ -125,7 +155,7 @@ def _metric_bars(res: Results, folder: str, col: dict, task: str):
             his.append(hi - mean)
         y = np.arange(len(block))
         ax.barh(y, vals, xerr=[los, his], color=[col[d["policy"]] for d in block], alpha=0.8, capsize=3)
-        ax.set_yticks(y, [d["policy"] for d in block], fontsize=8)
+        ax.set_yticks(y, [_wrap(d["policy"]) for d in block], fontsize=8)
         ax.set_xlabel(label)
         fin = [v for v in vals if math.isfinite(v) and v > 0]
         if fin and max(fin) / min(fin) > 30:
