@@ -19,10 +19,11 @@ import time
 import gymnasium as gym
 import numpy as np
 import torch
+from stable_baselines3 import PPO
+
 from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import env_kwargs_for, get_spec
 from ehss_gym.train.loop import Config, make_env, train
-from stable_baselines3 import PPO
 
 from . import bench_env
 from .common import Section, Table, Target, interleave, log, median, spread

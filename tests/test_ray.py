@@ -14,12 +14,12 @@ import time
 
 import numpy as np
 import pytest
-from ehss_gym.train.config import Config, build_parser, config_from_args
 
 from ehss_gym.cli import main as cli_main
-from ehss_gym.core.execution import NUMBA_CACHE_ENV, Backend, Executor, Job, dumps, numba_cache_dir, thread_env
 from ehss_gym.core.sim import Scenario
+from ehss_gym.infra.execution import NUMBA_CACHE_ENV, Backend, Executor, Job, dumps, numba_cache_dir, thread_env
 from ehss_gym.study.records import batch_job
+from ehss_gym.train.config import Config, build_parser, config_from_args
 
 ray = pytest.importorskip("ray")
 pytestmark = pytest.mark.xdist_group("ray")

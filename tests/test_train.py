@@ -16,19 +16,19 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.vec_env import DummyVecEnv
+
 from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import env_kwargs_for, get_spec
+from ehss_gym.cli import main as cli_main
+from ehss_gym.cli import training_report
+from ehss_gym.reporting import training as report_writer
 from ehss_gym.train import launch, options, runs
 from ehss_gym.train.callbacks import capture_rng, restore_rng
 from ehss_gym.train.config import Config, Launch, build_parser, config_from_args
 from ehss_gym.train.loop import make_env
 from ehss_gym.train.vec_env import NativeVecEnv
-from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv
-
-from ehss_gym.cli import main as cli_main
-from ehss_gym.cli import training_report
-from ehss_gym.reporting import training as report_writer
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -126,12 +126,12 @@ def test_training_smoke(tmp_path):
     """A few hundred steps: every output exists and the safe weights reproduce the SB3 model's actions."""
     import pickle
 
-    from ehss_gym.agents.safeweights import load_policy
-    from ehss_gym.agents.specs import resolved_env_kwargs
-    from ehss_gym.train import analysis
     from stable_baselines3 import PPO
 
+    from ehss_gym.agents.safeweights import load_policy
+    from ehss_gym.agents.specs import resolved_env_kwargs
     from ehss_gym.envs import EHSSTrackingEnv
+    from ehss_gym.train import analysis
 
     out = tmp_path / "run"
     rc = cli_main(["train", "--timesteps", "256", "--eval-freq", "128", "--checkpoint-freq", "128", "--out", str(out),
@@ -302,9 +302,8 @@ def test_period_log_replays_the_agents_loop_at_the_control_rate():
     loop must be the one the policy acts in (same metrics as at its own agent period), and its TV count
     complete (equal to the metrics' TV)."""
     from ehss_gym.agents.safeweights import load_policy, shipped_models
-    from ehss_gym.train.analysis import has_noise, period_log
-
     from ehss_gym.core.scenarios import heldout_scenarios
+    from ehss_gym.train.analysis import has_noise, period_log
 
     pol = load_policy(shipped_models()["residual-ppo-velocity-n2-seed1"])  # a seed whose kept policy acts
     tmpl = pol.make_env().unwrapped.scenario_template

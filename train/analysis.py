@@ -25,15 +25,15 @@ import math
 import os
 
 import numpy as np
+
 from ehss_gym.agents.safeweights import load_policy, model_paths
 from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
-
 from ehss_gym.core.scenarios import heldout_scenarios
 from ehss_gym.core.sim import simulate_batch
-from ehss_gym.core.util import atomic_write, atomic_write_text
 from ehss_gym.envs import EHSSTrackingEnv
 from ehss_gym.envs.config import recorded_loop
 from ehss_gym.evaluation import harness as ev
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 ONSET_PEAK = 0.01  # [s] a friction-window peak this soon after the switch-on is the torque step's transient
 TARGET_IMPROVEMENT = 0.2  # [-] the residuals' target: 1 - score/score_best >= this, ...

@@ -15,7 +15,6 @@ import os
 from dataclasses import dataclass
 
 from ehss_gym.agents.specs import AGENTS, agent_names, env_kwargs_for, get_spec
-
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
 

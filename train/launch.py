@@ -3,7 +3,7 @@
     ehss train --agent {residual-ppo,ppo} --task velocity --n 2 --timesteps T --seed S [--out runs/NAME] [--resume]
     ehss train --seeds 0-4 [--jobs J] [--backend ray [--address HOST:PORT]] [...]   # runs go to <out or runs>/<name>
 
-Each seed is a :func:`~ehss_gym.train.jobs.train_job` on the chosen backend (:mod:`ehss_gym.core.execution`):
+Each seed is a :func:`~ehss_gym.train.jobs.train_job` on the chosen backend (:mod:`ehss_gym.infra.execution`):
 locally, a fresh worker process per seed, at most ``--jobs`` at a time; on Ray, one task per seed (retried, and
 resumed from its last checkpoint, if its worker dies). Its output goes to ``<run>/train.log``. Every seed's
 settings are validated, and its folder checked against ``--resume``, before any job starts; a seed whose job
@@ -16,7 +16,7 @@ import dataclasses
 import os
 import sys
 
-from ehss_gym.core.execution import Backend, ExecutionError, Executor, Store, job_key
+from ehss_gym.infra.execution import Backend, ExecutionError, Executor, Store, job_key
 
 from . import runs
 from .config import Config, Launch, config_from_args, launch_from_args

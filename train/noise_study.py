@@ -26,10 +26,10 @@ import sys
 import time
 
 import numpy as np
-from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
 
-from ehss_gym.core.util import atomic_write_text
+from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
 from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
+from ehss_gym.infra.util import atomic_write_text
 
 from .config import Config
 from .loop import train

@@ -13,7 +13,7 @@ import importlib
 import os
 import sys
 
-from ehss_gym.core.util import report_folder
+from ehss_gym.infra.util import report_folder
 
 SHIPPED = os.path.join("reports", "perf")
 

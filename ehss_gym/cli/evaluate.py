@@ -9,9 +9,9 @@ import sys
 import warnings
 from dataclasses import replace
 
-from ehss_gym.core.execution import Executor, add_backend_arguments, backend_from_args, store_from_args
-from ehss_gym.core.util import report_folder
 from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, PolicyWarning, default_specs, evaluate, parse_policies
+from ehss_gym.infra.execution import Executor, add_backend_arguments, backend_from_args, store_from_args
+from ehss_gym.infra.util import report_folder
 from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
 
 from .args import int_at_least

@@ -6,7 +6,7 @@ import argparse
 import os
 import sys
 
-from ehss_gym.core.util import atomic_write_text, report_folder
+from ehss_gym.infra.util import atomic_write_text, report_folder
 from ehss_gym.reporting.fidelity import docs_block, replace_block, write_report
 from ehss_gym.study.fidelity import PROG, run_all
 

@@ -15,8 +15,8 @@ import os
 import sys
 import time
 
-from ehss_gym.core.execution import ExecutionError, Executor, add_backend_arguments, backend_from_args, store_from_args
-from ehss_gym.core.util import report_folder
+from ehss_gym.infra.execution import ExecutionError, Executor, add_backend_arguments, backend_from_args, store_from_args
+from ehss_gym.infra.util import report_folder
 from ehss_gym.reporting.paper import write_report
 from ehss_gym.study.config import StudyConfig
 from ehss_gym.study.stages import run_study

@@ -15,7 +15,7 @@ import numpy as np
 from ehss_gym.core.metrics import format_summary
 from ehss_gym.core.response import frequency_response, reference_model_response
 from ehss_gym.core.sim import UNITS, simulate
-from ehss_gym.core.util import atomic_write, atomic_write_text, out_paths
+from ehss_gym.infra.util import atomic_write, atomic_write_text, out_paths
 from ehss_gym.reporting.plotting import plot_frequency_response, plot_trajectory
 
 from .args import add_loop_arguments, scenario_from_args

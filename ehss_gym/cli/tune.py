@@ -17,7 +17,7 @@ import shlex
 import sys
 import time
 
-from ehss_gym.core.execution import Backend, ExecutionError, Executor, Store
+from ehss_gym.infra.execution import Backend, ExecutionError, Executor, Store
 from ehss_gym.reporting.tune import write_report
 from ehss_gym.train.options import parse_pairs
 

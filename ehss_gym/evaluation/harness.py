@@ -3,7 +3,7 @@
 Every policy acts in the Gymnasium env ``EHSSTracking-v0`` (:class:`ehss_gym.envs.env.EHSSTrackingEnv`) through
 SB3's ``predict(obs, state, episode_start, deterministic=True)``; every episode is pinned to a scenario
 (``reset(options={"scenario": ...})``), so all policies see exactly the same references, friction
-events, plants and sensor noise. The episodes run as jobs of the execution layer (:mod:`ehss_gym.core.execution`):
+events, plants and sensor noise. The episodes run as jobs of the execution layer (:mod:`ehss_gym.infra.execution`):
 in this process, in ``spawn`` worker processes across the cores, or as Ray tasks (``--backend ray``); the split
 of episodes into jobs depends neither on the number of workers nor on the backend, so results are identical
 for any ``--workers`` and on both backends.
@@ -31,9 +31,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ehss_gym.core.execution import Backend, Executor, canonical, usable_cores
-from ehss_gym.core.execution import Job as ExecJob
 from ehss_gym.envs.rollout import rollout as run_rollout
+from ehss_gym.infra.execution import Backend, Executor, canonical, usable_cores
+from ehss_gym.infra.execution import Job as ExecJob
 
 from .loading import PolicyError, load_run, portable, restore
 from .scoring import METRIC_KEYS, METRICS, SCORE_CAP, primary_score, score_rows, summarize
@@ -117,7 +117,7 @@ def item_digest(item: tuple) -> str:
 
 
 def _eval_job(config: dict, seed: int, items: dict) -> dict:
-    """An executor job (:mod:`ehss_gym.core.execution`): one :class:`Job`'s episodes with its policy, made once
+    """An executor job (:mod:`ehss_gym.infra.execution`): one :class:`Job`'s episodes with its policy, made once
     per process from its item in ``items``; plain data back (per-episode metrics, traces or None)."""
     job: Job = config["job"]
     # one object per item *and* (policy, run, task): a scripted law's item is the same for both tasks, its object
@@ -173,7 +173,7 @@ def default_workers() -> int:
 
 
 def run_jobs(jobs: Sequence[Job], items: dict, executor: Executor, in_process: bool = False) -> dict:
-    """Run jobs on ``executor``'s backend (:mod:`ehss_gym.core.execution`), longest first.
+    """Run jobs on ``executor``'s backend (:mod:`ehss_gym.infra.execution`), longest first.
 
     Args:
         jobs: the jobs.
@@ -298,7 +298,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
         workers: processes (default: the cores available); 1 runs in this process.
         progress: show a tqdm progress bar on stderr.
         command: the command line recorded in the report.
-        executor: where the episodes run (:mod:`ehss_gym.core.execution`; its backend, and its store if it has
+        executor: where the episodes run (:mod:`ehss_gym.infra.execution`; its backend, and its store if it has
             one); default: this machine's processes, ``workers`` of them, nothing stored.
 
     Raises:

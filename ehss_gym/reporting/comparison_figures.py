@@ -11,12 +11,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from ehss_gym._version import __version__
-from ehss_gym.core.util import atomic_write
 from ehss_gym.evaluation import stats as st
 from ehss_gym.evaluation.harness import Results
 from ehss_gym.evaluation.scoring import matrix
 from ehss_gym.evaluation.specs import REFERENCE_POLICY
 from ehss_gym.evaluation.suites import SUITES, TASKS, UNITS
+from ehss_gym.infra.util import atomic_write
 
 from .plotting import plt
 

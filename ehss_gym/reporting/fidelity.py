@@ -16,7 +16,7 @@ from matplotlib.ticker import NullFormatter, ScalarFormatter
 
 from ehss_gym._version import __version__
 from ehss_gym.core.sim import UNITS
-from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 from ehss_gym.study.fidelity import (
     OMEGA,
     SCHEMES,

@@ -18,11 +18,11 @@ import numpy as np
 
 from ehss_gym._version import __version__
 from ehss_gym.core.filters import butterworth_coefficients
-from ehss_gym.core.fmt import fmt_num as _f
-from ehss_gym.core.fmt import md_table
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import lie_derivatives
-from ehss_gym.core.util import atomic_write_text
+from ehss_gym.infra.fmt import fmt_num as _f
+from ehss_gym.infra.fmt import md_table
+from ehss_gym.infra.util import atomic_write_text
 from ehss_gym.study.noise import (
     NoiseStudy,
     final_variants,

@@ -17,10 +17,10 @@ from collections.abc import Sequence
 import numba as nb
 
 from ehss_gym._version import __version__
-from ehss_gym.core.fmt import fmt_axis, md_table
-from ehss_gym.core.fmt import fmt_num as _f
 from ehss_gym.core.params import PlantParams
-from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.infra.fmt import fmt_axis, md_table
+from ehss_gym.infra.fmt import fmt_num as _f
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 from ehss_gym.study.claims import CLAIM_FIG, CLAIMS, VERDICTS, best_verdict, evaluate_claims, sweep_claims
 from ehss_gym.study.config import (
     C4_TOL,

@@ -16,8 +16,8 @@ import time
 import matplotlib
 
 from ehss_gym.agents.specs import AGENTS
-from ehss_gym.core.fmt import fmt_cell
-from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.infra.fmt import fmt_cell
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 from ehss_gym.train import analysis as an
 
 from .render import render
@@ -33,7 +33,7 @@ CURVES = (("score", "validation score (ref. CLF n=2 = 1)"), ("rmse", "RMSE / bas
 
 
 def cell(x, d: int = 3) -> str:
-    """A table cell (:func:`ehss_gym.core.fmt.fmt_cell`): ``d`` decimals, significant digits below 0.01 and from
+    """A table cell (:func:`ehss_gym.infra.fmt.fmt_cell`): ``d`` decimals, significant digits below 0.01 and from
     1e4."""
     return fmt_cell(x, d, decimals=True)
 

@@ -13,9 +13,9 @@ import numpy as np
 from tqdm import tqdm
 
 from ehss_gym.core import layout as L
-from ehss_gym.core.execution import Executor, Job
 from ehss_gym.core.physics import lie_derivatives
 from ehss_gym.core.sim import Scenario, Trajectory, lambdas, simulate_batch
+from ehss_gym.infra.execution import Executor, Job
 
 
 @dataclass
@@ -165,7 +165,7 @@ def probe_summary(r: Record) -> Record:
 
 
 def batch_job(config: dict, seed: int, context) -> list[dict]:
-    """An executor job (:mod:`ehss_gym.core.execution`): one ``simulate_batch`` call of the study, as plain data
+    """An executor job (:mod:`ehss_gym.infra.execution`): one ``simulate_batch`` call of the study, as plain data
     per run (params, metrics, features; with ``keep`` the trajectory's log and accumulators too). The scenarios
     carry their own noise seeds, so ``seed`` is unused."""
     out = []
@@ -198,7 +198,7 @@ class RecordStore:
 
 class Runner:
     """Batches scenarios by time grid into ``simulate_batch`` calls (jobs of an
-    :class:`~ehss_gym.core.execution.Executor`), with one tqdm bar over batches."""
+    :class:`~ehss_gym.infra.execution.Executor`), with one tqdm bar over batches."""
 
     def __init__(self, max_batch: int = 64, progress: bool = True, desc: str = "ehss reproduce",
                  executor: Executor | None = None):
