@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
-from ehss_gym.envs import EnvConfig
+from ehss_gym.envs.config import POLICY_KEYS, EnvConfig
 
 
 @dataclass(frozen=True)
@@ -132,10 +132,8 @@ class AgentSpec:
 #   added TV fastest (see reports/training/TRAINING.md).
 COMMON_ENV = {"control_period": 5e-5, "smoothing": 0.0, "agent_period": 20, "reward_weights": {"rate": 1.0}}
 # Settings pinned when a policy is exported (its JSON records them all), so that later changes of the env's
-# defaults cannot silently change the loop a shipped policy acts in.
-PINNED_ENV_KEYS = ("task", "n", "mode", "fr", "sigma", "smoothing", "residual_scale", "agent_period",
-                   "control_period", "substeps", "current_limit", "estimator_hz", "estimator", "observer_hz", "law",
-                   "layer_gain", "bumpless", "ref_accel", "pressure_domain", "reward_weights", "error_scale")
+# defaults cannot silently change the loop a shipped policy acts in: every setting a policy acts in.
+PINNED_ENV_KEYS = POLICY_KEYS
 
 # AgentSpec fields that are keyword arguments of SB3's PPO under the same name, as they are
 PPO_KEYS = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "clip_range", "ent_coef", "vf_coef",

@@ -19,7 +19,7 @@ import gymnasium as gym
 import numba
 
 import ehss_gym  # noqa: F401  (registers EHSSTracking-v0 with gymnasium)
-from ehss_gym.core.sim import MAX_LANES
+from ehss_gym.core.loop import MAX_LANES
 from ehss_gym.envs.kernels import advance
 
 from . import kernel_profile

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from ehss_gym import Scenario, simulate
 from ehss_gym.controllers import CLFPolicy, parse_scripted
-from ehss_gym.core.control import lin_sontag, sontag
+from ehss_gym.core.laws import lin_sontag, sontag
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import lie_derivatives
 from ehss_gym.core.signals import step

@@ -17,14 +17,13 @@ import os
 import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-PACKAGE_DIRS = {"ehss_gym": os.path.join(ROOT, "ehss_gym"), "ehss_gym.agents": os.path.join(ROOT, "agents"),
-                "ehss_gym.train": os.path.join(ROOT, "train")}
 
 
-def module_files() -> dict[str, str]:
-    """Module name -> source path of every module of the package."""
+def module_files(root: str = ROOT) -> dict[str, str]:
+    """Module name -> source path of every module of the package in the checkout at ``root``."""
     out = {}
-    for pkg, folder in PACKAGE_DIRS.items():
+    dirs = {"ehss_gym": "ehss_gym", "ehss_gym.agents": "agents", "ehss_gym.train": "train"}
+    for pkg, folder in ((p, os.path.join(root, f)) for p, f in dirs.items()):
         for dirpath, dirnames, filenames in os.walk(folder):
             dirnames[:] = [d for d in dirnames if not d.startswith((".", "__"))]
             for fn in filenames:
@@ -45,6 +44,13 @@ class Module:
         with open(path, encoding="utf-8") as f:
             tree = ast.parse(f.read())
         self.functions = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
+        # dispatches generated from a table (``name = dispatch(...)``, ehss_gym.core.jit): a stop in this module,
+        # whose branches call the table's kernels, read once like any function
+        for n in tree.body:
+            if isinstance(n, ast.Assign) and isinstance(n.value, ast.Call) and isinstance(n.value.func, ast.Name) \
+                    and n.value.func.id in ("dispatch", "member") and isinstance(n.targets[0], ast.Name):
+                self.functions[n.targets[0].id] = ast.FunctionDef(name=n.targets[0].id, args=None, body=[],
+                                                                  decorator_list=[], lineno=n.lineno)
         self.classes = {n.name: n for n in tree.body if isinstance(n, ast.ClassDef)}
         self.imports: dict[str, tuple[str, str | None]] = {}  # local name -> (module, attribute or None)
         pkg = name if path.endswith("__init__.py") else name.rpartition(".")[0]
@@ -63,12 +69,14 @@ class Module:
 
 
 class Walker:
-    def __init__(self, verbose: bool = False):
-        self.files = module_files()
+    def __init__(self, root: str = ROOT, verbose: bool = False, returns: bool = True):
+        self.root = root
+        self.files = module_files(root)
         self.modules: dict[str, Module] = {}
         self.expanded: set[tuple[str, str]] = set()
         self.trail: list[str] = []  # files passed through, in order
         self.verbose = verbose
+        self.returns = returns  # the way back to the caller is a move too
 
     def module(self, name: str) -> Module | None:
         if name not in self.files:
@@ -104,30 +112,32 @@ class Walker:
             return self._lookup(base, a, depth + 1)
         return None
 
-    def visit(self, mod: Module, fn: ast.FunctionDef, depth: int = 0) -> bool:
+    def visit(self, mod: Module, fn: ast.FunctionDef, depth: int = 0, caller: str | None = None) -> bool:
         """Read ``fn`` (once: a function already read is no stop); True if it was read now."""
         key = (mod.name, fn.name)
         if key in self.expanded:
             return False
         self.expanded.add(key)
-        self.trail.append(mod.path)
+        if self.returns or caller != mod.path:  # calls only: a call within the file is no move
+            self.trail.append(mod.path)
         if self.verbose:
-            print("  " * depth + f"{os.path.relpath(mod.path, ROOT)}:{fn.name}")
-        calls = [n for n in ast.walk(fn) if isinstance(n, ast.Call)]
+            print("  " * depth + f"{os.path.relpath(mod.path, self.root)}:{fn.name}")
+        calls = [n for stmt in fn.body for n in ast.walk(stmt) if isinstance(n, ast.Call)]
         calls.sort(key=lambda n: (n.lineno, n.col_offset))
         for call in calls:
             target = self.resolve(mod, call)
             if target is None:
                 continue
-            if self.visit(*target, depth + 1):
+            if self.visit(*target, depth + 1, mod.path) and self.returns:
                 self.trail.append(mod.path)  # back in the caller
         return True
 
 
-def walk(entry: str, verbose: bool = False) -> dict:
-    """Stops, files and returns of the walk from ``entry`` (``module:function``)."""
+def walk(entry: str, root: str = ROOT, verbose: bool = False, returns: bool = True) -> dict:
+    """Stops, files and returns of the walk from ``entry`` (``module:function``) in the checkout at ``root``; without
+    ``returns`` only the calls move the reader (the way back to a caller is not counted)."""
     modname, _, fname = entry.partition(":")
-    w = Walker(verbose)
+    w = Walker(root, verbose, returns)
     mod = w.module(modname)
     if mod is None or fname not in mod.functions:
         raise SystemExit(f"step_walk: no function {entry!r}")
@@ -139,7 +149,7 @@ def walk(entry: str, verbose: bool = False) -> dict:
         if f in seen:
             returns += 1
         seen.add(f)
-    rel = [os.path.relpath(f, ROOT) for f in stops]
+    rel = [os.path.relpath(f, root) for f in stops]
     entered = {}
     for f in rel:
         entered[f] = entered.get(f, 0) + 1
@@ -150,9 +160,13 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python tools/step_walk.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--entry", default="ehss_gym.envs.kernels:advance", help="module:function to start from")
     p.add_argument("--verbose", action="store_true", help="print the call tree")
+    p.add_argument("--calls-only", action="store_true",
+                   help="count only the moves into a called function, not the way back to its caller")
+    p.add_argument("--root", default=ROOT, help="the checkout to read (default: this one)")
     args = p.parse_args(argv)
-    r = walk(args.entry, args.verbose)
-    print(f"{r['stops']} stops in {r['files']} files, {r['returns']} returns to a file already left")
+    r = walk(args.entry, args.root, args.verbose, not args.calls_only)
+    what = "calls into a file already left" if args.calls_only else "returns to a file already left"
+    print(f"{r['stops']} stops in {r['files']} files, {r['returns']} {what}")
     print("  " + " -> ".join(os.path.basename(f) for f in r["sequence"]))
     for f, k in sorted(r["entered"].items(), key=lambda kv: -kv[1]):
         print(f"  {f}: entered {k} times")

@@ -31,7 +31,7 @@ from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
 from ehss_gym.core.scenarios import heldout_scenarios
 from ehss_gym.core.sim import simulate_batch
 from ehss_gym.envs import EHSSTrackingEnv
-from ehss_gym.envs.config import recorded_loop
+from ehss_gym.envs.config import in_legacy_loop
 from ehss_gym.evaluation import harness as ev
 from ehss_gym.infra.util import atomic_write, atomic_write_text
 
@@ -207,11 +207,11 @@ def agent_env_kwargs(task: str) -> dict:
     loop its diagnostics must be measured in.
 
     The runs this report reads predate issue 14's loop settings (law, layer, estimator defaults), so, as when
-    their policies are loaded (:func:`ehss_gym.envs.config.recorded_loop`), the settings the agent spec leaves to
+    their policies are loaded (:func:`ehss_gym.envs.config.in_legacy_loop`), the settings the agent spec leaves to
     the env are those before issue 14, not today's env defaults.
     """
     # (the paper's SVF, "foh", was every task's estimator before issue 14; safe weights pin theirs)
-    return recorded_loop({"estimator": "foh", **env_kwargs_for(get_spec("residual-ppo"), task, 2)})
+    return in_legacy_loop({"estimator": "foh", **env_kwargs_for(get_spec("residual-ppo"), task, 2)})
 
 
 def agent_heldout_scenarios(task: str, episodes: int) -> list:
@@ -402,8 +402,8 @@ def ship(groups: dict, models_dir: str, made_by: str) -> list[str]:
             cfg = read_json(js)
             cfg["name"] = name
             # pin the env defaults it was trained with: a run from before issue 14 recorded none of its settings
-            # (recorded_loop fills in the loop of then, not today's defaults)
-            cfg["env_kwargs"] = resolved_env_kwargs(recorded_loop(cfg["env_kwargs"]))
+            # (in_legacy_loop fills in the loop of then, not today's defaults)
+            cfg["env_kwargs"] = resolved_env_kwargs(in_legacy_loop(cfg["env_kwargs"]))
             cfg["metadata"] = {"run_name": r["summary"]["run_name"], "seed": r["config"]["seed"],
                                "hp_overrides": r["config"].get("hp") or {},
                                "step": r["summary"]["best_step"], "validation": r["summary"]["best_validation"],

@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import math
 
-from ehss_gym.core.layout import ESTIMATORS
 from ehss_gym.core.params import PlantParams
+from ehss_gym.core.registry import ESTIMATORS, names
+from ehss_gym.core.settings import PAPER_FRICTION, Scenario
 from ehss_gym.core.signals import FAMILIES, chirp, multisine, sine, step
-from ehss_gym.core.sim import PAPER_FRICTION, Scenario
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs.config import EnvConfig
 
@@ -113,7 +113,7 @@ def add_loop_arguments(p: argparse.ArgumentParser, *, t_end: float = 20.0):
     g.add_argument("--control-period", type=_finite("--control-period", 0.0), default=None, help="[s]")
     g.add_argument("--substeps", type=int_at_least("--substeps", 1), default=None, help="RK4 steps per period")
     g.add_argument("--current-limit", type=parse_limit, default=None, help="[mA] or 'none' (unlimited)")
-    g.add_argument("--estimator", choices=ESTIMATORS, default=None,
+    g.add_argument("--estimator", choices=names(ESTIMATORS), default=None,
                    help="how the reference model and derivative estimator run: foh (first-order-hold digital "
                         "filters), zoh (wave 1's biased scheme) or analog (continuous filters)")
     g.add_argument("--estimator-hz", type=_finite("--estimator-hz", 0.0), default=None,

@@ -14,7 +14,8 @@ import numpy as np
 
 from ehss_gym.core.metrics import format_summary
 from ehss_gym.core.response import frequency_response, reference_model_response
-from ehss_gym.core.sim import UNITS, simulate
+from ehss_gym.core.settings import UNITS
+from ehss_gym.core.sim import simulate
 from ehss_gym.infra.util import atomic_write, atomic_write_text, out_paths
 from ehss_gym.reporting.plotting import plot_frequency_response, plot_trajectory
 

@@ -18,11 +18,12 @@ import re
 
 import numpy as np
 
-from ehss_gym.core.layout import ESTIMATORS, LAWS
+from ehss_gym.core.registry import ESTIMATORS, LAWS, names
 
 from .base import ScriptedPolicy
 
-_NAME_RE = re.compile(r"^(clf|" + "|".join(map(re.escape, LAWS)) + r")(?:-(" + "|".join(ESTIMATORS) + r"))?-n(\d+)$")
+_NAME_RE = re.compile(r"^(clf|" + "|".join(map(re.escape, names(LAWS))) + r")(?:-("
+                      + "|".join(map(re.escape, names(ESTIMATORS))) + r"))?-n(\d+)$")
 SCRIPTED_FORMS = ("clf-n<k>", "<law>-n<k>", "<law>-<estimator>-n<k>")
 
 

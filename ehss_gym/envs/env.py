@@ -14,13 +14,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from ehss_gym.core import layout as L
-from ehss_gym.core.layout import F_REW, F_STATS, S_N, S_SAT
-from ehss_gym.core.sim import Scenario
+from ehss_gym.core.layout import I_E, I_R, I_T, I_TF, I_UAPP, I_UBASE, I_URES, I_YD, I_YE, M_LOST
+from ehss_gym.core.settings import Scenario
 
-from .config import DEFAULTS, TASK_DEPENDENT, EnvConfig
-from .kernels import advance
-from .lanes import Lanes
+from .buffers import F_REW, F_STATS, S_N, S_UMAX, S_UMIN
+from .config import DEFAULTS, NONE_IS_A_VALUE, EnvConfig
+from .lanes import Lanes, step_info
 from .observation import OBS_BOUND
 
 # what the dashboard records per agent step (at its last control sample; u_min/u_max over its control periods)
@@ -214,8 +213,8 @@ class EHSSTrackingEnv(gym.Env):
                              f"{render_mode!r}")
         self.render_mode = render_mode
         given = {k: v for k, v in locals().items() if k in EnvConfig.KEYS}  # the arguments above, by name
-        # None selects the task's default for the per-task settings (current_limit=None means unlimited)
-        given = {k: v for k, v in given.items() if v is not None or k not in TASK_DEPENDENT}
+        # None selects the default, except where None is a value (current_limit=None means unlimited)
+        given = {k: v for k, v in given.items() if v is not None or k in NONE_IS_A_VALUE}
         self.config = cfg = EnvConfig.from_kwargs({**given, **unknown})
         self._lanes = Lanes(cfg, 1)
         self.observation_layout = self._lanes.layout
@@ -266,20 +265,15 @@ class EHSSTrackingEnv(gym.Env):
             self._n_clipped += 1
         lanes = self._lanes
         lanes.u_res[0] = v * self._scale
-        advance(*lanes._args)
+        lanes.step()
         self._steps += 1
-        lost = lanes.acc0.item(L.M_LOST) > 0.0
+        lost = lanes.acc0.item(M_LOST) > 0.0
         diverged = not lanes.run[0]
         terminated = diverged or (lost and self.config.terminate_on_lost_track)
         truncated = not terminated and self._steps >= self._T
         # Python floats in two list conversions of pre-made row views (numpy scalar reads cost ~0.1 us each)
-        i = lanes.info_ok0.tolist()
         st = lanes.tail0.tolist()
-        n = st[S_N]
-        info = {"t": i[L.I_T], "e": i[L.I_E], "s": i[L.I_S], "V": i[L.I_V], "u_base": i[L.I_UBASE],
-                "u_residual": i[L.I_URES], "u_applied": i[L.I_UAPP], "saturated": i[L.I_SAT] > 0.0,
-                "sat_fraction": st[S_SAT] / n if n > 0 else 0.0, "friction_torque": i[L.I_TF],
-                "clipped": clipped, "n_clipped": self._n_clipped, "diverged": diverged, "lost_track": lost}
+        info = step_info(lanes.info_ok0.tolist(), st, clipped, self._n_clipped, diverged, lost)
         if terminated or truncated:
             self._ready = False
             m = lanes.metrics(0)
@@ -296,9 +290,9 @@ class EHSSTrackingEnv(gym.Env):
     def _record(self):
         i = self._lanes.info_ok[0]
         st = self._lanes.stats[0]
-        lo, hi = (st[L.S_UMIN], st[L.S_UMAX]) if st[S_N] > 0 else (i[L.I_UAPP], i[L.I_UAPP])
-        self._hist.append((i[L.I_T], i[L.I_YE], i[L.I_YD], i[L.I_E], i[L.I_UAPP], i[L.I_UBASE], i[L.I_URES],
-                           i[L.I_TF], i[L.I_R], lo, hi))
+        lo, hi = (st[S_UMIN], st[S_UMAX]) if st[S_N] > 0 else (i[I_UAPP], i[I_UAPP])
+        self._hist.append((i[I_T], i[I_YE], i[I_YD], i[I_E], i[I_UAPP], i[I_UBASE], i[I_URES], i[I_TF], i[I_R], lo,
+                           hi))
 
     def render(self):
         """An RGB dashboard (H, W, 3) uint8 of the episode so far, or None without render_mode."""

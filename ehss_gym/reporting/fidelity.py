@@ -15,7 +15,7 @@ import numpy as np
 from matplotlib.ticker import NullFormatter, ScalarFormatter
 
 from ehss_gym._version import __version__
-from ehss_gym.core.sim import UNITS
+from ehss_gym.core.settings import UNITS
 from ehss_gym.infra.util import atomic_write, atomic_write_text
 from ehss_gym.study.fidelity import (
     OMEGA,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ehss_gym.core.sim import PAPER_FRICTION
+from ehss_gym.core.settings import PAPER_FRICTION
 
 NS = (2, 4, 6)
 # the paper's three configurations: (task, f_r [Hz]) -> paper figures

@@ -1,7 +1,7 @@
 """The noise study's runs (``ehss noise``), stage by stage; later stages use what earlier ones chose.
 
 Every run starts from the env's loop before issue 14 (:func:`old_template`: the reproduction study's period,
-f_r, sigma, smoothing, limit and the paper's SVF, :data:`ehss_gym.envs.config.PRE_ISSUE14_ENV`); each stage
+f_r, sigma, smoothing, limit and the paper's SVF, :data:`ehss_gym.envs.config.LEGACY_LOOP`); each stage
 changes only the settings it studies. The rules are the pure functions of :mod:`.noise_rules`.
 
 1. :func:`stage_startup`: the old law's lost episodes (randomised and held-out, both tasks) and the levers on
@@ -26,7 +26,7 @@ import numpy as np
 from ehss_gym.controllers import PID_GAINS, PIDPolicy, tune_pid
 from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, heldout_scenarios, paper_scenario, sample_scenario
 from ehss_gym.core.sim import Scenario, lambdas, simulate_batch
-from ehss_gym.envs.config import PRE_ISSUE14_ENV, EnvConfig
+from ehss_gym.envs.config import LEGACY_LOOP, EnvConfig
 from ehss_gym.envs.rollout import rollout
 
 from . import bias as B
@@ -46,8 +46,8 @@ class NoiseStudy(RecordStore):
 
 
 def old_env_kwargs(task: str) -> dict:
-    """The env's settings before issue 14 for ``task`` (its defaults with PRE_ISSUE14_ENV and the paper's SVF)."""
-    return {"task": task, **PRE_ISSUE14_ENV, "estimator": "foh"}
+    """The env's settings before issue 14 for ``task`` (its defaults with LEGACY_LOOP and the paper's SVF)."""
+    return {"task": task, **LEGACY_LOOP, "estimator": "foh"}
 
 
 def old_template(task: str) -> Scenario:
