@@ -127,9 +127,9 @@ class Scenario:
     observer_hz: float = 200.0
     """error bandwidth of the "eso" observer [Hz] (unused by the other estimators)"""
     law: str = "sontag"
-    """the CLF law (:data:`ehss_gym.core.registry.LAWS`): "sontag" (Sontag's universal formula, the paper's) or
-    "lin-sontag" (Lin & Sontag's formula for currents bounded by ``current_limit``, which must then be finite). See
-    docs/MODEL.md, "Laws"."""
+    """the CLF law, a row of :data:`ehss_gym.core.registry.LAWS`: "sontag" (Sontag's universal formula, the paper's),
+    "lin-sontag" (Lin & Sontag's formula for currents bounded by ``current_limit``, which must then be finite), ...
+    See docs/MODEL.md, "Laws"."""
     layer_gain: float = 0.0
     """adaptive boundary layer: the width of the smooth sign is max(smoothing, layer_gain * the running noise std of
     s), in [0, LAYER_GAIN_MAX = 100]; 0 = the fixed width ``smoothing``"""

@@ -151,9 +151,10 @@ class EHSSTrackingEnv(gym.Env):
             velocity and a lumped disturbance acceleration). See docs/MODEL.md, "Digital filters" and "Estimators".
         observer_hz: error bandwidth of the "eso" observer [Hz] (default 200 velocity, where it is unused, 1000
             position).
-        law: "sontag" (default, both tasks; Sontag's universal formula, the paper's) or "lin-sontag" (Lin &
-            Sontag's formula for controls bounded by current_limit). Without ``sigma`` each law gets its own
-            default sigma (:attr:`TaskDefaults.sigma_by_law`). See docs/MODEL.md, "Laws".
+        law: the CLF law, a row of :data:`ehss_gym.core.registry.LAWS` (default "sontag", both tasks: Sontag's
+            universal formula, the paper's; "lin-sontag": Lin & Sontag's formula for controls bounded by
+            current_limit). Without ``sigma`` each law gets its own default sigma, where the env has one
+            (:attr:`TaskDefaults.sigma_by_law`; else the task's). See docs/MODEL.md, "Laws".
         layer_gain: adaptive boundary layer: width max(smoothing, layer_gain * running noise std of s), in
             [0, 100] (default 3 both tasks; 0: the fixed width ``smoothing``).
         bumpless: the reference model starts at the measured output instead of at r(0) (default False).
