@@ -167,6 +167,21 @@ def lin_sontag(psi, G, s, n, sigma, smoothing, ulim):
 
 
 @jit
+def min_norm(psi, G, s):
+    """Pointwise min-norm current [mA] for s' = psi + G u: u = -a/b where a > 0, else 0, for V' = a + b u.
+
+    With a = (s/sigma)^(n-1) psi / sigma and b = (s/sigma)^(n-1) G / sigma (n even, so the power keeps the sign of
+    s): a > 0 exactly where s and psi have the same sign, and there -a/b = -psi/G, the smallest current that makes
+    V' <= 0 (V' = 0); elsewhere V' = a <= 0 with no current at all. Neither n nor sigma changes it.
+    """
+    if G == 0.0 or not math.isfinite(G):
+        return 0.0
+    if (s > 0.0 and psi > 0.0) or (s < 0.0 and psi < 0.0):
+        return -psi / G
+    return 0.0
+
+
+@jit
 def _int_power(x, k):
     """x^k for an integer k >= 0 by repeated multiplication (k = n - 1 is small in practice).
 

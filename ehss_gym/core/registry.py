@@ -85,6 +85,7 @@ LAWS: tuple[Law, ...] = (
     Law("sontag", "sontag", "Sontag's universal formula (the paper's law)"),
     Law("lin-sontag", "lin_sontag", "Lin & Sontag's formula for currents bounded by current_limit",
         needs_limit=True),
+    Law("min-norm", "min_norm", "the pointwise min-norm current: -a/b where V' = a + b u has a > 0, else 0"),
 )
 
 ESTIMATORS: tuple[Estimator, ...] = (
