@@ -13,7 +13,9 @@ import subprocess
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-MAX_LOCAL_IMPORTS = 5  # optional heavy dependencies only (matplotlib in render, SB3 loading, ...), each with a reason
+# optional or heavy dependencies only, each with a reason: torch to load a policy, Ray for ehss tune, matplotlib to
+# render the env, and numba, scipy and Gymnasium where the command line reads a module that would otherwise load them
+MAX_LOCAL_IMPORTS = 6
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:

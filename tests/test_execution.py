@@ -142,7 +142,7 @@ def test_an_interrupted_sweep_restarted_recomputes_only_the_missing_jobs(tmp_pat
 # --- bad input --------------------------------------------------------------------------------------------
 
 
-COMMANDS = {"evaluate": ["evaluate", "--quick", "--policies", "clf-n2", "--suite", "paper", "--tasks", "velocity"],
+COMMANDS = {"evaluate": ["evaluate", "--quick", "--policies", "clf-n2", "--suite", "paper", "--task", "velocity"],
             "reproduce": ["reproduce", "--quick"],
             "train": ["train", "--seeds", "0-1", "--timesteps", "64"]}
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ehss_gym.cli import build_parser, main
-from ehss_gym.cli.args import scenario_from_args
+from ehss_gym.cli.simulate import scenario_from_args
 from ehss_gym.envs.config import EnvConfig
 
 

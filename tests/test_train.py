@@ -22,7 +22,6 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import env_kwargs_for, get_spec
 from ehss_gym.cli import main as cli_main
-from ehss_gym.cli import training_report
 from ehss_gym.reporting import training as report_writer
 from ehss_gym.train import launch, options, runs
 from ehss_gym.train.callbacks import capture_rng, restore_rng
@@ -78,7 +77,7 @@ def test_run_name_reproducible_and_sensitive():
     (["--timesteps", "0"], "--timesteps must be an integer >= 1"),
     (["--hp", "gamma"], "--hp must be KEY=JSON"),
     (["--hp", "nope=1"], r"unknown or fixed agent hyperparameter\(s\) \['nope'\]"),
-    (["--jobs", "0", "--seeds", "0-1"], "--jobs must be an integer >= 1"),
+    (["--workers", "0", "--seeds", "0-1"], "--workers must be an integer >= 1"),
     (["--eval-seconds", "0"], r"--eval-seconds must be a number in \[0.01, 100\]"),
 ])
 def test_cli_bad_input_exit_2(argv, match, capsys, tmp_path):
@@ -270,7 +269,7 @@ def test_multi_seed_makes_one_job_per_seed(tmp_path, monkeypatch, capsys):
                              "base_validation": VAL}, "weights": {}} for j in jobs]
 
     monkeypatch.setattr(launch.Executor, "map", fake_map)
-    assert cli_main(["train", "--seeds", "0-2", "--jobs", "2", "--out", str(tmp_path), "--timesteps", "64",
+    assert cli_main(["train", "--seeds", "0-2", "--workers", "2", "--out", str(tmp_path), "--timesteps", "64",
                      *TINY]) == 0
     jobs = seen["jobs"]
     assert [j.seed for j in jobs] == [0, 1, 2] and seen["fresh"] and seen["workers"] == 2
@@ -515,14 +514,10 @@ def test_report_template_renders_every_section():
 
 
 def test_training_report_command_refuses_bad_input(tmp_path, capsys):
-    p = argparse.ArgumentParser(prog="ehss")
-    training_report.register(p.add_subparsers(dest="command"))
-    args = p.parse_args(["training-report", "--runs", str(tmp_path / "none"), "--out", str(tmp_path / "out")])
-    assert args.func(args) == 2
+    assert cli_main(["training-report", "--runs", str(tmp_path / "none"), "--out", str(tmp_path / "out")]) == 2
     assert "ehss training-report: error: --runs folder" in capsys.readouterr().err
     (tmp_path / "empty").mkdir()
-    args = p.parse_args(["training-report", "--runs", str(tmp_path / "empty"), "--out", str(tmp_path / "out")])
-    assert args.func(args) == 2
+    assert cli_main(["training-report", "--runs", str(tmp_path / "empty"), "--out", str(tmp_path / "out")]) == 2
     assert "no finished runs" in capsys.readouterr().err
 
 

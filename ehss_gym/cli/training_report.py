@@ -9,39 +9,15 @@ weights to a models folder. Bad input (a missing folder, no finished runs) print
 
 from __future__ import annotations
 
-import os
 import sys
 
 from ehss_gym.reporting import training
-
-from .args import int_at_least
-
-DEFAULT_OUT = os.path.join("reports", "training")
-
-
-def register(sub) -> None:
-    """Add ``ehss training-report`` to the sub-command parsers ``sub``."""
-    p = sub.add_parser("training-report", help="evaluate finished training runs and write reports/training",
-                       description="Training cost, learning curves and held-out results of the runs that ehss train "
-                                   "wrote; optionally ship the chosen residual policies.")
-    p.add_argument("--runs", nargs="+", default=[os.path.join("runs", "final")], metavar="FOLDER",
-                   help="folders of run folders (default runs/final)")
-    p.add_argument("--out", default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
-    p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=48,
-                   help="held-out episodes per task (default 48)")
-    p.add_argument("--noise", default=os.path.join(DEFAULT_OUT, "noise_study.json"),
-                   help="the noise study's JSON (python -m ehss_gym.train.noise_study); left out if missing")
-    p.add_argument("--ship", default=None, metavar="FOLDER",
-                   help="copy the chosen residual policies' safe weights here (e.g. ehss_gym/models)")
-    p.add_argument("--workers", type=int_at_least("--workers", 1), default=2, help="evaluation processes (default 2)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
 
 
 def run(args) -> int:
     """Write the report; exit code 2 with a message on bad input."""
     try:
-        out = training.make_report(args.runs, args.out, episodes=args.episodes, noise=args.noise, ship=args.ship,
+        out = training.make_report(args.runs, args.out, episodes=args.episodes, noise=args.exploration, ship=args.ship,
                                    workers=args.workers, progress=not args.no_progress)
     except ValueError as exc:  # a missing --runs folder, mixed settings in a group, no finished runs
         print(f"ehss training-report: error: {exc}", file=sys.stderr)
@@ -51,4 +27,4 @@ def run(args) -> int:
     return 0
 
 
-__all__ = ["register", "run"]
+__all__ = ["run"]

@@ -28,6 +28,7 @@ from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, heldout_scenarios, pap
 from ehss_gym.core.sim import Scenario, lambdas, simulate_batch
 from ehss_gym.envs.config import LEGACY_LOOP, EnvConfig
 from ehss_gym.envs.rollout import rollout
+from ehss_gym.infra.execution import Executor
 
 from . import bias as B
 from .noise_config import NS, TASKS, NoiseStudyConfig
@@ -398,10 +399,11 @@ def bias_check(tr) -> dict:
 STAGES = (stage_startup, stage_ls_sigma, stage_grid, stage_choose, stage_final, stage_bias)
 
 
-def run_noise_study(cfg: NoiseStudyConfig, progress: bool = True) -> NoiseStudy:
-    """Run every stage in order."""
+def run_noise_study(cfg: NoiseStudyConfig, progress: bool = True, executor: Executor | None = None) -> NoiseStudy:
+    """Run every stage in order, the simulation batches on ``executor`` (:mod:`ehss_gym.infra.execution`; default in
+    this process, nothing stored)."""
     st = NoiseStudy(cfg=cfg)
-    runner = Runner(progress=progress, desc="ehss noise")
+    runner = Runner(progress=progress, desc="ehss noise", executor=executor)
     t0 = time.perf_counter()
     try:
         for stage in STAGES:
