@@ -142,7 +142,7 @@ PPO_KEYS = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "clip_ra
 AGENTS: dict[str, AgentSpec] = {
     # Residual: gamma 0.98 (a 50-step, 50 ms horizon: several plant time constants; the reward is the
     # tracking error of the same agent step, so longer horizons add variance); zero-initialised mean;
-    # std exp(-1) = 0.37 action units = 3.7 mA. The measurement (python -m ehss_gym.train.noise_study, -4..-1,
+    # std exp(-1) = 0.37 action units = 3.7 mA. The measurement (python -m ehss_gym.study.exploration, -4..-1,
     # TRAINING.md "Initial exploration noise") found no value whose early evaluations all stay at or
     # above the base law: -4 stays closest (worst early score 1.10) but then does not learn in 400k
     # steps, -1 falls below once (first evaluation, up to 1.12) and then improves fastest; with 5 seeds

@@ -23,8 +23,8 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_import_layers_hold():
-    """import-linter's contracts in pyproject.toml: cli > reporting > study|train > evaluation > agents|controllers
-    > envs > core, and nothing imports the CLI."""
+    """import-linter's contracts in pyproject.toml: cli > reporting > study > train > evaluation > agents|controllers
+    > envs > core > infra, and nothing imports the CLI."""
     # the README's test command installs the dev extra: a missing import-linter is a broken install, not a pass
     assert importlib.util.find_spec("importlinter") is not None, "import-linter missing: pip install -e '.[dev]'"
     p = _run("tools/lint_imports.py")

@@ -1,4 +1,5 @@
-"""``ehss training-report``: the training report of finished runs (:mod:`ehss_gym.reporting.training`).
+"""``ehss training-report``: the training study of finished runs (:mod:`ehss_gym.study.training`) and its report
+(:mod:`ehss_gym.reporting.training`).
 
     ehss training-report --runs runs/res_v_n2 runs/final_ppo --out reports/training --episodes 48 --ship ehss_gym/models
 
@@ -11,19 +12,21 @@ from __future__ import annotations
 
 import sys
 
-from ehss_gym.reporting import training
+from ehss_gym.reporting.training import COMMAND, command_line, write_report
+from ehss_gym.study.training import run_training_study
 
 
 def run(args) -> int:
-    """Write the report; exit code 2 with a message on bad input."""
+    """Run the study and write the report; exit code 2 with a message on bad input."""
     try:
-        out = training.make_report(args.runs, args.out, episodes=args.episodes, noise=args.exploration, ship=args.ship,
-                                   workers=args.workers, progress=not args.no_progress)
+        study = run_training_study(args.runs, args.episodes, exploration=args.exploration, ship_to=args.ship,
+                                   workers=args.workers, progress=not args.no_progress, made_by=COMMAND)
     except ValueError as exc:  # a missing --runs folder, mixed settings in a group, no finished runs
         print(f"ehss training-report: error: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {', '.join(out['files'])}" + (f"; shipped {len(out['shipped'])} models to {args.ship}"
-                                                  if out["shipped"] else ""))
+    files = write_report(study, args.out, command_line(args.runs, args.out, args.episodes, args.ship))
+    print(f"wrote {', '.join(files)}" + (f"; shipped {len(study.shipped)} models to {args.ship}"
+                                         if study.shipped else ""))
     return 0
 
 

@@ -20,7 +20,7 @@ _EXPORTS = {
     "DEFAULTS": ".config", "EnvConfig": ".config", "EnvDefaults": ".config", "TaskDefaults": ".config",
     "EHSSTrackingEnv": ".env", "EHSSTrackingVectorEnv": ".vector", "OBS_BOUND": ".observation",
     "decode_observation": ".observation", "observation_layout": ".observation", "symlog_inverse": ".observation",
-    "rollout": ".rollout", "EpisodeResult": ".rollout",
+    "rollout": ".rollouts", "EpisodeResult": ".rollouts",
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 

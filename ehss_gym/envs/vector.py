@@ -16,7 +16,7 @@ Conventions (Gymnasium 1.x):
   reward 0, ``terminated = truncated = False``, and ignores its action; its ``info["scenario"]`` is set.
   ``autoreset_mode=AutoresetMode.DISABLED``: an ended sub-env is not advanced again (its observation and
   info stay those of its last step, its actions are ignored) until ``reset`` (e.g. with a ``reset_mask``);
-  this is what :func:`ehss_gym.envs.rollout.rollout` uses to run a fixed set of episodes.
+  this is what :func:`ehss_gym.envs.rollouts.rollout` uses to run a fixed set of episodes.
 - ``infos`` is a dict of arrays (with ``_key`` masks): t, e, s, V, u_base, u_residual, u_applied,
   saturated, sat_fraction, friction_torque, clipped, n_clipped, diverged, lost_track every step; ``metrics``
   (and ``divergence_reason``) for sub-envs whose episode ended this step.

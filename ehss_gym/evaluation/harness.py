@@ -31,7 +31,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ehss_gym.envs.rollout import rollout as run_rollout
+from ehss_gym.envs.rollouts import rollout as run_rollout
 from ehss_gym.infra.execution import Backend, Executor, canonical, usable_cores
 from ehss_gym.infra.execution import Job as ExecJob
 
@@ -130,7 +130,7 @@ def _eval_job(config: dict, seed: int, items: dict) -> dict:
 
 
 def rollout(policy, env_kwargs: dict, episodes: Sequence[Episode], trace: bool = False, name: str = "policy"):
-    """Run ``policy`` on pinned episodes side by side: :func:`ehss_gym.envs.rollout.rollout`, the one loop.
+    """Run ``policy`` on pinned episodes side by side: :func:`ehss_gym.envs.rollouts.rollout`, the one loop.
 
     Args:
         policy: an object with SB3's ``predict``.

@@ -27,7 +27,7 @@ from ehss_gym.controllers import PID_GAINS, PIDPolicy, tune_pid
 from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, heldout_scenarios, paper_scenario, sample_scenario
 from ehss_gym.core.sim import Scenario, lambdas, simulate_batch
 from ehss_gym.envs.config import LEGACY_LOOP, EnvConfig
-from ehss_gym.envs.rollout import rollout
+from ehss_gym.envs.rollouts import rollout
 from ehss_gym.infra.execution import Executor
 
 from . import bias as B
