@@ -21,7 +21,7 @@ from ehss_gym.core.signals import chirp, multisine, sine, step
 from ehss_gym.core.sim import simulate
 from ehss_gym.envs.config import EnvConfig
 from ehss_gym.infra.util import atomic_write, atomic_write_text, out_paths
-from ehss_gym.reporting.plotting import plot_frequency_response, plot_trajectory
+from ehss_gym.reporting.trajectory_figures import plot_frequency_response, plot_trajectory
 
 from .options import NONE
 

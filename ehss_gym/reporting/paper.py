@@ -44,7 +44,7 @@ from ehss_gym.study.records import Record
 from ehss_gym.study.rules import attraction_bounds, lost_table
 from ehss_gym.study.stages import Study
 
-from . import paper_facts as F
+from . import paper_facts as facts
 from .paper_figures import (
     plot_divergence,
     plot_lost_track,
@@ -377,20 +377,21 @@ def report_context(st: Study, data: str, cmd: str, wall_s: float | None) -> dict
                math=math, G_NOMINAL=G_NOMINAL)
     ctx.update(paper_tables(st))
     ctx.update(claims_context(st, data))
-    ctx.update(regions=F.regions(st), div=F.divergence_facts(st), probes=F.probe_facts(st), lim=F.limit_facts(st),
-               fr=F.fr_facts(st), n_counts=F.n_matters_counts(st), lost=F.lost_track(st),
+    ctx.update(regions=facts.regions(st), div=facts.divergence_facts(st), probes=facts.probe_facts(st),
+               lim=facts.limit_facts(st),
+               fr=facts.fr_facts(st), n_counts=facts.n_matters_counts(st), lost=facts.lost_track(st),
                smooth_rows=md_table(["n", "w", "diverged", "RMSE quiet", "friction peak", "rec. on [s]",
-                                     "TV rate [mA/s]", "saturation"], F.smoothing_rows(st, "smoothing")),
+                                     "TV rate [mA/s]", "saturation"], facts.smoothing_rows(st, "smoothing")),
                smooth_pos_rows=md_table(["n", "w", "diverged", "RMSE quiet [rad]", "friction peak [rad]",
                                          "rec. on [s]", "TV rate [mA/s]", "saturation"],
-                                        F.smoothing_rows(st, "smoothing_position")),
-               smooth_gain=F.smoothing_gain(st, "smoothing", rec["smoothing"]),
-               smooth_gain_pos=F.smoothing_gain(st, "smoothing_position", rec["smoothing_position"]),
+                                        facts.smoothing_rows(st, "smoothing_position")),
+               smooth_gain=facts.smoothing_gain(st, "smoothing", rec["smoothing"]),
+               smooth_gain_pos=facts.smoothing_gain(st, "smoothing_position", rec["smoothing_position"]),
                period_rows=md_table(["h [s]", "best sigma", "RMSE quiet", "saturation"],
-                                    F.period_rows(rec["period_table"])),
+                                    facts.period_rows(rec["period_table"])),
                pos_period_rows=md_table(["h [s]", "best sigma", "RMSE quiet [rad]", "saturation"],
-                                        F.period_rows(rec["pos_period_table"])),
-               best_n=F.best_by_n(st, "sigma_period", rec["h_paper"]), qmax=F.qmax,
+                                        facts.period_rows(rec["pos_period_table"])),
+               best_n=facts.best_by_n(st, "sigma_period", rec["h_paper"]), qmax=facts.qmax,
                p3=runs_by_set(st, "P3"), p4=runs_by_set(st, "P4"), p1=runs_by_set(st, "P1"), p2=runs_by_set(st, "P2"),
                p3_old=runs_by_set(st, "P3_old"), d_m=PlantParams().d_m,
                dist_limit_rows=md_table(["limit [mA]", "lost", "mean RMSE", "median RMSE", "mean saturation"],

@@ -17,7 +17,7 @@ from ehss_gym.study.config import NS
 from ehss_gym.study.records import Record
 from ehss_gym.study.rules import MAP_METRICS, cells_of, n_effect
 
-from .plotting import plt
+from .trajectory_figures import plt
 
 
 def _made_by(cmd: str) -> str:

@@ -30,7 +30,7 @@ from ehss_gym.envs.config import LEGACY_LOOP, EnvConfig
 from ehss_gym.envs.rollouts import rollout
 from ehss_gym.infra.execution import Executor
 
-from . import bias as B
+from . import bias
 from .noise_config import NS, TASKS, NoiseStudyConfig
 from .noise_rules import choose_estimator_law, choose_ls_sigma, choose_startup, is_lost, summary
 from .records import RecordStore, Runner
@@ -371,11 +371,11 @@ def bias_check(tr) -> dict:
     lam = np.zeros(3)
     lv = lambdas(sc.order, sc.fr)
     lam[:len(lv)] = lv
-    b1m, b2m, i = B.measured_bias(t, x, tr.y_est_derivs, sc.task)
+    b1m, b2m, i = bias.measured_bias(t, x, tr.y_est_derivs, sc.task)
     amp = np.array([sum(a for a, t0, t1 in sc.friction if t0 <= tt < t1) for tt in t])
     x2dot = (sc.plant.d_m * x[:, 2] - sc.plant.B * x[:, 1] - tr.friction) / sc.plant.J
-    rate = B.friction_rate(x[:, 1], x2dot, amp, sc.plant.delta_friction)
-    b1d, b2d = B.bias_terms(x, sc.plant, sc.model, tr.friction, rate)
+    rate = bias.friction_rate(x[:, 1], x2dot, amp, sc.plant.delta_friction)
+    b1d, b2d = bias.bias_terms(x, sc.plant, sc.model, tr.friction, rate)
     # leave out the samples next to a friction edge (the torque jumps there; a central difference spans it)
     h = sc.control_period
     keep = np.ones(len(i), dtype=bool)
@@ -383,13 +383,14 @@ def bias_check(tr) -> dict:
         keep &= (np.abs(t[i] - t0) > 3 * h) & (np.abs(t[i] - t1) > 3 * h)
     keep &= t[i] >= 0.2  # past the start-up
     ii = i[keep]
-    bsd = B.combined_bias(b1d[ii], b2d[ii], sc.task, lam)
-    bsm = B.combined_bias(b1m[keep], b2m[keep], sc.task, lam)
+    bsd = bias.combined_bias(b1d[ii], b2d[ii], sc.task, lam)
+    bsm = bias.combined_bias(b1m[keep], b2m[keep], sc.task, lam)
     on = (t[ii] >= sc.friction[0][1] + 0.1) & (t[ii] < sc.friction[0][2])
     e = tr.e[ii]
     fric = on.any()
-    return {"b1_agree": B.relative_agreement(b1d[ii], b1m[keep]), "b2_agree": B.relative_agreement(b2d[ii], b2m[keep]),
-            "bs_agree": B.relative_agreement(bsd, bsm), "b1_rms": float(np.sqrt(np.mean(b1m[keep] ** 2))),
+    return {"b1_agree": bias.relative_agreement(b1d[ii], b1m[keep]),
+            "b2_agree": bias.relative_agreement(b2d[ii], b2m[keep]),
+            "bs_agree": bias.relative_agreement(bsd, bsm), "b1_rms": float(np.sqrt(np.mean(b1m[keep] ** 2))),
             "bs_rms": float(np.sqrt(np.mean(bsm**2))), "bs_fric_mean": float(np.mean(bsd[on])) if fric else math.nan,
             "e_pred_fric": float(-np.mean(bsd[on]) / lam[0]) if fric else math.nan,
             "e_fric": float(np.mean(e[on])) if on.any() else math.nan,
