@@ -119,10 +119,10 @@ class AgentSpec:
         return d
 
 
-# The loop the agents train in, pinned here rather than taken from the env's defaults (the recipe of wave 1, kept
+# The loop the agents train in, pinned here rather than taken from the env's defaults (the first recipe, kept
 # when the estimator was corrected so that the retrained policies are comparable; f_r, sigma and the filters
 # follow the env's defaults, which the reproduction study re-derived on the corrected loop):
-# - control period 50 us and the plain law (smoothing 0). In wave 1's pilot runs (residual PPO, n = 2, seed 0,
+# - control period 50 us and the plain law (smoothing 0). In the first pilot runs (residual PPO, n = 2, seed 0,
 #   100k steps, 8 validation episodes; docs/ENV.md, "Residual PPO settings") every smoothed setting ended with
 #   the control TV 1.9-3.2x the base law's (the smoothed law chatters so little that the residual's own steps
 #   dominate the TV), and at 20 us training drove the loop into the base law's lost-track oscillation.

@@ -124,7 +124,12 @@ def lin_sontag(psi, G, s, n, sigma, smoothing, ulim):
     through beta_U.
 
     Args:
-        psi, G, s, n, sigma, smoothing: as in :func:`sontag`.
+        psi: drift of s [unit of s / s], as in :func:`sontag`.
+        G: input gain of s [unit of s / s per mA].
+        s: combined error.
+        n: even power factor >= 2.
+        sigma: CLF scale (> 0), in the unit of s.
+        smoothing: width w >= 0 of the smooth sign; 0 = plain sign(s).
         ulim: the bound U [mA] (finite, > 0).
     """
     if G == 0.0 or not math.isfinite(G):

@@ -276,12 +276,16 @@ def integrate_lanes(X, U, t0, h, substeps, c, events, work, analog, ctrl, ref, f
         X: loop states (N_LOOP, B) (rows as the loop state z; only 4 rows are read without ``analog``),
             updated in place.
         U: held currents (B,) [mA].
-        t0: start time [s]; h: control period [s]; substeps: RK4 steps per period.
+        t0: start time [s].
+        h: control period [s].
+        substeps: RK4 steps per period.
         c: lane constants (N_LANE_CONST, B).
         events: friction events (B, E, 3).
         work: scratch (6, N_LOOP, B).
-        analog: integrate the analog lanes' filters too (some lane has the "analog" scheme).
-        ctrl, ref, filt: controller rows, reference specs and filter blocks (B, ...); read with ``analog``.
+        analog: integrate the analog lanes' filters too (some lane's estimator is analog).
+        ctrl: controller rows (B, N_CTRL); read with ``analog``.
+        ref: reference spec rows (B, N_REF); read with ``analog``.
+        filt: filter blocks (B, N_FB, 4, 4); read with ``analog``.
         ynoise: the sensor noise on the output at the last sample (B,) [output unit]; read with ``analog``.
     """
     B = X.shape[1]

@@ -57,7 +57,7 @@ class EHSSTrackingEnv(gym.Env):
     controller samples (with sensor noise), forms the tracking errors e = y - y_d and their estimates
     (``estimator``: by default an extended-state observer; the paper's state-variable filter is "foh"),
     the combined error s = e^(m-1) + lambda_{m-2} e^(m-2) + ... and the CLF current on
-    V = (s/sigma)^n / n (:mod:`ehss_gym.core.control`; ``law``: Sontag's formula by default)::
+    V = (s/sigma)^n / n (:mod:`ehss_gym.core.laws`; ``law``: Sontag's formula by default)::
 
         u_base = -psi/G - sgn_w(s) sign(G) hypot(psi/G, |s/sigma|^(n-1) |G| / sigma)
 
@@ -144,11 +144,12 @@ class EHSSTrackingEnv(gym.Env):
         substeps: RK4 plant steps per control period, >= 1 (default 1).
         current_limit: |u| limit [mA] or None = unlimited (default 10).
         estimator_hz: cutoff of the paper's state-variable filter (SVF) [Hz] (default 1000, the paper's).
-        estimator: how the output derivatives are estimated (default "foh" velocity, "eso" position): "foh"
-            (the paper's SVF, first-order-hold discretisation, O(h^2) to its continuous filters), "zoh" (wave 1's
-            zero-order hold, biased by O(h)), "analog" (continuous filters integrated with the plant), "state"
-            (the model's Lie derivatives of the measured state) or "eso" (an extended-state observer of the
-            velocity and a lumped disturbance acceleration). See docs/MODEL.md, "Digital filters" and "Estimators".
+        estimator: how the output derivatives are estimated, a row of :data:`ehss_gym.core.registry.ESTIMATORS`
+            (default "foh" velocity, "eso" position): "foh" (the paper's SVF, first-order-hold discretisation,
+            O(h^2) to its continuous filters), "zoh" (the first implementation's zero-order hold, biased by O(h)),
+            "analog" (continuous filters integrated with the plant), "state" (the model's Lie derivatives of the
+            measured state) or "eso" (an extended-state observer of the velocity and a lumped disturbance
+            acceleration). See docs/MODEL.md, "Digital filters" and "Estimators".
         observer_hz: error bandwidth of the "eso" observer [Hz] (default 200 velocity, where it is unused, 1000
             position).
         law: the CLF law, a row of :data:`ehss_gym.core.registry.LAWS` (default "sontag", both tasks: Sontag's
@@ -161,7 +162,7 @@ class EHSSTrackingEnv(gym.Env):
         ref_accel: position task: the reference shaper's acceleration bound [rad/s^2], 0 = none (default 100
             position, 0 velocity). See docs/MODEL.md, "Reference shaper".
         pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (default 0.95;
-            None = at the measured pressure as is, the loop before issue 14).
+            None = at the measured pressure as is, as in the legacy loop).
         scenario: "random" (default; the training distribution of :mod:`ehss_gym.core.scenarios`), "paper",
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
@@ -183,16 +184,20 @@ class EHSSTrackingEnv(gym.Env):
             friction).
 
     Version history:
-        v0 (ehss-gym 0.1): first release. Before release the defaults moved to the reproduction
-        study's recommendation (``ehss reproduce``: h = 30 us, smoothing 100 for velocity; they were
-        50 us and 0); then, when the derivative estimator's O(h) bias was fixed (``estimator="foh"``;
-        wave 1's scheme is ``"zoh"``), to the study's recommendation on the corrected loop: h = 50 us,
-        f_r = 60 Hz and smoothing 1e3 (velocity), f_r = 20 Hz, sigma = 1e6, smoothing 100 and a 1 kHz
-        estimator (position). Policies record every setting they were trained with, the estimator
-        included; those of wave 1 (without it) were retrained. Issue 14 (noise and the current bound) added
-        the settings estimator "state"/"eso", observer_hz, law, layer_gain, bumpless, ref_accel and
-        pressure_domain, and made its noise study's choices the defaults (``ehss noise``; docs/ENV.md); a policy
-        recorded without them acts with :data:`ehss_gym.envs.config.PRE_ISSUE14_ENV`.
+        v0 (ehss-gym 0.1): first release. Within 0.1 the defaults changed three times; the settings that
+        reproduce each earlier loop are given.
+
+        1. The reproduction study's recommendation (``ehss reproduce``): h = 30 us and smoothing 100 for
+           velocity (they were 50 us and 0).
+        2. The derivative estimator's O(h) bias fixed (``estimator="foh"``; ``estimator="zoh"`` is the
+           earlier scheme), with the study's recommendation on the corrected loop: h = 50 us, f_r = 60 Hz and
+           smoothing 1e3 (velocity), f_r = 20 Hz, sigma = 1e6, smoothing 100 and a 1 kHz estimator (position).
+           Policies record every setting they were trained with, the estimator included; those trained before
+           (without it) were retrained.
+        3. The settings estimator "state"/"eso", observer_hz, law, layer_gain, bumpless, ref_accel and
+           pressure_domain, with the noise study's choices as the defaults (``ehss noise``; docs/ENV.md).
+           :data:`ehss_gym.envs.config.LEGACY_LOOP` holds the values that reproduce the loop before them; a
+           policy recorded without them acts in it (:func:`ehss_gym.envs.config.in_legacy_loop`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}

@@ -272,8 +272,8 @@ def _run_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
                               f"{_kind_of_mode(mode)}:{path} (residual-ppo = mode 'residual', ppo-direct = mode "
                               "'direct'), or sb3:PATH (the mode read from the saved env spec)")
     kw["mode"] = mode
-    if kind != "sb3":  # our run folders and safe weights pin every env setting: a missing one predates issue 14
-        kw = in_legacy_loop(kw)  # ... so the model acts in the loop before issue 14's settings
+    if kind != "sb3":  # our run folders and safe weights pin every env setting: a missing one did not exist yet
+        kw = in_legacy_loop(kw)  # ... so the model acts in the loop it was trained in (LEGACY_LOOP)
     # (a generic SB3 env spec lists only the kwargs that were passed: a missing setting is the env's default)
     for k in _NOT_ENV:
         kw.pop(k, None)

@@ -247,7 +247,7 @@ def summary(ol: list[dict], cl: list[dict]) -> dict:
     for task in TASK_ORDER:
         sel = {s: [r for r in cl if r["task"] == task and r["scheme"] == s] for s in ("zoh", "foh")}
         # the longest open-loop period (the closed loop may also run at the env's period, which the open loop
-        # does not: wave 1 of this report looked that one up and so dropped these bullets)
+        # does not: an earlier version of this report looked that one up and so dropped these bullets)
         o = next((r for r in ol if r["task"] == task and r["filter"] == "estimator" and r["top"]
                   and r["scheme"] == "foh" and r["h"] == max(x["h"] for x in ol)), None)
         rs = [r for r in sel["foh"] if (task, r["h"]) in top]

@@ -467,7 +467,7 @@ def figures(st: NoiseStudy, figs: str, cmd: str) -> dict:
     plot_channels(chan, est, ["1x", "realistic"], os.path.join(figs, "noise_channels.png"), cmd)
     for i in st.rec["examples"]:
         trs = [st.group(f"example|{i}|{lab}")[0].traj for lab in ("old", "P", "new")]
-        plot_step(trs, ["before issue 14", "+ the model's pressure domain", "the new defaults"],
+        plot_step(trs, ["the legacy loop", "+ the model's pressure domain", "the new defaults"],
                   os.path.join(figs, f"startup_example_{i}.png"), cmd,
                   f"held-out position episode {i} ({trs[0].scenario.reference.description[:60]})")
     return out

@@ -66,12 +66,13 @@ SET_TITLES = {
     "P2": "sigma = 1 with a 10 mA limit at 100 kHz",
     "P3": "normalised CLF (recommended sigma, period, substeps, limit), plain law w = 0",
     "P4": "the recommended env defaults (P3 plus the chosen smoothing)",
-    "P1_old": "P1 with wave 1's biased ZOH filters",
-    "P3_old": "wave 1's P3 (its recommended settings) with its ZOH filters",
+    "P1_old": "P1 with the first implementation's biased ZOH filters",
+    "P3_old": "the first implementation's P3 (its recommended settings) with its ZOH filters",
 }
 CLAIM_SETS = ("P0", "P1", "P2", "P3")
 OLD_NEW = (("P1", "P1_old"), ("P3", "P3_old"))
-FINAL_ROWS = (("old", "wave 1's defaults, its ZOH filters"), ("fixed", "wave 1's defaults, corrected filters"),
+FINAL_ROWS = (("old", "the first implementation's defaults, its ZOH filters"),
+              ("fixed", "the first implementation's defaults, corrected filters"),
               ("new", "the new defaults, corrected filters"))
 
 

@@ -1,6 +1,6 @@
 """The noise study's runs (``ehss noise``), stage by stage; later stages use what earlier ones chose.
 
-Every run starts from the env's loop before issue 14 (:func:`old_template`: the reproduction study's period,
+Every run starts from the env's legacy loop (:func:`old_template`: the reproduction study's period,
 f_r, sigma, smoothing, limit and the paper's SVF, :data:`ehss_gym.envs.config.LEGACY_LOOP`); each stage
 changes only the settings it studies. The rules are the pure functions of :mod:`.noise_rules`.
 
@@ -47,7 +47,7 @@ class NoiseStudy(RecordStore):
 
 
 def old_env_kwargs(task: str) -> dict:
-    """The env's settings before issue 14 for ``task`` (its defaults with LEGACY_LOOP and the paper's SVF)."""
+    """The env's legacy loop for ``task`` (its defaults with LEGACY_LOOP and the paper's SVF)."""
     return {"task": task, **LEGACY_LOOP, "estimator": "foh"}
 
 

@@ -208,11 +208,12 @@ def agent_env_kwargs(task: str) -> dict:
     """The residual agent's env settings for ``task`` (n = 2) in the loop the shipped runs were trained in: the
     loop its diagnostics must be measured in.
 
-    The runs this report reads predate issue 14's loop settings (law, layer, estimator defaults), so, as when
-    their policies are loaded (:func:`ehss_gym.envs.config.in_legacy_loop`), the settings the agent spec leaves to
-    the env are those before issue 14, not today's env defaults.
+    The runs this report reads were trained in the legacy loop (:data:`ehss_gym.envs.config.LEGACY_LOOP`: before
+    the law, the adaptive layer and the estimator defaults of the noise study), so, as when their policies are
+    loaded (:func:`ehss_gym.envs.config.in_legacy_loop`), the settings the agent spec leaves to the env are the
+    legacy loop's, not today's env defaults.
     """
-    # (the paper's SVF, "foh", was every task's estimator before issue 14; safe weights pin theirs)
+    # (the paper's SVF, "foh", was every task's estimator in the legacy loop; safe weights pin theirs)
     return in_legacy_loop({"estimator": "foh", **env_kwargs_for(get_spec("residual-ppo"), task, 2)})
 
 
