@@ -9,7 +9,7 @@ period from Python, so both sides run the same law and differ only in how the pl
 is integrated and how the loop is driven.
 
 Ours (A). ``ehss_gym.simulate`` end to end (Python set-up plus the compiled loop), and the
-compiled loop alone (``sim.run_lanes`` on prebuilt arrays).
+compiled loop alone (``loop.run_lanes`` on prebuilt arrays).
 
 Setting. Velocity task, n = 2, f_r = 100 Hz, sigma = 1e5, smoothing = 1e4, |u| <= 10 mA,
 h = 1e-4 s (10 kHz), 10 RK4 substeps: a stable loop that stays smooth through the friction

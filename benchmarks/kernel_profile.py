@@ -3,8 +3,8 @@
 cProfile sees one opaque call into numba, so the profile here times the pieces
 separately with small compiled drivers that call the core's own kernels:
 
-- the whole loop (``sim.run_lanes``, what ``simulate`` runs after its Python set-up);
-- the controller alone (``control.controller_update``: estimator, reference model,
+- the whole loop (``loop.run_lanes``, what ``simulate`` runs after its Python set-up);
+- the controller alone (``controller.controller_update``: estimator, reference model,
   Lie derivatives, Sontag law), once per control period;
 - the plant alone (``physics.integrate_lanes``: RK4 substeps of Eq. 1), for 1, 8 and a full
   block of lanes, and, as the latency floor of one lane, the same RK4 written for one state with no lane machinery

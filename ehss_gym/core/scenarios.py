@@ -1,6 +1,6 @@
 """Episode scenarios for the Gymnasium env: the paper's run and a randomised training distribution.
 
-A scenario is a core :class:`~ehss_gym.core.sim.Scenario`. The env supplies the controller settings (task, n,
+A scenario is a core :class:`~ehss_gym.core.settings.Scenario`. The env supplies the controller settings (task, n,
 f_r, sigma, smoothing, current limit, control period, substeps, estimator); this module supplies the
 *physical* episode: the reference, the friction events, the true plant (model mismatch), the sensor
 noise, the noise seed and the duration (:data:`PHYSICAL_FIELDS`).

@@ -1,6 +1,6 @@
 """Gymnasium environment ``EHSSTracking-v0``: the EHSS servo loop with a residual (or direct) RL action.
 
-The env is a thin adapter over the compiled core (:func:`ehss_gym.core.sim.lanes_period`): it holds the
+The env is a thin adapter over the compiled core (:func:`ehss_gym.core.loop.lanes_period`): it holds the
 state and the RNG, and one compiled call (:func:`ehss_gym.envs.kernels.advance`) advances ``agent_period``
 control periods for B lanes. The single env uses B = 1, the vector env (:mod:`ehss_gym.envs.vector`) B = N,
 so both run the same code and give identical results for the same seeds.

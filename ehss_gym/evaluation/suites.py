@@ -101,7 +101,7 @@ class EvalConfig:
 
 @dataclass(frozen=True)
 class Episode:
-    """One pinned episode: its physical fields (:data:`ehss_gym.core.scenarios.PHYSICAL_FIELDS`) and labels.
+    """One pinned episode: its physical fields (:data:`ehss_gym.core.settings.PHYSICAL_FIELDS`) and labels.
 
     Attributes:
         suite: "paper", "heldout" or "robustness".
