@@ -19,7 +19,7 @@ from ehss_gym.core.settings import TASKS
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID
 from ehss_gym.envs.config import EnvConfig
-from ehss_gym.infra.execution import BACKENDS
+from ehss_gym.infra import BACKENDS
 
 from . import options, runs
 
@@ -154,7 +154,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None, launch: bool = F
                                           description="Train residual PPO (or pure PPO) on EHSSTracking-v0.")
     options.add_options(p, Config, choices={"agent": agent_names(), "task": tuple(TASKS)})
     if launch:
-        options.add_options(p, Launch, choices={"backend": BACKENDS})
+        options.add_options(p, Launch, metavars={"backend": BACKENDS})
     return p
 
 

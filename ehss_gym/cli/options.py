@@ -24,7 +24,7 @@ from ehss_gym.core.settings import LOOP_SETTINGS, TASKS, Scenario
 from ehss_gym.core.signals import FAMILIES
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.evaluation.suites import SUITES, EvalConfig
-from ehss_gym.infra.execution import BACKENDS, DEFAULT_STORE, RAY_INSTALL
+from ehss_gym.infra import BACKENDS, DEFAULT_STORE, RAY_INSTALL
 from ehss_gym.train.config import build_parser as add_train_config
 from ehss_gym.train.options import field_docs
 
@@ -265,7 +265,8 @@ def add_workers(p, what: str = "parallel jobs: worker processes on this machine,
 def add_backend_arguments(p) -> None:
     """``--backend``, ``--address``, ``--store`` and ``--no-store`` (the execution layer, docs/RAY.md)."""
     g = p.add_argument_group("execution (docs/RAY.md)")
-    g.add_argument("--backend", default="local", choices=BACKENDS,
+    # the choices shown, checked by the execution layer (its message names them and how to install Ray)
+    g.add_argument("--backend", default="local", metavar="{" + ",".join(BACKENDS) + "}",
                    help="where the jobs run: local (this machine, no Ray needed) or ray (a Ray cluster: --address, "
                         "else RAY_ADDRESS, else a local Ray instance; needs " + RAY_INSTALL + ")")
     g.add_argument("--address", default=None, metavar="HOST:PORT",

@@ -51,8 +51,8 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-BACKENDS = ("local", "ray")
-RAY_INSTALL = "pip install 'ehss-gym[ray]'"
+from . import BACKENDS, DEFAULT_STORE, RAY_INSTALL
+
 # every thread pool a job might start: torch/OpenMP, MKL, OpenBLAS and numba
 THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 NUMBA_CACHE_ENV = "NUMBA_CACHE_DIR"
@@ -344,8 +344,6 @@ class Backend:
         """The cluster address to join: ``address``, else ``RAY_ADDRESS``, else None (a local instance)."""
         return self.address or os.environ.get("RAY_ADDRESS") or None
 
-
-DEFAULT_STORE = os.path.join("runs", "jobs")
 
 
 def thread_env(threads: int) -> dict:
