@@ -2,8 +2,8 @@
 
 One control period of the controller is :func:`controller_sense` (everything that does not depend on the residual:
 the sensors with their noise and the model's Lie derivatives at the measured state (:mod:`ehss_gym.core.physics`), the
-reference and its shaper (:mod:`ehss_gym.core.references`), the estimated output derivatives and the reference model
-(:mod:`ehss_gym.core.estimators`), the combined error s, its drift psi and input gain G, the law's current
+reference (:mod:`ehss_gym.core.references`), the estimated output derivatives (:mod:`ehss_gym.core.estimators`), the
+reference shaper (here) and the reference model, the combined error s, its drift psi and input gain G, the law's current
 (:mod:`ehss_gym.core.laws`)),
 :func:`controller_apply` (the residual added, the current limit) and :func:`advance_filters` (the controller's memory
 over the period); :func:`controller_update` runs the three. The controller knows its model of the plant, not the plant
@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 
 from .estimators import advance_filters, estimate_derivatives, filter_outputs
-from .jit import jit_noalloc
+from .jit import jit_inline, jit_noalloc
 from .laws import base_current, clf_value
 from .layout import (
     FB_VEC,
@@ -48,10 +48,11 @@ from .layout import (
     X_THETA,
     Z_NOISE,
     Z_REF,
+    Z_SHAPE,
 )
 from .params import P_PS
 from .physics import gaussian, lie_derivatives
-from .references import reference_value, shape_reference
+from .references import reference_value
 from .settings import (
     C_ANALOG,
     C_BASE,
@@ -138,15 +139,14 @@ def controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work):
     F, G = lie_derivatives(xm, model_p, m, hd)
     xm[X_PL] = x3m
     info[I_AM] = hd[2] if m == 4 else hd[1]  # the model's acceleration of the measured state
-    # the reference, and its shaped form that drives the reference model
+    # the reference, the estimated output derivatives, and the reference's shaped form that drives the model
     r = reference_value(t, ref)
+    estimate_derivatives(z, m, int(ctrl[C_EST]), filt, xm, hd, y_meas, info)
     bumpless = k == 0 and ctrl[C_BUMPLESS] != 0.0
     rm = r
     if ctrl[C_REF_ACCEL] > 0.0:
         rm = shape_reference(z, k, h, r, ctrl[C_REF_ACCEL], y_meas if bumpless else r)
     info[I_RM] = rm
-    # the estimated output derivatives, and the reference model's
-    estimate_derivatives(z, m, int(ctrl[C_EST]), filt, xm, hd, y_meas, info)
     if bumpless:
         d = filt[FB_VEC2, FBV_D_REF]
         for i in range(m):  # outputs z_i = w_i + D_i v of the reference model = the estimator's
@@ -221,4 +221,58 @@ def controller_apply(info, ctrl, u_base, u_res):
 
 
 
-__all__ = ["controller_update", "controller_sense", "controller_apply", "NOISE_TAU"]
+@jit_inline
+def shape_reference(z, k, h, r, a_max, p0):
+    r"""The reference shaper (position task): the shaped reference p_k at sample k, which drives the reference model.
+
+    p is a double integrator, p'' = clip(r_a, +-a/2) + fhan(p - r, p' - r_v, a/2, h), with r_v, r_a the
+    reference's first and second differences: it follows r exactly where |r''| <= a/2 (then p - r and
+    p' - r_v stay 0) and closes the gap left by a jump of r time-optimally, so |p''| <= a = ``a_max``
+    [rad/s^2] always. Han's fhan (:func:`fhan`) is the discrete time-optimal law for a double integrator.
+    At k = 0 it starts at rest at ``p0`` (the measured output with a bumpless start, else r(0)). The state
+    z[Z_SHAPE:Z_SHAPE+4] = (p_k, p'_k, r_{k-1}, r_v,k-1) is advanced to k + 1 here (docs/MODEL.md, "Reference
+    shaper").
+    """
+    if k == 0:  # at rest at p0, r_{-1} = r_0
+        z[Z_SHAPE] = p0
+        z[Z_SHAPE + 1] = 0.0
+        z[Z_SHAPE + 2] = r
+        z[Z_SHAPE + 3] = 0.0
+    p = z[Z_SHAPE]
+    pv = z[Z_SHAPE + 1]
+    rv = (r - z[Z_SHAPE + 2]) / h
+    ra = (rv - z[Z_SHAPE + 3]) / h
+    half = 0.5 * a_max
+    acc = fhan(p - r, pv - rv, half, h) + (ra if -half <= ra <= half else (half if ra > 0.0 else -half))
+    # (p, p') at t_k is returned; the state moves on to t_{k+1} (Euler, as Han's tracking differentiator)
+    z[Z_SHAPE] = p + h * pv
+    z[Z_SHAPE + 1] = pv + h * acc
+    z[Z_SHAPE + 2] = r
+    z[Z_SHAPE + 3] = rv
+    return p
+
+
+@jit_inline
+def fhan(x1, x2, r, h):
+    """Han's time-optimal synthesis for the discrete double integrator x1' = x2, x2' = u, |u| <= r, period h.
+
+    Drives (x1, x2) to 0 in finite time without overshoot or chattering (J. Han, "From PID to active disturbance
+    rejection control", IEEE TIE 56(3), 2009, Eq. 8).
+    """
+    d = r * h * h
+    a0 = h * x2
+    y = x1 + a0
+    a1 = math.sqrt(d * (d + 8.0 * abs(y)))
+    a2 = a0 + _sgn(y) * (a1 - d) / 2.0
+    sy = (_sgn(y + d) - _sgn(y - d)) / 2.0
+    a = (a0 + y - a2) * sy + a2
+    sa = (_sgn(a + d) - _sgn(a - d)) / 2.0
+    return -r * (a / d - _sgn(a)) * sa - r * _sgn(a)
+
+
+@jit_inline
+def _sgn(x):
+    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+
+
+__all__ = ["controller_update", "controller_sense", "controller_apply", "shape_reference", "fhan", "NOISE_TAU"]

@@ -19,7 +19,7 @@ See docs/MODEL.md, "Digital filters" and "Estimators".
 
 from __future__ import annotations
 
-from .jit import dispatch, jit
+from .jit import dispatch, jit, jit_inline, jit_noalloc
 from .layout import (
     FB_D_OBS,
     FB_E_OBS,
@@ -72,27 +72,27 @@ def advance_filter(z, off, order, phi, gam, v, tmp):
         z[off + i] = tmp[i]
 
 
-@jit
+@jit_inline
 def svf_sense(z, m, filt, y_meas, info):
     """The state-variable filter's outputs y_e, ..., y_e^(m-2) at the sample and its top derivative y_e^(m-1)."""
     info[I_YE + m - 1] = filter_outputs(z, Z_EST, m - 1, filt[FB_VEC, FBV_C_EST], filt[FB_VEC2, FBV_D_EST], y_meas,
                                         info, I_YE)
 
 
-@jit
+@jit_inline
 def svf_advance(z, m, filt, info, hd):
     """The state-variable filter over the period, driven by the measured output at the sample (``hd`` is scratch)."""
     advance_filter(z, Z_EST, m - 1, filt[FB_PHI_EST], filt[FB_VEC, FBV_E_EST], info[I_YE], hd)
 
 
-@jit
+@jit_inline
 def state_sense(m, hd, info):
     """The model's Lie derivatives of the measured state: y^(i) = L_f^i h(x_meas)."""
     for i in range(1, m):
         info[I_YE + i] = hd[i]
 
 
-@jit
+@jit_inline
 def eso_sense(z, m, filt, xm, hd, info):
     """The observer's velocity and acceleration (model acceleration plus the estimated disturbance); the top
     derivative is the state's."""
@@ -110,7 +110,7 @@ def eso_sense(z, m, filt, xm, hd, info):
         info[I_YE + 2] = hd[2]
 
 
-@jit
+@jit_inline
 def eso_advance(z, filt, info):
     """The observer over the period, driven by the model acceleration and the measured velocity at the sample."""
     am = info[I_AM]
@@ -133,7 +133,7 @@ advance_estimator = dispatch(
     otherwise="None", doc="Advance the state of estimator code ``est`` over the period (none for an estimator "
                           "without one, or whose filters the plant's integrator advances).")
 
-@jit
+@jit_noalloc
 def advance_filters(z, m, est, filt, info, tmp):
     """Advance the digital filters over the period, w <- Phi w + E v, with the inputs v this sample recorded in
     ``info``: the reference model (its input I_RM) and the state of estimator code ``est`` (the measured output I_YE
@@ -143,7 +143,7 @@ def advance_filters(z, m, est, filt, info, tmp):
     advance_estimator(est, z, m, filt, info, tmp)
 
 
-@jit
+@jit_noalloc
 def estimate_derivatives(z, m, est, filt, xm, hd, y_meas, info):
     """info[I_YE + i], i < m: the measured output and the estimated y', ..., y^(m-1) of estimator code ``est``."""
     _sense(est, z, m, filt, xm, hd, y_meas, info)

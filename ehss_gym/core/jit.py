@@ -28,6 +28,9 @@ jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
 # struct; a kernel that tries to allocate fails to compile ("NRT required but not enabled") rather than
 # misbehaving. ``_nrt`` is numba's (underscore) flag for this; 0.68 honours it.
 jit_noalloc = nb.njit(cache=True, fastmath=False, error_model="numpy", _nrt=False)
+# A table row's kernel and the dispatch over a table are inlined into their caller (numba IR), so dispatching
+# through the table costs what the hand-written if-chain it replaced cost, and they run under the caller's flags.
+jit_inline = nb.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 
 
 def dispatch(name: str, params: Sequence[str], kernels: Sequence, module: str, *, code: str = "code",
@@ -77,7 +80,7 @@ def dispatch(name: str, params: Sequence[str], kernels: Sequence, module: str, *
     # reads the machine code of another one
     fn.__qualname__ = f"{name}_{hashlib.sha256(source.encode()).hexdigest()[:10]}"
     fn.source = source  # what was generated, for a reader
-    return jit(fn)
+    return jit_inline(fn)
 
 
-__all__ = ["jit", "jit_noalloc", "dispatch"]
+__all__ = ["jit", "jit_noalloc", "jit_inline", "dispatch"]
