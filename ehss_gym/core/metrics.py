@@ -49,7 +49,7 @@ import math
 
 import numpy as np
 
-from .jit import jit
+from .jit import jit_inline
 from .layout import (
     DIV_NAMES,
     DIV_NONE,
@@ -116,7 +116,7 @@ def init_accumulator(acc: np.ndarray, lost_track_bound: float) -> None:
     acc[M_T_LOST] = -1.0
 
 
-@jit
+@jit_inline
 def accumulate(acc, info, h, k, events):
     """Fold one control step's info into the metrics accumulator (layout M_*): what :func:`summarize_acc` reads.
 
