@@ -17,7 +17,7 @@ from safetensors.torch import save
 from stable_baselines3.common.distributions import DiagGaussianDistribution
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
-from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 from .safeweights import ACTIVATIONS, FORMAT, SafeWeightsError, model_paths, sha256
 

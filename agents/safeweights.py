@@ -52,7 +52,7 @@ from safetensors import SafetensorError
 from safetensors.numpy import load
 
 from ehss_gym.envs import ENV_ID
-from ehss_gym.envs.config import recorded_loop
+from ehss_gym.envs.config import in_legacy_loop
 
 FORMAT = "ehss-gym-safeweights/1"
 ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu", "gelu", "identity")
@@ -328,7 +328,7 @@ def load_policy(path) -> SafePolicy:
         raise SafeWeightsError(f"{js_path}: spaces {obs_space.shape}/{act_space.shape} do not match the "
                                f"architecture obs_dim={arch['obs_dim']}, act_dim={arch['act_dim']}")
     return SafePolicy(name=cfg["name"], observation_space=obs_space, action_space=act_space, env_id=cfg["env_id"],
-                      env_kwargs=recorded_loop(cfg["env_kwargs"]) if cfg["env_id"] == ENV_ID else cfg["env_kwargs"],
+                      env_kwargs=in_legacy_loop(cfg["env_kwargs"]) if cfg["env_id"] == ENV_ID else cfg["env_kwargs"],
                       metadata=cfg["metadata"],
                       obs_normalization=cfg["obs_normalization"], path=js_path, tensors=tensors,
                       activation=arch["activation"])

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
-from ehss_gym.envs import EnvConfig
+from ehss_gym.envs.config import POLICY_KEYS, EnvConfig
 
 
 @dataclass(frozen=True)
@@ -119,10 +119,10 @@ class AgentSpec:
         return d
 
 
-# The loop the agents train in, pinned here rather than taken from the env's defaults (the recipe of wave 1, kept
+# The loop the agents train in, pinned here rather than taken from the env's defaults (the first recipe, kept
 # when the estimator was corrected so that the retrained policies are comparable; f_r, sigma and the filters
 # follow the env's defaults, which the reproduction study re-derived on the corrected loop):
-# - control period 50 us and the plain law (smoothing 0). In wave 1's pilot runs (residual PPO, n = 2, seed 0,
+# - control period 50 us and the plain law (smoothing 0). In the first pilot runs (residual PPO, n = 2, seed 0,
 #   100k steps, 8 validation episodes; docs/ENV.md, "Residual PPO settings") every smoothed setting ended with
 #   the control TV 1.9-3.2x the base law's (the smoothed law chatters so little that the residual's own steps
 #   dominate the TV), and at 20 us training drove the loop into the base law's lost-track oscillation.
@@ -132,10 +132,8 @@ class AgentSpec:
 #   added TV fastest (see reports/training/TRAINING.md).
 COMMON_ENV = {"control_period": 5e-5, "smoothing": 0.0, "agent_period": 20, "reward_weights": {"rate": 1.0}}
 # Settings pinned when a policy is exported (its JSON records them all), so that later changes of the env's
-# defaults cannot silently change the loop a shipped policy acts in.
-PINNED_ENV_KEYS = ("task", "n", "mode", "fr", "sigma", "smoothing", "residual_scale", "agent_period",
-                   "control_period", "substeps", "current_limit", "estimator_hz", "estimator", "observer_hz", "law",
-                   "layer_gain", "bumpless", "ref_accel", "pressure_domain", "reward_weights", "error_scale")
+# defaults cannot silently change the loop a shipped policy acts in: every setting a policy acts in.
+PINNED_ENV_KEYS = POLICY_KEYS
 
 # AgentSpec fields that are keyword arguments of SB3's PPO under the same name, as they are
 PPO_KEYS = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "clip_range", "ent_coef", "vf_coef",
@@ -144,7 +142,7 @@ PPO_KEYS = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "clip_ra
 AGENTS: dict[str, AgentSpec] = {
     # Residual: gamma 0.98 (a 50-step, 50 ms horizon: several plant time constants; the reward is the
     # tracking error of the same agent step, so longer horizons add variance); zero-initialised mean;
-    # std exp(-1) = 0.37 action units = 3.7 mA. The measurement (python -m ehss_gym.train.noise_study, -4..-1,
+    # std exp(-1) = 0.37 action units = 3.7 mA. The measurement (python -m ehss_gym.study.exploration, -4..-1,
     # TRAINING.md "Initial exploration noise") found no value whose early evaluations all stay at or
     # above the base law: -4 stays closest (worst early score 1.10) but then does not learn in 400k
     # steps, -1 falls below once (first evaluation, up to 1.12) and then improves fastest; with 5 seeds

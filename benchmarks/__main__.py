@@ -8,7 +8,7 @@ import sys
 import time
 import traceback
 
-from ehss_gym.core.util import report_folder
+from ehss_gym.infra.util import report_folder
 
 from . import bench_compile, bench_env, bench_memory, bench_sim, bench_train, report
 from .common import Section, load_average, log, machine, versions

@@ -19,7 +19,7 @@ import gymnasium as gym
 import numba
 
 import ehss_gym  # noqa: F401  (registers EHSSTracking-v0 with gymnasium)
-from ehss_gym.core.sim import MAX_LANES
+from ehss_gym.core.loop import MAX_LANES
 from ehss_gym.envs.kernels import advance
 
 from . import kernel_profile
@@ -322,7 +322,7 @@ def step_cost_table(kc: dict, ours: float, pend: float) -> Table:
         kt.add("    other compiled work", kc["advance"] - kc["dispatch"] - kc["floor1"],
                "lane grouping, copies, checks, metrics, observation, reward")
     kt.add(f"plant per control period per lane, {BLOCK}-lane block", kc["plantB"], "vectorised (vector env)")
-    kt.add(f"core loop sim.run_lanes per control period per lane, {BLOCK}-lane block", kc["loopB"],
+    kt.add(f"core loop loop.run_lanes per control period per lane, {BLOCK}-lane block", kc["loopB"],
            "controller + plant + checks + metrics, one thread, no env")
     kt.add("Pendulum-v1 step", t_pend, "")
     return kt

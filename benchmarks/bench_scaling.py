@@ -25,15 +25,14 @@ import sys
 import tempfile
 import time
 
-from ehss_gym.train.config import Config
-from ehss_gym.train.jobs import seed_job
-
 from ehss_gym._version import __version__
-from ehss_gym.core.execution import Backend, Executor, Job, require_ray
 from ehss_gym.core.scenarios import sample_scenario
 from ehss_gym.core.sim import simulate_batch
-from ehss_gym.core.util import atomic_write_text
 from ehss_gym.envs import EnvConfig
+from ehss_gym.infra.execution import Backend, Executor, Job, require_ray
+from ehss_gym.infra.util import atomic_write_text
+from ehss_gym.train.config import Config
+from ehss_gym.train.jobs import seed_job
 
 from .common import cpu_model, load_average
 

@@ -9,7 +9,7 @@ period from Python, so both sides run the same law and differ only in how the pl
 is integrated and how the loop is driven.
 
 Ours (A). ``ehss_gym.simulate`` end to end (Python set-up plus the compiled loop), and the
-compiled loop alone (``sim.run_lanes`` on prebuilt arrays).
+compiled loop alone (``loop.run_lanes`` on prebuilt arrays).
 
 Setting. Velocity task, n = 2, f_r = 100 Hz, sigma = 1e5, smoothing = 1e4, |u| <= 10 mA,
 h = 1e-4 s (10 kHz), 10 RK4 substeps: a stable loop that stays smooth through the friction
@@ -32,9 +32,10 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ehss_gym import Scenario, simulate, simulate_batch
-from ehss_gym.core import layout as L
-from ehss_gym.core.control import controller_update
-from ehss_gym.core.sim import LoopArrays, run_lanes
+from ehss_gym.core.controller import controller_update
+from ehss_gym.core.layout import N_INFO
+from ehss_gym.core.loop import run_lanes
+from ehss_gym.core.sim import LoopArrays
 
 from . import kernel_profile
 from .common import (
@@ -124,15 +125,14 @@ class ScipyLoop:
         h, every = sc.control_period, sc.log_every
         ps = sc.plant.P_s
         z = a.z0[0].copy()
-        info = np.zeros(L.N_INFO)
+        info = np.zeros(N_INFO)
         work = np.zeros((8, 4))
         out = np.empty(((n + every - 1) // every, 4))
         nfev = relief = 0
         for k in range(n):
             if k % every == 0:
                 out[k // every] = z[:4]
-            u = controller_update(z, k, h, a.plant[0], a.model[0], a.ctrl[0], a.ref[0], a.events[0], a.filt[0], 0.0,
-                                  info, work)
+            u = controller_update(z, k, h, a.model[0], a.ctrl[0], a.ref[0], a.filt[0], 0.0, info, work)
             amp = friction_amplitude((k + 0.5) * h, sc.friction)
             sol = solve_ivp(self.rhs, (k * h, (k + 1) * h), z[:4], method=self.method, rtol=self.rtol,
                             atol=self.atol, args=(u, amp))
@@ -424,7 +424,7 @@ def where_time_goes(sc: Scenario, peer_periods: int, peer_us: float) -> tuple[Ta
     prof.add(f"    plant, {bd['substeps']} RK4 substeps, 1 lane", bd["plant_1lane_us"],
              f"{bd['ns_per_substep_1lane_plant']:.3g} ns per substep")
     prof.add("    rest (checks, metrics, logging, lane copies)", bd["other_1lane_us"], "")
-    prof.add(f"plant, {bd['substeps']} RK4 substeps, scalar integrate_plant",
+    prof.add(f"plant, {bd['substeps']} RK4 substeps, one state (kernel_profile.scalar_plant_rk4)",
              bd["ns_per_substep_scalar_plant"] * bd["substeps"] / 1e3,
              f"{bd['ns_per_substep_scalar_plant']:.3g} ns per substep, no lane machinery")
     prof.add("plant per lane, 8-lane block", bd["ns_per_substep_8lane_plant"] * bd["substeps"] / 1e3,

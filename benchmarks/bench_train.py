@@ -1,6 +1,6 @@
 """Training cost: Stable-Baselines3 PPO on EHSSTracking-v0 against Pendulum-v1, same hyperparameters; the
 residual-PPO recipe trained on the native vector env through the SB3 adapter against SB3's DummyVecEnv, side
-by side; and the wall time of one seed of the shipped residual-PPO recipe (issue 6: <= 30 min on 2 CPU cores).
+by side; and the wall time of one seed of the shipped residual-PPO recipe (target: <= 30 min on 2 CPU cores).
 
 Both runs use the same PPO settings on the CPU with one torch thread (the two cores
 are shared, and one thread keeps the two sides comparable). The env is wrapped in a
@@ -19,16 +19,17 @@ import time
 import gymnasium as gym
 import numpy as np
 import torch
+from stable_baselines3 import PPO
+
 from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import env_kwargs_for, get_spec
 from ehss_gym.train.loop import Config, make_env, train
-from stable_baselines3 import PPO
 
 from . import bench_env
 from .common import Section, Table, Target, interleave, log, median, spread
 
 RECIPE_STEPS = 400_000  # agent steps of one shipped residual-PPO run (reports/training/TRAINING.md)
-TRAIN_TARGET_S = 30 * 60.0  # [s] issue 6: wall time per seed to the reported policy
+TRAIN_TARGET_S = 30 * 60.0  # [s] the target: wall time per seed to the reported policy
 
 PPO_KW = dict(n_steps=256, batch_size=64, n_epochs=4, learning_rate=3e-4, gamma=0.99, seed=0, device="cpu",
               verbose=0)

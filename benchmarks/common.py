@@ -23,7 +23,7 @@ from importlib import metadata
 
 import numba
 
-from ehss_gym.core.fmt import fmt_cell
+from ehss_gym.infra.fmt import fmt_cell
 
 PACKAGES = ("ehss-gym", "numpy", "numba", "llvmlite", "scipy", "gymnasium", "stable-baselines3", "torch",
             "gym-electric-motor")
@@ -156,7 +156,7 @@ def spread(xs) -> str:
 
 
 def fmt(x, digits: int = 3) -> str:
-    """A table cell (:func:`ehss_gym.core.fmt.fmt_cell`): thousands grouped from 1000, scientific from 1e6."""
+    """A table cell (:func:`ehss_gym.infra.fmt.fmt_cell`): thousands grouped from 1000, scientific from 1e6."""
     return fmt_cell(x, digits, sci_from=1e6, grouped_from=1000)
 
 @dataclass

@@ -3,11 +3,12 @@
 cProfile sees one opaque call into numba, so the profile here times the pieces
 separately with small compiled drivers that call the core's own kernels:
 
-- the whole loop (``sim.run_lanes``, what ``simulate`` runs after its Python set-up);
-- the controller alone (``control.controller_update``: estimator, reference model,
+- the whole loop (``loop.run_lanes``, what ``simulate`` runs after its Python set-up);
+- the controller alone (``controller.controller_update``: estimator, reference model,
   Lie derivatives, Sontag law), once per control period;
 - the plant alone (``physics.integrate_lanes``: RK4 substeps of Eq. 1), for 1, 8 and a full
-  block of lanes, and the scalar one-scenario integrator ``physics.integrate_plant``;
+  block of lanes, and, as the latency floor of one lane, the same RK4 written for one state with no lane machinery
+  (:func:`scalar_plant_rk4`, here only: the package has one integrator);
 - the Python set-up of ``simulate`` (``LoopArrays.build``: filter discretisation etc.).
 
 and reads the machine code numba generated for the plant right-hand side
@@ -24,10 +25,21 @@ import numba as nb
 import numpy as np
 
 from ehss_gym import simulate
-from ehss_gym.core import layout as L
-from ehss_gym.core.control import controller_update, integrate_lanes, plant_only_arrays
-from ehss_gym.core.physics import N_LANE_CONST, integrate_plant, lane_constants, lane_rhs
-from ehss_gym.core.sim import MAX_LANES, LoopArrays, run_lanes
+from ehss_gym.core.controller import controller_update
+from ehss_gym.core.layout import N_INFO, N_LOG, N_METRICS, X_OMEGA, X_PL
+from ehss_gym.core.loop import MAX_LANES, run_lanes
+from ehss_gym.core.params import P_DF, P_PS
+from ehss_gym.core.physics import (
+    N_LANE_CONST,
+    active_amplitude,
+    integrate_lanes,
+    lane_constants,
+    lane_rhs,
+    plant_only_arrays,
+    plant_rhs,
+    relief,
+)
+from ehss_gym.core.sim import LoopArrays
 
 
 @nb.njit(cache=True, error_model="numpy")
@@ -38,17 +50,40 @@ def _drive_plant(X, U, h, substeps, c, events, work, n_periods, ctrl, ref, filt,
 
 
 @nb.njit(cache=True, error_model="numpy")
+def scalar_plant_rk4(x, u, t0, h, substeps, p, events, work):
+    """The loop's RK4 (:func:`ehss_gym.core.physics.integrate_lanes`) for one plant state ``x`` and no lanes: what a
+    lone scenario's plant would cost without the lane machinery (``work``: scratch (5, 4))."""
+    dt = h / substeps
+    k1, k2, k3, k4, xt = work[0], work[1], work[2], work[3], work[4]
+    for j in range(substeps):
+        amp = active_amplitude(t0 + (j + 0.5) * dt, events)
+        plant_rhs(x, u, amp * (x[X_OMEGA] / np.sqrt(x[X_OMEGA] * x[X_OMEGA] + p[P_DF])), p, k1)
+        for i in range(4):
+            xt[i] = x[i] + 0.5 * dt * k1[i]
+        plant_rhs(xt, u, amp * (xt[X_OMEGA] / np.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k2)
+        for i in range(4):
+            xt[i] = x[i] + 0.5 * dt * k2[i]
+        plant_rhs(xt, u, amp * (xt[X_OMEGA] / np.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k3)
+        for i in range(4):
+            xt[i] = x[i] + dt * k3[i]
+        plant_rhs(xt, u, amp * (xt[X_OMEGA] / np.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k4)
+        for i in range(4):
+            x[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        x[X_PL] = relief(x[X_PL], p[P_PS])
+
+
+@nb.njit(cache=True, error_model="numpy")
 def _drive_scalar_plant(x, u, h, substeps, p, events, work, n_periods):
     for k in range(n_periods):
-        integrate_plant(x, u, k * h, h, substeps, p, events, work)
+        scalar_plant_rk4(x, u, k * h, h, substeps, p, events, work)
     return x[1]
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _drive_controller(z, h, plant, model, ctrl, ref, events, filt, info, work, n_periods):
+def _drive_controller(z, h, model, ctrl, ref, filt, info, work, n_periods):
     total = 0.0
     for k in range(n_periods):
-        total += controller_update(z, k, h, plant, model, ctrl, ref, events, filt, 0.0, info, work)
+        total += controller_update(z, k, h, model, ctrl, ref, filt, 0.0, info, work)
     return total
 
 
@@ -68,7 +103,7 @@ def run_lanes_args(scenarios):
     B = len(scenarios)
     n_rows = (sc.n_steps + sc.log_every - 1) // sc.log_every
     return a, (a.z0.copy(), sc.control_period, sc.substeps, sc.n_steps, sc.log_every, a.plant, a.model, a.ctrl,
-               a.ref, a.events, a.filt, np.zeros((B, n_rows, L.N_LOG)), np.zeros((B, L.N_METRICS)),
+               a.ref, a.events, a.filt, np.zeros((B, n_rows, N_LOG)), np.zeros((B, N_METRICS)),
                np.zeros(B, dtype=np.int64))
 
 
@@ -77,9 +112,9 @@ def controller_us(sc, n_periods: int, repeats: int = 3) -> float:
     a = LoopArrays.build([sc])
     h = sc.control_period
     z0 = a.z0[0].copy()
-    info = np.zeros(L.N_INFO)
+    info = np.zeros(N_INFO)
     work = np.zeros((8, 4))
-    args = (h, a.plant[0], a.model[0], a.ctrl[0], a.ref[0], a.events[0], a.filt[0], info, work)
+    args = (h, a.model[0], a.ctrl[0], a.ref[0], a.filt[0], info, work)
     _drive_controller(z0.copy(), *args, 2)
     return _best_of(lambda: _drive_controller(z0.copy(), *args, n_periods), repeats) / n_periods * 1e6
 

@@ -12,7 +12,7 @@ import os
 import time
 import traceback
 
-from ehss_gym.core.util import atomic_write_text
+from ehss_gym.infra.util import atomic_write_text
 from ehss_gym.reporting.render import environment, render_in
 
 from .common import Section, Table, Target, fmt

@@ -3,33 +3,29 @@ verified simulator and a Gymnasium environment.
 
 Quick start::
 
-    from . import Scenario, simulate
+    from ehss_gym import Scenario, simulate
     traj = simulate(Scenario(task="velocity", n=2, fr=100.0, current_limit=10.0, t_end=20.0))
     print(traj.metrics()["rmse"])
+
+Importing the package is cheap: its names load on first use (the simulator's kernels need numba, the env Gymnasium),
+and ``EHSSTracking-v0`` is registered with Gymnasium as soon as Gymnasium is imported (at once if it already is), so
+``import ehss_gym`` followed by ``gymnasium.make("EHSSTracking-v0")`` works, as does
+``gymnasium.make("ehss_gym:EHSSTracking-v0")``.
 """
 
 from ._version import __version__
-from .core.params import PlantParams, make_plant_params
-from .core.signals import Reference, chirp, from_array, from_function, multisine, paper_reference, sine, step
-from .core.sim import PAPER_FRICTION, TASKS, Scenario, Trajectory, simulate, simulate_batch
+from .envs import register_on_import
+from .infra.lazy import lazy_exports
 
-__all__ = [
-    "PlantParams",
-    "make_plant_params",
-    "Reference",
-    "sine",
-    "step",
-    "chirp",
-    "multisine",
-    "from_array",
-    "from_function",
-    "paper_reference",
-    "Scenario",
-    "Trajectory",
-    "simulate",
-    "simulate_batch",
-    "PAPER_FRICTION",
-    "TASKS",
-    "__version__",
-]
-from . import envs  # noqa: E402,F401  (registers EHSSTracking-v0 with Gymnasium)
+_EXPORTS = {
+    "PlantParams": ".core.params", "make_plant_params": ".core.params",
+    "Reference": ".core.signals", "sine": ".core.signals", "step": ".core.signals", "chirp": ".core.signals",
+    "multisine": ".core.signals", "from_array": ".core.signals", "from_function": ".core.signals",
+    "paper_reference": ".core.signals",
+    "Scenario": ".core.settings", "PAPER_FRICTION": ".core.settings", "TASKS": ".core.settings",
+    "Trajectory": ".core.sim", "simulate": ".core.sim", "simulate_batch": ".core.sim",
+}
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__all__ = [*_EXPORTS, "__version__"]
+
+register_on_import()

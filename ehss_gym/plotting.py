@@ -1,4 +1,5 @@
-"""Figures of closed-loop runs: the public home of the plotting functions (:mod:`ehss_gym.reporting.plotting`).
+"""Figures of closed-loop runs: the public home of the plotting functions
+(:mod:`ehss_gym.reporting.trajectory_figures`).
 
 Example::
 
@@ -7,7 +8,7 @@ Example::
     plot_trajectory(simulate(sigma=1e5, current_limit=10.0, t_end=2.0), "run.png")
 """
 
-from ehss_gym.reporting.plotting import (
+from ehss_gym.reporting.trajectory_figures import (
     frequency_response_figure,
     plot_frequency_response,
     plot_trajectory,

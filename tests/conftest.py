@@ -13,7 +13,7 @@ import pytest
 from hypothesis import settings
 from hypothesis.database import InMemoryExampleDatabase
 
-from ehss_gym.core.execution import pin_blas
+from ehss_gym.infra.execution import pin_blas
 
 # tests/reference.py is a plain helper module next to the tests
 sys.path.insert(0, os.path.dirname(__file__))

@@ -156,6 +156,6 @@ def sontag_reference(psi, G, s, n, sigma, w):
     b = (s / sigma) ** (n - 1) * G / sigma
     if w == 0:
         return -(a + math.sqrt(a * a + b**4)) / b
-    # the smoothed law is defined through psi/G and |b| (see ehss_gym.core.control)
+    # the smoothed law is defined through psi/G and |b| (see ehss_gym.core.laws)
     sg = s / math.sqrt(s * s + w * w)
     return -psi / G - sg * math.copysign(1.0, G) * math.hypot(psi / G, abs(b))

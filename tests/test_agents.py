@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 import torch
 import yaml
+from stable_baselines3 import PPO
+from stable_baselines3.common.vec_env import VecNormalize
+
 from ehss_gym.agents.factory import AgentMlpPolicy, initial_mean_abs, make_agent
 from ehss_gym.agents.hyperparams import ppo as zoo_module
 from ehss_gym.agents.specs import AGENTS, AgentSpec, env_kwargs_for, get_spec
 from ehss_gym.train import zoo
 from ehss_gym.train.loop import make_env
-from stable_baselines3 import PPO
-from stable_baselines3.common.vec_env import VecNormalize
 
 SHORT = {"episode_seconds": 0.05}  # 100 agent steps
 

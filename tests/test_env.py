@@ -14,7 +14,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import ehss_gym  # noqa: F401  (registers the env)
 from ehss_gym import simulate, sine
-from ehss_gym.core import layout as L
+from ehss_gym.core.layout import DIV_NAMES
 from ehss_gym.core.scenarios import (
     DEFAULT_DISTRIBUTION,
     HELDOUT_SEED_BASE,
@@ -240,7 +240,7 @@ def test_divergence_terminates_with_finite_observation_and_penalty():
         if term or trunc:
             break
     assert term and not trunc and info["diverged"]
-    assert info["divergence_reason"] in L.DIV_NAMES[1:] and info["t_diverged"] > 0
+    assert info["divergence_reason"] in DIV_NAMES[1:] and info["t_diverged"] > 0
     assert info["metrics"]["diverged"]
     assert np.all(np.isfinite(obs)) and r <= -W["divergence"]
     assert all(math.isfinite(info[k]) for k in ("e", "s", "u_applied"))
@@ -427,7 +427,7 @@ def test_env_defaults_are_the_reproduction_studys_recommendation():
     import json
     import pathlib
 
-    from ehss_gym.core.layout import SVF_ESTIMATORS
+    from ehss_gym.core.filters import SCHEMES
     from ehss_gym.envs import DEFAULTS
 
     rec = json.loads((pathlib.Path(__file__).parents[1] / "reports/paper/recommended_defaults.json").read_text())
@@ -438,7 +438,7 @@ def test_env_defaults_are_the_reproduction_studys_recommendation():
         td = getattr(DEFAULTS, task)
         assert (td.fr, td.sigma_for("sontag"), td.smoothing, td.estimator_hz) == (
             rec["fr_hz"][task], rec["sigma"][task], rec["smoothing"][task], rec["estimator_hz"][task]), task
-        assert td.estimator == rec["estimator"] or td.estimator not in SVF_ESTIMATORS, task
+        assert td.estimator == rec["estimator"] or td.estimator not in SCHEMES, task
         sc = EnvConfig.from_kwargs({"task": task}).template()
         assert sc.estimator == td.estimator
 

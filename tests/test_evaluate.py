@@ -89,7 +89,7 @@ def test_cli_bad_policy_exit_2(argv, needle, capsys, tmp_path):
     assert not (tmp_path / "out" / "REPORT.md").exists()
 
 
-@pytest.mark.parametrize("argv", [["--episodes", "0"], ["--suite", "bogus"], ["--tasks", "velocity,torque"],
+@pytest.mark.parametrize("argv", [["--episodes", "0"], ["--suite", "bogus"], ["--task", "velocity,torque"],
                                   ["--n-boot", "10"], ["--workers", "0"]])
 def test_cli_bad_options_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -154,7 +154,7 @@ def test_sb3_zip_and_safe_weights_are_evaluated(tmp_path, capsys):
 def test_corrupt_or_tampered_model_exit_2(tmp_path, capsys):
     bad_zip = tmp_path / "broken.zip"
     bad_zip.write_bytes(b"not a zip")
-    argv = ["--suite", "heldout", "--tasks", "velocity", "--episodes", "1", "--out", str(tmp_path / "o"),
+    argv = ["--suite", "heldout", "--task", "velocity", "--episodes", "1", "--out", str(tmp_path / "o"),
             "--store", str(tmp_path / "jobs"), "--no-progress"]
     assert main(["evaluate", "--policies", f"residual-ppo:{bad_zip}", *argv]) == 2
     err = capsys.readouterr().err
@@ -170,7 +170,7 @@ def test_corrupt_or_tampered_model_exit_2(tmp_path, capsys):
 def test_safe_weights_shape_mismatch_cli(tmp_path, capsys):
     # trained on the position task (17 observations) but labelled velocity (15)
     export_policy(_ppo(task="position"), tmp_path / "mislabelled", env_kwargs={"task": "velocity", "mode": "residual"})
-    rc = main(["evaluate", "--policies", f"residual-ppo:{tmp_path}/mislabelled", "--suite", "heldout", "--tasks",
+    rc = main(["evaluate", "--policies", f"residual-ppo:{tmp_path}/mislabelled", "--suite", "heldout", "--task",
                "velocity", "--episodes", "1", "--out", str(tmp_path / "out"), "--store", str(tmp_path / "jobs"),
                "--no-progress"])
     assert rc == 2

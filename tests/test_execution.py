@@ -1,4 +1,4 @@
-"""The execution layer (ehss_gym.core.execution) without Ray: plain-data results, content addresses, the store,
+"""The execution layer (ehss_gym.infra.execution) without Ray: plain-data results, content addresses, the store,
 local worker processes, an interrupted sweep restarted, and the bad-input errors of every command that fans out.
 The Ray backend's tests are in tests/test_ray.py."""
 
@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from ehss_gym.cli import main as cli_main
-from ehss_gym.core import execution as ex
-from ehss_gym.core.execution import Backend, ExecutionError, Executor, Job, Store, decode, encode, job_key
 from ehss_gym.core.sim import Scenario
+from ehss_gym.infra import execution as ex
+from ehss_gym.infra.execution import Backend, ExecutionError, Executor, Job, Store, decode, encode, job_key
 from ehss_gym.study.records import batch_job
 
 
@@ -174,7 +174,7 @@ def test_an_interrupted_sweep_restarted_recomputes_only_the_missing_jobs(tmp_pat
 # --- bad input --------------------------------------------------------------------------------------------
 
 
-COMMANDS = {"evaluate": ["evaluate", "--quick", "--policies", "clf-n2", "--suite", "paper", "--tasks", "velocity"],
+COMMANDS = {"evaluate": ["evaluate", "--quick", "--policies", "clf-n2", "--suite", "paper", "--task", "velocity"],
             "reproduce": ["reproduce", "--quick"],
             "train": ["train", "--seeds", "0-1", "--timesteps", "64"]}
 

@@ -16,9 +16,10 @@ import scipy.linalg
 
 import ehss_gym  # noqa: F401  (registers the env)
 from ehss_gym import Scenario, simulate
-from ehss_gym.core import layout as L
-from ehss_gym.core.control import advance_filter, filter_outputs
+from ehss_gym.core.estimators import advance_filter, filter_outputs
 from ehss_gym.core.filters import butterworth_coefficients, companion, digital_filter, hold_integrals, padded_filter
+from ehss_gym.core.layout import Z_REF
+from ehss_gym.core.registry import ESTIMATORS, names
 from ehss_gym.core.signals import sine
 from ehss_gym.core.sim import initial_state
 
@@ -201,7 +202,7 @@ def test_initial_filter_state_is_a_fixed_point_for_a_constant_reference(scheme):
     np.testing.assert_allclose(tr.y_ref_derivs[:, 0], 0.7, rtol=1e-12)
     np.testing.assert_allclose(tr.y_ref_derivs[:, 1:], 0.0, atol=1e-9)
     z = initial_state(sc)
-    assert z[L.Z_REF] + padded_filter(3, 20.0, 3e-5, scheme)[3][0] * 0.7 == pytest.approx(0.7, rel=1e-14)
+    assert z[Z_REF] + padded_filter(3, 20.0, 3e-5, scheme)[3][0] * 0.7 == pytest.approx(0.7, rel=1e-14)
 
 
 def test_unknown_estimator_is_rejected_everywhere():
@@ -214,7 +215,7 @@ def test_unknown_estimator_is_rejected_everywhere():
 
 
 def test_env_runs_each_estimator_and_records_it():
-    for scheme in L.ESTIMATORS:
+    for scheme in names(ESTIMATORS):
         env = gym.make("EHSSTracking-v0", estimator=scheme, scenario="paper", episode_seconds=0.01)
         env.reset(seed=0)
         assert env.unwrapped.scenario_template.estimator == scheme

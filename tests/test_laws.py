@@ -6,12 +6,11 @@ import math
 import mpmath as mp
 import numpy as np
 import pytest
-from hypothesis import example, given, settings
-from hypothesis import strategies as st
+from hypothesis import example, given, settings, strategies
 
 from ehss_gym import Scenario, simulate
 from ehss_gym.controllers import CLFPolicy, parse_scripted
-from ehss_gym.core.control import lin_sontag, sontag
+from ehss_gym.core.laws import lin_sontag, sontag
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import lie_derivatives
 from ehss_gym.core.signals import step
@@ -25,21 +24,21 @@ EPS = np.finfo(float).eps
 
 
 def _log_uniform(lo, hi):
-    return st.floats(math.log10(lo), math.log10(hi)).map(lambda x: 10.0**x)
+    return strategies.floats(math.log10(lo), math.log10(hi)).map(lambda x: 10.0**x)
 
 
-SIGNED = st.tuples(st.sampled_from((-1.0, 1.0)), _log_uniform(1e-8, 1e12)).map(lambda t: t[0] * t[1])
-N = st.sampled_from((2, 4, 6, 8))
+SIGNED = strategies.tuples(strategies.sampled_from((-1.0, 1.0)), _log_uniform(1e-8, 1e12)).map(lambda t: t[0] * t[1])
+N = strategies.sampled_from((2, 4, 6, 8))
 LIMIT = _log_uniform(0.1, 1e3)
 SIGMA = _log_uniform(1.0, 1e9)
-WIDTH = st.one_of(st.just(0.0), _log_uniform(1e-3, 1e6))
+WIDTH = strategies.one_of(strategies.just(0.0), _log_uniform(1e-3, 1e6))
 
 
 def _states():
     """Plant states of the operating range (x3 within +-P_s, x4 within +-K * 20 mA) and a task."""
     p = PlantParams()
-    return st.tuples(st.floats(-50.0, 50.0), st.floats(-p.P_s, p.P_s), st.floats(-1.6e-5, 1.6e-5),
-                     st.sampled_from((3, 4)))
+    return strategies.tuples(strategies.floats(-50.0, 50.0), strategies.floats(-p.P_s, p.P_s),
+                             strategies.floats(-1.6e-5, 1.6e-5), strategies.sampled_from((3, 4)))
 
 
 @settings(max_examples=600, deadline=None)
@@ -50,7 +49,7 @@ def test_lin_sontag_never_exceeds_the_limit(psi, G, s, n, sigma, w, U):
 
 
 @settings(max_examples=400, deadline=None)
-@given(x=_states(), e=st.lists(SIGNED, min_size=4, max_size=4), n=N, sigma=SIGMA, w=WIDTH, U=LIMIT)
+@given(x=_states(), e=strategies.lists(SIGNED, min_size=4, max_size=4), n=N, sigma=SIGMA, w=WIDTH, U=LIMIT)
 def test_lin_sontag_never_exceeds_the_limit_on_plant_states(x, e, n, sigma, w, U):
     """psi and G from the model's Lie derivatives at random states of both tasks, s and the error terms random."""
     x2, x3, x4, m = x
@@ -152,7 +151,7 @@ def test_lin_sontag_needs_a_current_limit():
 
 
 @pytest.mark.parametrize("bad,match", [
-    (dict(law="min-norm"), r"law must be one of \['sontag', 'lin-sontag'\], got 'min-norm'"),
+    (dict(law="bang-bang"), r"law must be one of \['sontag', 'lin-sontag', 'min-norm'\], got 'bang-bang'"),
     (dict(estimator="kalman"), r"estimator must be one of \['foh', 'zoh', 'analog', 'state', 'eso'\], got 'kalman'"),
     (dict(layer_gain=-1.0), r"layer_gain must be in \[0, 100\], got -1"),
     (dict(layer_gain=1e3), r"layer_gain must be in \[0, 100\], got 1000"),

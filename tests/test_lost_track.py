@@ -10,7 +10,7 @@ from scipy.signal import lfilter
 from ehss_gym import Scenario, simulate, sine, step
 from ehss_gym.core.scenarios import heldout_scenarios
 from ehss_gym.envs import EHSSTrackingEnv, EHSSTrackingVectorEnv
-from ehss_gym.envs.config import PRE_ISSUE14_ENV, EnvConfig
+from ehss_gym.envs.config import LEGACY_LOOP, EnvConfig
 from ehss_gym.evaluation import EvalConfig, evaluate, object_spec
 
 
@@ -87,7 +87,7 @@ def _windowed_rms_first_crossing(traj):
 CASES = (0, 1, 3, 22, 23, 41)  # held-out position episodes: sine/step/chirp/multi-sine, tracked and lost
 # the env's position loop before issue 14, whose base law loses track on some of them (the defaults since lose none,
 # reports/noise), so the detector is checked on both outcomes
-OLD_POSITION_LOOP = {"task": "position", **PRE_ISSUE14_ENV, "estimator": "foh"}
+OLD_POSITION_LOOP = {"task": "position", **LEGACY_LOOP, "estimator": "foh"}
 
 
 @pytest.mark.parametrize("index", CASES)

@@ -11,7 +11,7 @@ import re
 import pytest
 
 from ehss_gym.cli import main
-from ehss_gym.core.control import lin_sontag, sontag
+from ehss_gym.core.laws import lin_sontag, sontag
 from ehss_gym.core.sim import simulate_batch
 from ehss_gym.envs import DEFAULTS
 from ehss_gym.study.noise import bias_check, bias_scenarios, ls_sigma0

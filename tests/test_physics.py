@@ -7,19 +7,31 @@ import numpy as np
 import pytest
 from reference import lie_reference, plant_rhs_np, sontag_reference
 
-from ehss_gym.core.control import integrate_lanes, plant_only_arrays, sontag
+from ehss_gym.core.laws import sontag
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import (
     N_LANE_CONST,
     gaussian,
-    integrate_plant,
+    integrate_lanes,
     lane_constants,
     lie_derivatives,
+    plant_only_arrays,
     plant_rhs,
 )
 
 P = PlantParams()
 PA = P.as_array()
+
+
+def integrate_one(x, u, t0, h, substeps, events):
+    """The loop's integrator on one plant state ``x`` (in place) with the current u [mA] held over [t0, t0 + h]."""
+    X = x.reshape(4, 1).copy()
+    c = np.zeros((N_LANE_CONST, 1))
+    lane_constants(PA.reshape(1, -1), c)
+    ev = np.asarray(events, dtype=float).reshape(1, -1, 3) if len(events) else np.zeros((1, 0, 3))
+    integrate_lanes(X, np.array([float(u)]), t0, h, substeps, c, ev, np.zeros((6, 4, 1)), False,
+                    *plant_only_arrays(1))
+    x[:] = X[:, 0]
 
 
 def admissible_states(n, seed=0):
@@ -93,9 +105,8 @@ def test_plant_rhs_matches_plain_python():
 
 def test_rest_is_an_equilibrium_with_zero_current():
     x = np.zeros(4)
-    integrate_plant(x, 0.0, 0.0, 1e-4, 10, PA, np.zeros((0, 3)), np.zeros((8, 4)))
-    for k in range(1, 1000):
-        integrate_plant(x, 0.0, k * 1e-4, 1e-4, 10, PA, np.zeros((0, 3)), np.zeros((8, 4)))
+    for k in range(1000):
+        integrate_one(x, 0.0, k * 1e-4, 1e-4, 10, ())
     assert np.all(x == 0.0)
 
 
@@ -114,22 +125,23 @@ def test_orifice_never_nan_even_beyond_supply_pressure():
 def test_pressure_stays_within_supply_under_bang_bang_current():
     rng = np.random.default_rng(5)
     x = np.zeros(4)
-    work = np.zeros((8, 4))
     peak = 0.0
     u = 10.0
     for k in range(20000):  # 2 s of random +-10 mA switching every 1 ms
         if k % 10 == 0:
             u = 10.0 * np.sign(rng.standard_normal())
-        integrate_plant(x, u, k * 1e-4, 1e-4, 10, PA, np.zeros((0, 3)), work)
+        integrate_one(x, u, k * 1e-4, 1e-4, 10, ())
         peak = max(peak, abs(x[2]))
     assert peak <= P.P_s
 
 
-def test_lane_integrator_is_bit_identical_to_scalar():
+def test_lanes_integrated_together_equal_each_lane_alone():
+    """Lanes share the integrator's loops (vectorised over lanes), never their values: B lanes advanced together
+    give, bit for bit, what each gives alone."""
     rng = np.random.default_rng(7)
     B = 5
     X = admissible_states(B, seed=7).T.copy()
-    x_scalar = X.T.copy()
+    x_alone = X.T.copy()
     U = rng.uniform(-10, 10, B)
     events = np.tile(np.array([[1.8, 0.00025, 0.0007]]), (B, 1, 1))
     c = np.zeros((N_LANE_CONST, B))
@@ -137,8 +149,8 @@ def test_lane_integrator_is_bit_identical_to_scalar():
     for k in range(10):
         integrate_lanes(X, U, k * 1e-4, 1e-4, 7, c, events, np.zeros((6, 4, B)), False, *plant_only_arrays(B))
         for b in range(B):
-            integrate_plant(x_scalar[b], U[b], k * 1e-4, 1e-4, 7, PA, events[b], np.zeros((8, 4)))
-    assert np.array_equal(X.T, x_scalar)
+            integrate_one(x_alone[b], U[b], k * 1e-4, 1e-4, 7, events[b])
+    assert np.array_equal(X.T, x_alone)
 
 
 # --- Sontag's formula -------------------------------------------------------

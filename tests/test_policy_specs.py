@@ -38,7 +38,7 @@ def test_a_policy_that_acts_on_no_evaluated_task_is_an_error(tmp_path, capsys):
     spec = ev.parse_policy(f"residual-ppo:{zp}")
     with pytest.raises(PolicyError, match=r"acts on task\(s\) velocity only.*evaluated tasks are position"):
         ev.evaluate([spec], ev.EvalConfig(suites=("heldout",), tasks=("position",)), workers=1, progress=False)
-    rc = main(["evaluate", "--policies", f"residual-ppo:{zp}", "--tasks", "position", "--suite", "heldout",
+    rc = main(["evaluate", "--policies", f"residual-ppo:{zp}", "--task", "position", "--suite", "heldout",
                "--episodes", "1", "--out", str(tmp_path / "o"), "--store", str(tmp_path / "jobs"), "--no-progress"])
     assert rc == 2 and "would not be evaluated" in capsys.readouterr().err
 
@@ -51,7 +51,7 @@ def test_a_zip_without_its_env_spec_is_scored_with_a_printed_warning(tmp_path, c
     assert spec.env_kwargs["mode"] == "direct"
     with pytest.raises(PolicyError, match=r"no env spec saved with .*lonely.zip.*residual-ppo:PATH or ppo-direct"):
         ev.parse_policy(f"sb3:{zp}")
-    rc = main(["evaluate", "--policies", f"ppo-direct:{zp}", "--suite", "heldout", "--tasks", "velocity",
+    rc = main(["evaluate", "--policies", f"ppo-direct:{zp}", "--suite", "heldout", "--task", "velocity",
                "--episodes", "1", "--out", str(tmp_path / "o"), "--store", str(tmp_path / "jobs"), "--no-progress"])
     assert rc == 0 and "ehss evaluate: warning: policy 'ppo-direct:" in capsys.readouterr().err
 
@@ -140,7 +140,7 @@ def test_two_models_of_one_run_are_compared_under_their_labels(tmp_path, capsys)
     assert specs[1].runs == [f"{run}/final/policy"] and specs[2].runs == [f"{run}/best/policy"]
     assert specs[1].kind == "residual-ppo" and "final/policy" in specs[1].source
     rc = main(["evaluate", "--policies", "clf-n2", f"final={same[0]}", f"best={same[1]}", "--suite", "heldout",
-               "--tasks", "velocity", "--episodes", "1", "--out", str(tmp_path / "o"), "--store",
+               "--task", "velocity", "--episodes", "1", "--out", str(tmp_path / "o"), "--store",
                str(tmp_path / "jobs"), "--no-progress"])
     assert rc == 0, capsys.readouterr().err
     with open(tmp_path / "o" / "summary.csv") as f:

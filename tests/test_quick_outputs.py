@@ -28,7 +28,7 @@ def captured(monkeypatch, tmp_path):
         seen["fidelity"] = (out, docs)
         return out
 
-    monkeypatch.setattr(fidelity, "run", fake_fidelity)
+    monkeypatch.setattr(fidelity, "measure_and_write", fake_fidelity)
     fake_bench = types.SimpleNamespace(build_parser=lambda: _bench_parser(),
                                        run=lambda args, cmd: seen.setdefault("bench", args.out) and 0)
     monkeypatch.setattr(bench, "_benchmarks_module", lambda: fake_bench)

@@ -19,12 +19,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from conftest import home_entries
-from ehss_gym.train.config import Config, build_parser, config_from_args
 
 from ehss_gym.cli import main as cli_main
-from ehss_gym.core.execution import NUMBA_CACHE_ENV, Backend, Executor, Job, dumps, numba_cache_dir, thread_env
 from ehss_gym.core.sim import Scenario
+from ehss_gym.infra.execution import NUMBA_CACHE_ENV, Backend, Executor, Job, dumps, numba_cache_dir, thread_env
 from ehss_gym.study.records import batch_job
+from ehss_gym.train.config import Config, build_parser, config_from_args
 
 ray = pytest.importorskip("ray")
 pytestmark = pytest.mark.xdist_group("ray")
@@ -79,7 +79,7 @@ def _csvs(folder) -> dict:
 def test_quick_evaluation_csvs_are_byte_identical_on_both_backends(ray_instance, tmp_path):
     """A scripted law, a PID and a learned (safe-weights) policy on the quick held-out suite: local worker processes
     and Ray tasks write the same bytes. (.ci/run compares the whole ehss evaluate --quick the same way: minutes.)"""
-    argv = ["evaluate", "--quick", "--no-progress", "--no-store", "--tasks", "velocity", "--suite", "heldout",
+    argv = ["evaluate", "--quick", "--no-progress", "--no-store", "--task", "velocity", "--suite", "heldout",
             "--policies", "clf-n2", "pid", "residual-ppo-velocity-n2"]
     assert cli_main([*argv, "--out", str(tmp_path / "local"), "--workers", "2"]) == 0
     assert cli_main([*argv, "--out", str(tmp_path / "ray"), "--backend", "ray"]) == 0

@@ -4,7 +4,7 @@ The forward pass of a learned policy runs torch's float32 kernels, whose matrix 
 its kernels by CPU, and an AVX-512 machine sums a layer's products in another order than an AVX2 one, so the actions
 differ in their last bits and the closed loop carries the difference on (a fresh ``ehss evaluate`` on an AVX-512
 machine moved the shipped position policy's held-out RMSE from 0.4838 to 0.4803). Every process that computes
-results pins MKL's code path (``ehss_gym.core.execution.BLAS_ENV``); a fresh process limited to AVX2 instructions
+results pins MKL's code path (``ehss_gym.infra.execution.BLAS_ENV``); a fresh process limited to AVX2 instructions
 stands in for another machine here (on a host without AVX-512 the two paths are the same, and the test cannot tell
 a pinned run from an unpinned one).
 """
@@ -19,9 +19,9 @@ import sys
 import numpy as np
 
 from ehss_gym import evaluation as ev
-from ehss_gym.core.execution import BLAS_ENV
 from ehss_gym.evaluation import EvalConfig
 from ehss_gym.evaluation.loading import load_run
+from ehss_gym.infra.execution import BLAS_ENV
 
 TRAINED = "residual-ppo-position-n2-seed4"  # a shipped seed whose action net moved off zero in training
 CFG = {"suites": ("heldout",), "tasks": ("position",), "heldout_episodes": 3, "episode_seconds": 0.4, "n_boot": 100}

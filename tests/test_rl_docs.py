@@ -9,9 +9,9 @@ import sys
 
 import numpy as np
 import pytest
-from ehss_gym.agents.specs import AGENTS
 
 from ehss_gym import simulate
+from ehss_gym.agents.specs import AGENTS
 from ehss_gym.core.scenarios import heldout_scenarios
 from ehss_gym.envs import DEFAULTS, EHSSTrackingEnv
 from ehss_gym.envs.config import EnvConfig

@@ -10,6 +10,7 @@ import sys
 import numpy as np
 import pytest
 import torch
+
 from ehss_gym.agents import safeweights as sw
 from ehss_gym.agents.export import export_policy
 from ehss_gym.agents.safeweights import SafeWeightsError, load_policy

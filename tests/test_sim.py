@@ -8,9 +8,9 @@ import scipy.linalg
 from reference import reference_closed_loop
 
 from ehss_gym import Scenario, make_plant_params, simulate, simulate_batch
-from ehss_gym.core import layout as L
-from ehss_gym.core.control import sontag
 from ehss_gym.core.filters import butterworth_coefficients, discretise
+from ehss_gym.core.laws import sontag
+from ehss_gym.core.layout import X_PL
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import lie_derivatives, plant_rhs
 from ehss_gym.core.signals import chirp, multisine, sine, step
@@ -104,7 +104,7 @@ def test_pressure_within_supply_in_closed_loop(task):
     for sigma in (1.0, 1e5):
         tr = simulate(Scenario(task=task, n=2, sigma=sigma, current_limit=10.0, t_end=2.0,
                                friction=((1.8, 0.5, 1.0),), fr=100.0 if task == "velocity" else 60.0))
-        assert np.max(np.abs(tr.x[:, L.X_PL])) <= PlantParams().P_s
+        assert np.max(np.abs(tr.x[:, X_PL])) <= PlantParams().P_s
 
 
 @pytest.mark.parametrize("task", ["velocity", "position"])

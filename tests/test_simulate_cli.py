@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from ehss_gym.cli import build_parser, main
-from ehss_gym.cli.args import scenario_from_args
-from ehss_gym.core.sim import PAPER_FRICTION
+from ehss_gym.cli.simulate import scenario_from_args
+from ehss_gym.core.settings import PAPER_FRICTION
 from ehss_gym.envs.config import EnvConfig
 
 

@@ -7,9 +7,10 @@
 - :mod:`~ehss_gym.train.callbacks`, :mod:`~ehss_gym.train.runs`: SB3 callbacks; run names, checkpoints, resume;
 - :mod:`~ehss_gym.train.launch`: ``ehss train``, one process per seed;
 - :mod:`~ehss_gym.train.options`: command-line options from a dataclass;
-- :mod:`~ehss_gym.train.zoo`: writes rl-zoo3's ``agents/hyperparams`` from the agent specs;
-- :mod:`~ehss_gym.train.analysis`: the analyses behind ``ehss training-report``;
-- :mod:`~ehss_gym.train.noise_study`: the measurement behind the initial exploration noise.
+- :mod:`~ehss_gym.train.zoo`: writes rl-zoo3's ``agents/hyperparams`` from the agent specs.
+
+The studies of the trained agents are in :mod:`ehss_gym.study`: :mod:`~ehss_gym.study.training` (behind ``ehss
+training-report``) and :mod:`~ehss_gym.study.exploration` (the initial exploration noise).
 
 From a checkout::
 

@@ -24,8 +24,8 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from tqdm.auto import tqdm
 
-from ehss_gym.core.util import atomic_write, atomic_write_text
 from ehss_gym.evaluation.heldout import relative_scores, run_episodes, sb3_act_fn
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 from . import runs
 

@@ -15,9 +15,11 @@ import os
 from dataclasses import dataclass
 
 from ehss_gym.agents.specs import AGENTS, agent_names, env_kwargs_for, get_spec
-
+from ehss_gym.core.settings import TASKS
 from ehss_gym.core.validate import check_even_n
-from ehss_gym.envs import ENV_ID, EnvConfig
+from ehss_gym.envs import ENV_ID
+from ehss_gym.envs.config import EnvConfig
+from ehss_gym.infra import BACKENDS
 
 from . import options, runs
 
@@ -59,7 +61,7 @@ class Config:
     resume: bool = False
     """continue from the run folder's latest checkpoint"""
     progress: bool = True
-    """show a tqdm progress bar"""
+    """the tqdm progress bar"""
     verbose: int = 0
     """SB3 verbosity"""
 
@@ -67,8 +69,8 @@ class Config:
         """Raise RunError naming a bad field and its accepted range; returns self."""
         if self.agent not in AGENTS:
             raise runs.RunError(f"--agent must be one of {agent_names()}, got {self.agent!r}")
-        if self.task not in ("velocity", "position"):
-            raise runs.RunError(f"--task must be one of ['velocity', 'position'], got {self.task!r}")
+        if self.task not in TASKS:
+            raise runs.RunError(f"--task must be one of {list(TASKS)}, got {self.task!r}")
         if not isinstance(self.n, int):  # a float 4.0 would pass check_even_n but not the run name's n<k>
             raise runs.RunError(f"--n must be an even integer >= 2 (2, 4, 6, ...), got {self.n!r}")
         try:
@@ -122,9 +124,9 @@ class Launch:
     """How ``ehss train`` runs several seeds (its flags besides those of :class:`Config`)."""
 
     seeds: str | None = None
-    """several seeds, e.g. 0-4 or 0,2,5: one process per seed, at most --jobs at a time; each run goes to <out or
-    runs>/<run name>"""
-    jobs: int | None = None
+    """several seeds, e.g. 0-4 or 0,2,5: one process per seed, at most --workers at a time; each run goes to <out
+    or runs>/<run name>"""
+    workers: int | None = None
     """parallel seeds with --seeds on the local backend (default: the usable cores); with --backend ray on a
     local Ray instance, its CPUs"""
     backend: str = "local"
@@ -140,9 +142,9 @@ class Launch:
     """a JSON file of Config fields, e.g. the best_config.json of ehss tune; the flags given override it"""
 
     def validate(self) -> Launch:
-        """Raise RunError for a bad --jobs; returns self (the backend is checked by the execution layer)."""
-        if self.jobs is not None and self.jobs < 1:
-            raise runs.RunError(f"--jobs must be an integer >= 1, got {self.jobs!r}")
+        """Raise RunError for a bad --workers; returns self (the backend is checked by the execution layer)."""
+        if self.workers is not None and self.workers < 1:
+            raise runs.RunError(f"--workers must be an integer >= 1, got {self.workers!r}")
         return self
 
 
@@ -150,9 +152,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None, launch: bool = F
     """The options of :class:`Config` (and, with ``launch``, of :class:`Launch`) on ``parser`` or a new one."""
     p = parser or argparse.ArgumentParser(prog="python -m ehss_gym.train.loop",
                                           description="Train residual PPO (or pure PPO) on EHSSTracking-v0.")
-    options.add_options(p, Config)
+    options.add_options(p, Config, choices={"agent": agent_names(), "task": tuple(TASKS)})
     if launch:
-        options.add_options(p, Launch)
+        options.add_options(p, Launch, metavars={"backend": BACKENDS})
     return p
 
 

@@ -1,4 +1,4 @@
-"""Training as executor jobs (:mod:`ehss_gym.core.execution`): one job per seed, run by ``ehss train --seeds``
+"""Training as executor jobs (:mod:`ehss_gym.infra.execution`): one job per seed, run by ``ehss train --seeds``
 and ``ehss tune`` on the local or the Ray backend.
 
 A job trains one :class:`~ehss_gym.train.config.Config` (its seed passed explicitly) into its run folder, with
@@ -15,8 +15,8 @@ import contextlib
 import dataclasses
 import os
 
-from ehss_gym.core.execution import Job
-from ehss_gym.core.util import atomic_write
+from ehss_gym.infra.execution import Job
+from ehss_gym.infra.util import atomic_write
 
 from . import runs
 from .config import Config

@@ -1,10 +1,10 @@
 """``ehss train``: one training run, or several seeds side by side, each seed a job of the execution layer.
 
     ehss train --agent {residual-ppo,ppo} --task velocity --n 2 --timesteps T --seed S [--out runs/NAME] [--resume]
-    ehss train --seeds 0-4 [--jobs J] [--backend ray [--address HOST:PORT]] [...]   # runs go to <out or runs>/<name>
+    ehss train --seeds 0-4 [--workers W] [--backend ray [--address HOST:PORT]] [...]   # runs go to <out or runs>/<name>
 
-Each seed is a :func:`~ehss_gym.train.jobs.train_job` on the chosen backend (:mod:`ehss_gym.core.execution`):
-locally, a fresh worker process per seed, at most ``--jobs`` at a time; on Ray, one task per seed (retried, and
+Each seed is a :func:`~ehss_gym.train.jobs.train_job` on the chosen backend (:mod:`ehss_gym.infra.execution`):
+locally, a fresh worker process per seed, at most ``--workers`` at a time; on Ray, one task per seed (retried, and
 resumed from its last checkpoint, if its worker dies). Its output goes to ``<run>/train.log``. Every seed's
 settings are validated, and its folder checked against ``--resume``, before any job starts; a seed whose job
 result is already in the store (``<out or runs>/jobs``) is not trained again.
@@ -16,7 +16,7 @@ import dataclasses
 import os
 import sys
 
-from ehss_gym.core.execution import Backend, ExecutionError, Executor, Store, job_key
+from ehss_gym.infra.execution import Backend, ExecutionError, Executor, Store, job_key
 
 from . import runs
 from .config import Config, Launch, config_from_args, launch_from_args
@@ -55,7 +55,7 @@ def run_seeds(plans: list[tuple[int, Config]], executor: Executor) -> list[dict]
 
 def launch_executor(launch: Launch, parent: str, progress: bool) -> Executor:
     """The executor of a ``--seeds`` launch: its backend, and its store in ``<parent>/jobs`` (or ``--store``)."""
-    backend = Backend(launch.backend, launch.address, workers=launch.jobs).validate()
+    backend = Backend(launch.backend, launch.address, workers=launch.workers).validate()
     store = None if launch.no_store else Store(launch.store or os.path.join(parent, "jobs"))
     return Executor(backend, store, progress=progress)
 

@@ -33,18 +33,18 @@ from collections.abc import Callable
 
 import gymnasium as gym
 import torch
-from ehss_gym.agents.export import export_policy
-from ehss_gym.agents.factory import make_agent
-from ehss_gym.agents.specs import resolved_env_kwargs
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-from ehss_gym.core.execution import pin_blas
-from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.agents.export import export_policy
+from ehss_gym.agents.factory import make_agent
+from ehss_gym.agents.specs import resolved_env_kwargs
 from ehss_gym.envs import ENV_ID
 from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
+from ehss_gym.infra.execution import pin_blas
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 from . import runs
 from .callbacks import Checkpoint, HeldoutEval, ProgressBar, WallClock, restore_rng

@@ -70,9 +70,14 @@ def _default(f: dataclasses.Field):
     return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
 
-def add_options(parser: argparse.ArgumentParser, cls: type, exclude=()) -> argparse.ArgumentParser:
-    """Add one option per field of dataclass ``cls`` (the module docstring gives the forms) to ``parser``."""
+def add_options(parser: argparse.ArgumentParser, cls: type, exclude=(), choices=None,
+                metavars=None) -> argparse.ArgumentParser:
+    """Add one option per field of dataclass ``cls`` (the module docstring gives the forms) to ``parser``;
+    ``choices`` maps a field to the values it accepts (shown in the help, checked by argparse), ``metavars`` to the
+    values shown in the help only (checked where the value is used)."""
     docs, types = field_docs(cls), field_types(cls)
+    choices = choices or {}
+    metavars = metavars or {}
     for f in dataclasses.fields(cls):
         if f.name in exclude:
             continue
@@ -80,13 +85,15 @@ def add_options(parser: argparse.ArgumentParser, cls: type, exclude=()) -> argpa
         if t is bool:
             opt = flag(f.name) if not default else "--no-" + f.name.replace("_", "-")
             parser.add_argument(opt, dest=f.name, action="store_const", const=not default, default=None,
-                                help=doc if not default else f"{doc} (on by default; this flag turns it off)")
+                                help=doc if not default else f"turn off {doc} (on by default)")
         elif t is dict:
             parser.add_argument(flag(f.name), dest=f.name, action="append", default=None, metavar="KEY=JSON",
                                 help=f"{doc}; repeatable")
         else:
             shown = "" if default is None else f" (default: {default})"
-            parser.add_argument(flag(f.name), dest=f.name, default=None, metavar=f.name.upper(), help=doc + shown)
+            opts = {"choices": tuple(choices[f.name])} if f.name in choices else {
+                "metavar": "{" + ",".join(metavars[f.name]) + "}" if f.name in metavars else f.name.upper()}
+            parser.add_argument(flag(f.name), dest=f.name, default=None, help=doc + shown, **opts)
     return parser
 
 

@@ -22,7 +22,7 @@ import os
 import pickle
 import re
 
-from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 LATEST = "latest.json"
 CKPT_DIR = "checkpoints"

@@ -20,14 +20,14 @@ import os
 from dataclasses import dataclass
 
 import optuna
-from ehss_gym.agents.specs import get_spec
 from ray import tune
 from ray.tune.schedulers import ASHAScheduler
 from ray.tune.search import ConcurrencyLimiter
 from ray.tune.search.optuna import OptunaSearch
 
-from ehss_gym.core.execution import Executor
-from ehss_gym.core.util import atomic_write_text
+from ehss_gym.agents.specs import get_spec
+from ehss_gym.infra.execution import Executor
+from ehss_gym.infra.util import atomic_write_text
 
 from . import runs
 from .config import Config

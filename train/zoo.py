@@ -20,9 +20,9 @@ import sys
 import textwrap
 
 import yaml
+
 from ehss_gym.agents.factory import ACTIVATIONS, POLICY_PATH
 from ehss_gym.agents.specs import AgentSpec, env_kwargs_for, get_spec, ppo_kwargs
-
 from ehss_gym.envs import ENV_ID
 
 from .config import Config

@@ -1,35 +1,36 @@
-"""The ``ehss`` command line. Each sub-command lives in its own module of this package with a ``register``
-function; nothing outside the CLI imports it.
+"""The ``ehss`` command line: one row of :data:`~ehss_gym.cli.options.COMMANDS` per sub-command, nothing outside the
+CLI imports it.
 
-Bad arguments exit with code 2 and a message that names the parameter and the accepted range
-(argparse's convention).
+The options of every command are in :mod:`ehss_gym.cli.options`, which loads none of the simulator, the env or the
+learned agents, so ``ehss --help`` and a bad argument answer at once; the module that runs a command (its
+``run(args)``: :mod:`~ehss_gym.cli.simulate`, :mod:`~ehss_gym.cli.evaluate`, ...) is imported only when that command
+runs. Bad arguments exit with code 2 and a message that names the parameter and the accepted range (argparse's
+convention).
 """
 
 from __future__ import annotations
 
-import argparse
+import importlib
 import sys
 
 from ehss_gym._version import __version__
 
-from . import bench, evaluate, fidelity, noise, reproduce, simulate, train, training_report, tune
-
-# each exposes register(subparsers)
-COMMANDS = (simulate, reproduce, noise, evaluate, train, training_report, tune, bench, fidelity)
+from .options import COMMANDS
+from .options import build_parser as _build_parser
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="ehss", description="EHSS servo loop with Sontag/CLF controllers.")
-    parser.add_argument("--version", action="version", version=f"ehss-gym {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
-    for mod in COMMANDS:
-        mod.register(sub)
-    return parser
+def build_parser():
+    """The ``ehss`` argument parser (every sub-command's options; nothing heavy is imported)."""
+    return _build_parser(__version__)
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    """Run ``ehss`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = parser.parse_args(argv)
+    args = build_parser().parse_args(argv)
     args.argv = argv  # the command line, for the made-by lines of figures
-    return int(args.func(args) or 0)
+    runner = importlib.import_module(f"{__name__}.{args.module}")  # the command's dependencies load here
+    return int(runner.run(args) or 0)
+
+
+__all__ = ["main", "build_parser", "COMMANDS"]

@@ -8,12 +8,11 @@ code 2 and says so.
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import os
 import sys
 
-from ehss_gym.core.util import report_folder
+from ehss_gym.infra.util import report_folder
 
 SHIPPED = os.path.join("reports", "perf")
 
@@ -28,7 +27,8 @@ def _benchmarks_module():
     return importlib.import_module("benchmarks.__main__")
 
 
-def cmd_bench(args) -> int:
+def run(args) -> int:
+    """Run the benchmarks of the source checkout; 2 (with a message) without one."""
     mod = _benchmarks_module()
     if mod is None:
         print("ehss bench: error: the benchmarks/ folder is not installed with the package; run this command from "
@@ -41,20 +41,4 @@ def cmd_bench(args) -> int:
     return mod.run(mod.build_parser().parse_args(argv), "ehss bench " + " ".join(argv))
 
 
-def register(sub):
-    p = sub.add_parser("bench", help="run the performance benchmarks (source checkout) and write PERF.md + CSV")
-    p.add_argument("--quick", action="store_true",
-                   help="shrunken problems (CI, well under a minute); checks the benchmarks run, asserts no speed")
-    p.add_argument("--out", default=None, help="output folder for PERF.md and the CSV files (default reports/perf; "
-                                               "with --quick runs/quick/perf, so a quick run never overwrites the "
-                                               "shipped one)")
-    p.add_argument("--only", default=None, type=_only, help="comma-separated subset of sim,env,train,memory,compile")
-    p.set_defaults(func=cmd_bench)
-
-
-def _only(text: str) -> list[str]:
-    known = ("sim", "env", "train", "memory", "compile")
-    names = [s.strip() for s in text.split(",") if s.strip()]
-    if not names or any(n not in known for n in names):
-        raise argparse.ArgumentTypeError(f"--only must be a comma-separated subset of {','.join(known)}, got {text!r}")
-    return names
+__all__ = ["run"]

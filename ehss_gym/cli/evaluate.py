@@ -1,59 +1,19 @@
 """``ehss evaluate``: the evaluation harness (:mod:`ehss_gym.evaluation`) on the command line, then its report
-(:mod:`ehss_gym.reporting.comparison`)."""
+(:mod:`ehss_gym.reporting.comparison`). Its options: :func:`ehss_gym.cli.options.add_evaluate`."""
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import warnings
 from dataclasses import replace
 
-from ehss_gym.core.execution import Executor, add_backend_arguments, backend_from_args, store_from_args
-from ehss_gym.core.util import report_folder
 from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, PolicyWarning, default_specs, evaluate, parse_policies
+from ehss_gym.infra.execution import Executor
+from ehss_gym.infra.util import report_folder
 from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
 
-from .args import int_at_least
-
-
-def _tasks(text: str) -> tuple:
-    """``--tasks``: a comma-separated subset of the tasks."""
-    names = tuple(t.strip() for t in text.split(",") if t.strip())
-    if not names or any(t not in TASKS for t in names):
-        raise argparse.ArgumentTypeError(f"--tasks must be a comma-separated subset of {','.join(TASKS)}, got {text!r}")
-    return names
-
-
-def register(sub) -> None:
-    """Add ``evaluate`` to the ``ehss`` sub-commands."""
-    p = sub.add_parser("evaluate", help="compare CLF n=2/4/6, PID and learned policies on the same scenarios",
-                       description="Score scripted and learned policies on the paper scenario, a held-out randomised "
-                                   "suite and robustness sweeps; write REPORT.md, CSVs and figures.")
-    p.add_argument("--policies", nargs="+", default=None, metavar="SPEC",
-                   help="comma- or space-separated: clf-n2, clf-n4, clf-n6, pid, residual-ppo:PATH, ppo-direct:PATH, "
-                        "sb3:PATH (any SB3 algorithm, its mode from the env spec saved with it; PATH may be an rl-zoo3 "
-                        "run folder), or a shipped model name; LABEL=SPEC names one in the report (e.g. "
-                        "final=residual-ppo:RUN/final/policy best=residual-ppo:RUN/best/policy) (default: every "
-                        "shipped policy)")
-    p.add_argument("--suite", choices=("paper", "heldout", "robustness", "all"), default="all")
-    p.add_argument("--tasks", type=_tasks, default=TASKS, help="comma-separated subset of velocity,position")
-    p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
-                   help="held-out episodes per task (default 48; --quick 8)")
-    p.add_argument("--sweep-episodes", type=int_at_least("--sweep-episodes", 1), default=None,
-                   help="episodes per robustness level (default 5; --quick 1)")
-    p.add_argument("--workers", type=int_at_least("--workers", 1), default=None,
-                   help="worker processes (default: the cores available)")
-    p.add_argument("--n-boot", type=int_at_least("--n-boot", 100), default=None, help="bootstrap replicates")
-    p.add_argument("--seed", type=int_at_least("--seed", 0), default=0, help="bootstrap seed")
-    p.add_argument("--out", default=None,
-                   help=f"output folder (default {DEFAULT_OUT}; with --quick runs/quick/comparison, so a quick run "
-                        "never overwrites the shipped report unless --out says so)")
-    p.add_argument("--quick", action="store_true",
-                   help="small CI form: 8 held-out episodes, 3+2 sweep levels of 1 episode, paper run cut at 12 s")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_backend_arguments(p)
-    p.set_defaults(func=cmd_evaluate)
+from .common import backend_from_args, store_from_args
 
 
 def _command_line(args) -> str:
@@ -65,8 +25,8 @@ def _command_line(args) -> str:
         parts.append("--policies " + " ".join(args.policies))
     if args.suite != "all":
         parts.append(f"--suite {args.suite}")
-    if tuple(args.tasks) != TASKS:
-        parts.append("--tasks " + ",".join(args.tasks))
+    if tuple(args.task) != TASKS:
+        parts.append("--task " + ",".join(args.task))
     for flag, v in (("--episodes", args.episodes), ("--sweep-episodes", args.sweep_episodes),
                     ("--workers", args.workers), ("--n-boot", args.n_boot)):
         if v is not None:
@@ -82,7 +42,7 @@ def _command_line(args) -> str:
 
 def config_from_args(args) -> EvalConfig:
     """The evaluation's sizes from the options (``--quick`` first, the explicit sizes on top)."""
-    changes = {"suites": SUITES if args.suite == "all" else (args.suite,), "tasks": tuple(args.tasks),
+    changes = {"suites": SUITES if args.suite == "all" else (args.suite,), "tasks": tuple(args.task),
                "seed": args.seed}
     for key, v in (("heldout_episodes", args.episodes), ("sweep_episodes", args.sweep_episodes),
                    ("n_boot", args.n_boot)):
@@ -91,7 +51,7 @@ def config_from_args(args) -> EvalConfig:
     return EvalConfig.quick(**changes) if args.quick else replace(EvalConfig(), **changes)
 
 
-def cmd_evaluate(args) -> int:
+def run(args) -> int:
     """Evaluate, write the report, print the rankings.
 
     Returns:
@@ -130,3 +90,4 @@ def cmd_evaluate(args) -> int:
     return 0
 
 
+__all__ = ["run", "config_from_args"]

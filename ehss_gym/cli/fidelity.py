@@ -6,13 +6,16 @@ import argparse
 import os
 import sys
 
-from ehss_gym.core.util import atomic_write_text, report_folder
+from ehss_gym.infra.util import atomic_write_text, report_folder
 from ehss_gym.reporting.fidelity import docs_block, replace_block, write_report
 from ehss_gym.study.fidelity import PROG, run_all
 
+from .common import check_out_folder
+from .options import HelpFormatter, add_fidelity
 
-def run(out: str = "reports/fidelity", docs: str | None = "docs/MODEL.md", quick: bool = False,
-        progress: bool = True, cmd: str = PROG) -> str:
+
+def measure_and_write(out: str = "reports/fidelity", docs: str | None = "docs/MODEL.md", quick: bool = False,
+                      progress: bool = True, cmd: str = PROG) -> str:
     """Measure everything, write the report and (unless ``docs`` is None) the docs block; FIDELITY.md's path.
 
     Raises:
@@ -47,28 +50,13 @@ def _cmdline(prog: str, args) -> str:
     return " ".join(parts)
 
 
-def _add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", default=None, help="report folder (default reports/fidelity; with --quick "
-                                               "runs/quick/fidelity, so a quick run never overwrites the shipped one)")
-    p.add_argument("--docs", default=None,
-                   help="markdown file whose fidelity-table block gets the main table (default docs/MODEL.md, "
-                        "with --quick none; 'none' leaves docs alone)")
-    p.add_argument("--quick", action="store_true",
-                   help="closed loop at 30 and 10 us for 2 s only (a smoke test; seconds)")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-
-
 def _run_args(args, prog: str) -> int:
     name = prog.split()[-1] if prog.startswith("ehss") else prog
     cmd = _cmdline(prog, args)
     args.out = report_folder(args.out, args.quick, SHIPPED)
     if args.docs is None:
         args.docs = "none" if args.quick else SHIPPED_DOCS
-    if not str(args.out).strip():
-        print(f"{name}: error: --out must be a non-empty folder path", file=sys.stderr)
-        return 2
-    if os.path.exists(args.out) and not os.path.isdir(args.out):
-        print(f"{name}: error: --out must be a folder, {args.out!r} is a file", file=sys.stderr)
+    if not check_out_folder(name, args.out):
         return 2
     docs = None if args.docs.lower() == "none" else args.docs
     if docs is not None:
@@ -78,24 +66,20 @@ def _run_args(args, prog: str) -> int:
         except (OSError, ValueError) as exc:
             print(f"{name}: error: --docs {docs!r}: {exc}", file=sys.stderr)
             return 2
-    path = run(args.out, docs, quick=args.quick, progress=not args.no_progress, cmd=cmd)
+    path = measure_and_write(args.out, docs, quick=args.quick, progress=not args.no_progress, cmd=cmd)
     print(f"wrote {path}" + (f" and the table in {docs}" if docs else ""))
     return 0
 
 
-def register(sub):
-    """Add the ``fidelity`` sub-command to the ``ehss`` command line."""
-    p = sub.add_parser("fidelity", help="measure the digital filters (zoh, foh) against the analog ones, open and "
-                                        "closed loop, at h = 30, 10, 3 us; writes reports/fidelity and the "
-                                        "table in docs/MODEL.md")
-    _add_arguments(p)
-    p.set_defaults(func=lambda a: _run_args(a, "ehss fidelity"))
+def run(args) -> int:
+    """``ehss fidelity``: measure, write the report and the docs table; 2 (with a message) for a bad option."""
+    return _run_args(args, "ehss fidelity")
 
 
 def main(argv=None) -> int:
     """``ehss fidelity [--out DIR] [--docs FILE] [--quick] [--no-progress]``; returns the exit code."""
-    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    _add_arguments(parser)
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0], formatter_class=HelpFormatter)
+    add_fidelity(parser)
     args = parser.parse_args(argv)
     return _run_args(args, PROG)
 

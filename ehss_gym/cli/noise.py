@@ -13,38 +13,41 @@ import os
 import sys
 import time
 
+from ehss_gym.infra.execution import ExecutionError, Executor
+from ehss_gym.infra.util import report_folder
 from ehss_gym.reporting.noise import write_noise_report
 from ehss_gym.study.noise import run_noise_study
 from ehss_gym.study.noise_config import NoiseStudyConfig
 
+from .common import backend_from_args, check_out_folder, store_from_args
 
-def main_noise(out: str, quick: bool = False, progress: bool = True, cmd: str | None = None) -> str:
-    """Run the noise study and write its report; returns REPORT.md's path."""
+SHIPPED = os.path.join("reports", "noise")
+
+
+def main_noise(out: str, quick: bool = False, progress: bool = True, cmd: str | None = None,
+               executor: Executor | None = None) -> str:
+    """Run the noise study (its simulation batches on ``executor``, default in this process) and write its report;
+    returns REPORT.md's path."""
     t0 = time.perf_counter()
     cfg = NoiseStudyConfig.quick_config() if quick else NoiseStudyConfig.full()
     cmd = cmd or ("ehss noise" + (" --quick" if quick else "") + f" --out {out}")
-    st = run_noise_study(cfg, progress=progress)
+    st = run_noise_study(cfg, progress=progress, executor=executor)
     return write_noise_report(st, out, cmd, t_start=t0)
 
 
-def cmd_noise(args) -> int:
-    out = args.out
-    if not out or not str(out).strip():
-        print("ehss noise: error: --out must be a non-empty folder path", file=sys.stderr)
+def run(args) -> int:
+    """Run the study and write its report; 2 (with a message) for a bad ``--out`` or execution setting."""
+    out = report_folder(args.out, args.quick, SHIPPED)
+    if not check_out_folder("ehss noise", out):
         return 2
-    if os.path.exists(out) and not os.path.isdir(out):
-        print(f"ehss noise: error: --out must be a folder, {out!r} is a file", file=sys.stderr)
+    try:
+        with Executor(backend_from_args(args), store_from_args(args)) as executor:
+            path = main_noise(out, quick=args.quick, progress=not args.no_progress, executor=executor)
+    except ExecutionError as exc:
+        print(f"ehss noise: error: {exc}", file=sys.stderr)
         return 2
-    path = main_noise(out, quick=args.quick, progress=not args.no_progress)
-    print(f"wrote {path}")
+    print(f"wrote {path} ({executor.computed} simulation batch(es) computed, {executor.skipped} from the store)")
     return 0
 
 
-def register(sub):
-    p = sub.add_parser("noise", help="the noise study: estimators, laws and start-up levers under sensor noise and "
-                                     "the current bound, the rules choosing the env's default estimator and law")
-    p.add_argument("--out", default="reports/noise", help="output folder (default reports/noise)")
-    p.add_argument("--quick", action="store_true",
-                   help="tiny grids and durations (CI smoke run; numbers not meaningful)")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    p.set_defaults(func=cmd_noise)
+__all__ = ["run", "main_noise"]

@@ -2,35 +2,75 @@
 
 Exit codes: 0 the run tracked; 2 bad arguments; 3 the run diverged (a non-finite value or a state bound);
 4 it lost track without diverging (the windowed RMS error above the reference's amplitude, see
-``Scenario.lost_track``). The files are written in every case.
+``Scenario.lost_track``). The files are written in every case. Its options: :func:`ehss_gym.cli.options.add_simulate`
+(every loop setting of :class:`~ehss_gym.core.settings.Scenario` has its flag).
 """
 
 from __future__ import annotations
 
-import argparse
+import math
 import sys
 
 import numpy as np
 
 from ehss_gym.core.metrics import format_summary
+from ehss_gym.core.params import PlantParams
 from ehss_gym.core.response import frequency_response, reference_model_response
-from ehss_gym.core.sim import UNITS, simulate
-from ehss_gym.core.util import atomic_write, atomic_write_text, out_paths
-from ehss_gym.reporting.plotting import plot_frequency_response, plot_trajectory
+from ehss_gym.core.settings import LOOP_SETTINGS, PAPER_FRICTION, UNITS, Scenario
+from ehss_gym.core.signals import chirp, multisine, sine, step
+from ehss_gym.core.sim import simulate
+from ehss_gym.envs.config import EnvConfig
+from ehss_gym.infra.util import atomic_write, atomic_write_text, out_paths
+from ehss_gym.reporting.trajectory_figures import plot_frequency_response, plot_trajectory
 
-from .args import add_loop_arguments, scenario_from_args
+from .options import NONE
 
 EXIT_DIVERGED = 3
 EXIT_LOST_TRACK = 4
-EPILOG = f"""exit codes: 0 the run tracked; 2 bad arguments; {EXIT_DIVERGED} the run diverged (non-finite value or a
-state bound: |x2| > omega_max, |x3| > 1.5 P_s); {EXIT_LOST_TRACK} it lost track without diverging (windowed RMS
-error above the reference's amplitude). The PNG, NPZ and CSV are written in every case.
 
-examples:
-  ehss simulate --out runs/default                      # the recommended loop on the paper's run: tracks
-  ehss simulate --preset paper --t-end 0.05 --out runs/paper   # the printed law: diverges (exit {EXIT_DIVERGED})
-  ehss simulate --reference step --amplitude 0.5 --t-end 2 --out runs/step   # no friction unless --friction
-  ehss simulate --reference chirp --omega-end 300 --t-end 20 --friction none --bode --out runs/chirp"""
+
+def _reference(args, t_end: float):
+    """The reference the arguments ask for (``ValueError`` from the signal builders names a bad value)."""
+    kind = args.reference
+    if kind == "sine":
+        return sine(args.amplitude, args.omega, args.phase, args.offset)
+    if kind == "step":
+        return step(args.amplitude, args.t_step, args.offset)
+    if kind == "chirp":
+        t0, t1 = args.sweep or (0.0, t_end)
+        return chirp(args.amplitude, args.omega_start, args.omega_end, t0, t1, args.phase, args.offset)
+    return multisine(args.amplitudes, args.omegas, args.phases, args.offset)
+
+
+def preset_scenario(preset: str, task: str) -> Scenario:
+    """The loop of a preset: the env's defaults ("recommended") or the law as printed ("paper")."""
+    if preset == "recommended":
+        return EnvConfig.from_kwargs({"task": task}).template()
+    return Scenario(task=task)
+
+
+def default_friction(reference: str) -> tuple:
+    """The friction events a reference family gets when ``--friction`` is not given: the paper's (1.8 N*m from 8 to
+    10 s) belong to the paper's sine run; a step, chirp or multi-sine response is measured without them."""
+    return PAPER_FRICTION if reference == "sine" else ()
+
+
+def scenario_from_args(args) -> Scenario:
+    """The Scenario of ``ehss simulate``'s arguments: the preset's loop with every loop setting given on top.
+
+    Raises:
+        ValueError: a setting the Scenario refuses (the message names it).
+    """
+    base = preset_scenario(args.preset, args.task)
+    changes = {k: getattr(args, k) for k in LOOP_SETTINGS if k != "task" and getattr(args, k, None) is not None}
+    for k, v in changes.items():
+        if v == NONE or (k == "current_limit" and v == math.inf):  # the setting switched off
+            changes[k] = None
+    plant = PlantParams().scaled(**args.mismatch) if args.mismatch else PlantParams()
+    return base.replace(**changes, t_end=args.t_end, reference=_reference(args, args.t_end),
+                        friction=default_friction(args.reference) if args.friction is None else tuple(args.friction),
+                        noise_std=args.noise or (0.0, 0.0, 0.0, 0.0), seed=args.seed, plant=plant,
+                        model=PlantParams() if args.mismatch else None)
 
 
 def _command(argv) -> str:
@@ -60,7 +100,7 @@ def _write_bode(traj, base: str, made_by: str) -> str:
     return base + "_bode.png, " + base + "_bode.csv"
 
 
-def cmd_simulate(args) -> int:
+def run(args) -> int:
     """Run, write the files, print the summary; returns the exit code (module docstring)."""
     prog = "ehss simulate"
     try:
@@ -93,15 +133,4 @@ def cmd_simulate(args) -> int:
     return EXIT_LOST_TRACK if m["lost_track"] else 0
 
 
-def register(sub):
-    p = sub.add_parser("simulate", help="simulate one closed-loop run and write PNG, NPZ, CSV and a summary",
-                       description="One closed-loop run of the EHSS loop. With no settings: the env's recommended "
-                                   "loop on the paper's 20 s run (it tracks); --preset paper gives the law as "
-                                   "printed (it diverges).", epilog=EPILOG,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_loop_arguments(p)
-    p.add_argument("--bode", action="store_true",
-                   help="also estimate the closed loop's r -> y frequency response (needs --reference chirp or "
-                        "multisine): PATH_bode.png and PATH_bode.csv")
-    p.add_argument("--out", required=True, help="output path prefix (PATH.png, PATH.npz, PATH.csv)")
-    p.set_defaults(func=cmd_simulate)
+__all__ = ["run", "scenario_from_args", "preset_scenario", "EXIT_DIVERGED", "EXIT_LOST_TRACK"]

@@ -1,7 +1,7 @@
 """``ehss train``: train residual PPO or pure PPO on EHSSTracking-v0 (one seed, or several in parallel).
 
     ehss train --agent {residual-ppo,ppo} --task velocity --n 2 --timesteps T --seed S [--out runs/NAME] [--resume]
-    ehss train --seeds 0-4 [--jobs J] [...]   # one process per usable core; runs go to <out or runs>/<run name>
+    ehss train --seeds 0-4 [--workers W] [...]   # one process per usable core; runs go to <out or runs>/<run name>
 
 The options are the fields of :class:`ehss_gym.train.config.Config` and :class:`~ehss_gym.train.config.Launch`;
 the runner is :mod:`ehss_gym.train.launch`, the training script :mod:`ehss_gym.train.loop`. Bad input (an
@@ -11,23 +11,12 @@ exits with 2.
 
 from __future__ import annotations
 
-from ehss_gym.train.config import build_parser
+from ehss_gym.train import launch
 
 
 def run(args) -> int:
     """Run ``ehss train`` with parsed arguments (:func:`ehss_gym.train.launch.run_from_args`)."""
-    from ehss_gym.train import launch  # torch and SB3 load only when training runs: every ehss command imports this
-
     return launch.run_from_args(args, prog="ehss train")
 
 
-def register(sub) -> None:
-    """Add ``ehss train`` to the sub-command parsers ``sub``."""
-    p = sub.add_parser("train", help="train residual PPO or pure PPO (checkpoints, resume, held-out evaluation)",
-                       description="Train residual PPO (or pure PPO) on EHSSTracking-v0: one seed, or several "
-                                   "(--seeds) in parallel processes.")
-    build_parser(p, launch=True)
-    p.set_defaults(func=run)
-
-
-__all__ = ["register", "run"]
+__all__ = ["run"]

@@ -5,7 +5,7 @@ validation score); a results table and the best config as JSON that ``ehss train
               [--compare-seeds 3] [--out runs/tune] [--report DIR] [--address HOST:PORT]
 
 Runs on Ray (the ``ray`` extra: ``pip install 'ehss-gym[ray]'``): the cluster at ``--address`` or
-``RAY_ADDRESS``, else a local instance with ``--cpus`` CPUs. The same command after an interruption resumes the
+``RAY_ADDRESS``, else a local instance with ``--workers`` CPUs. The same command after an interruption resumes the
 search (:mod:`ehss_gym.train.tune`). Exit codes: 0 done, 2 bad input (a setting, Ray missing, an unreachable
 address), 1 a search in which no trial finished an evaluation.
 """
@@ -17,11 +17,9 @@ import shlex
 import sys
 import time
 
-from ehss_gym.core.execution import Backend, ExecutionError, Executor, Store
+from ehss_gym.infra.execution import Backend, ExecutionError, Executor, Store
 from ehss_gym.reporting.tune import write_report
 from ehss_gym.train.options import parse_pairs
-
-from .args import int_at_least
 
 
 def _settings(args):
@@ -43,12 +41,12 @@ def _settings(args):
     return search, cfg
 
 
-def cmd_tune(args) -> int:
+def run(args) -> int:
     """Run ``ehss tune``; see the module docstring for the exit codes."""
     prog = "ehss tune"
     t0 = time.perf_counter()
     try:
-        backend = Backend("ray", args.address, workers=args.cpus).validate()  # Ray missing: named here
+        backend = Backend("ray", args.address, workers=args.workers).validate()  # Ray missing: named here
         search, settings = _settings(args)
         # the comparison's training seeds are jobs with a store: a rerun (or a restart) does not train them again
         with Executor(backend, Store(os.path.join(args.out, "jobs"))) as executor:
@@ -67,36 +65,4 @@ def cmd_tune(args) -> int:
     return 0
 
 
-def register(sub) -> None:
-    """Add ``ehss tune`` to the sub-command parsers ``sub``."""
-    p = sub.add_parser("tune", help="hyperparameter search for the residual agent (Ray Tune, Optuna TPE, ASHA)",
-                       description="Search residual PPO's hyperparameters on the held-out validation score with Ray "
-                                   "Tune, Optuna's TPE sampler and ASHA early stopping; resumable.")
-    p.add_argument("--task", choices=("velocity", "position"), default="velocity")
-    p.add_argument("--n", type=int_at_least("--n", 2), default=2, help="power factor of the base law (even)")
-    p.add_argument("--trials", type=int_at_least("--trials", 1), default=16, help="configurations tried")
-    p.add_argument("--timesteps", type=int_at_least("--timesteps", 1), default=100_000,
-                   help="agent steps of a trial ASHA does not stop (the best config's budget)")
-    p.add_argument("--eval-freq", type=int_at_least("--eval-freq", 1), default=25_000,
-                   help="agent steps between validation evaluations (ASHA's rungs)")
-    p.add_argument("--grace", type=int_at_least("--grace", 1), default=None,
-                   help="agent steps before ASHA may stop a trial (default --eval-freq)")
-    p.add_argument("--eval-episodes", type=int_at_least("--eval-episodes", 1), default=8)
-    p.add_argument("--eval-seconds", type=float, default=2.0, help="validation episode duration [s]")
-    p.add_argument("--n-envs", type=int_at_least("--n-envs", 1), default=None, help="parallel envs per trial")
-    p.add_argument("--seed", type=int_at_least("--seed", 0), default=0, help="training and sampler seed")
-    p.add_argument("--concurrent", type=int_at_least("--concurrent", 1), default=2, help="trials at a time")
-    p.add_argument("--compare-seeds", type=int_at_least("--compare-seeds", 0), default=0,
-                   help="fresh seeds training the best config and the shipped recipe for the report's comparison")
-    p.add_argument("--hp", action="append", default=None, metavar="KEY=JSON",
-                   help="a hyperparameter every trial keeps (not searched), as for ehss train; repeatable")
-    p.add_argument("--cpus", type=int_at_least("--cpus", 1), default=None,
-                   help="CPUs of a local Ray instance (default: the usable cores)")
-    p.add_argument("--address", default=None, metavar="HOST:PORT", help="the Ray cluster (default RAY_ADDRESS)")
-    p.add_argument("--out", default=os.path.join("runs", "tune"),
-                   help="the search's folder: Tune's state, trial runs, trials.json, best_config.json")
-    p.add_argument("--report", default=None, help="folder of TUNE.md, trials.csv, compare.csv (default --out)")
-    p.set_defaults(func=cmd_tune)
-
-
-__all__ = ["register", "cmd_tune"]
+__all__ = ["run"]

@@ -3,10 +3,10 @@
 Scripted CLF policies are named (:func:`parse_scripted`):
 
 - ``clf-n<k>``: the env's default law and estimator for each task (the noise study's choice, ``ehss noise``), n = k;
-- ``<law>-n<k>``: that law (``sontag``, ``lin-sontag``) with the env's default estimator and that law's default
-  sigma (:attr:`ehss_gym.envs.config.TaskDefaults.sigma_by_law`);
-- ``<law>-<estimator>-n<k>``: that law with that estimator (``foh``, ``zoh``, ``analog``, ``state``, ``eso``), e.g.
-  ``sontag-foh-n2``: Sontag's formula with the paper's state-variable filter.
+- ``<law>-n<k>``: that law (a row of :data:`ehss_gym.core.registry.LAWS`, e.g. ``sontag``, ``lin-sontag``) with the
+  env's default estimator and that law's default sigma (:attr:`ehss_gym.envs.config.TaskDefaults.sigma_by_law`);
+- ``<law>-<estimator>-n<k>``: that law with that estimator (a row of :data:`ehss_gym.core.registry.ESTIMATORS`, e.g.
+  ``foh``, ``eso``), e.g. ``sontag-foh-n2``: Sontag's formula with the paper's state-variable filter.
 
 The start-up settings (bumpless start, reference shaper, the model's pressure domain) are the env's defaults in every
 case; pass them as env overrides to change them.
@@ -18,11 +18,12 @@ import re
 
 import numpy as np
 
-from ehss_gym.core.layout import ESTIMATORS, LAWS
+from ehss_gym.core.registry import ESTIMATORS, LAWS, names
 
 from .base import ScriptedPolicy
 
-_NAME_RE = re.compile(r"^(clf|" + "|".join(map(re.escape, LAWS)) + r")(?:-(" + "|".join(ESTIMATORS) + r"))?-n(\d+)$")
+_NAME_RE = re.compile(r"^(clf|" + "|".join(map(re.escape, names(LAWS))) + r")(?:-("
+                      + "|".join(map(re.escape, names(ESTIMATORS))) + r"))?-n(\d+)$")
 SCRIPTED_FORMS = ("clf-n<k>", "<law>-n<k>", "<law>-<estimator>-n<k>")
 
 

@@ -3,7 +3,7 @@
 The procedure (Astrom-Hagglund relay experiment, classic rules, selection, refinement) is described in
 :mod:`ehss_gym.controllers`; :data:`PID_GAINS` stores its output for the env's default settings and
 ``tests/test_policies.py`` re-runs it. Every tuning run goes through the one rollout loop
-(:func:`ehss_gym.envs.rollout.rollout`).
+(:func:`ehss_gym.envs.rollouts.rollout`).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ with Butterworth coefficients c_i at the cutoff omega_c = 2 pi f_c, computed
 from the poles rather than the paper's rounded 2.61 / 3.41 (the same operations
 as ``scipy.signal.butter(..., analog=True)``, bit for bit; not importing
 scipy.signal saves ~0.8 s at import). The state is (z, z', ..., z^(m-1)); the m-th derivative comes from
-the filter's own equation with the current input (NOTES item 12).
+the filter's own equation with the current input (docs/MODEL.md, "Digital filters").
 
 A digital controller runs them at the control period h, in one of three schemes
 (``Scenario.estimator``; the derivation and the error of each are in docs/MODEL.md, "Digital filters"):
@@ -19,9 +19,9 @@ A digital controller runs them at the control period h, in one of three schemes
   Every output converges to the analog filter's at O(h^2).
 - ``"zoh"``: the input is held (exact zero-order-hold discretisation, D = 0), but the top derivative
   takes the *current* sample: the state lags the analog filter by ~h/2 and the top derivative is
-  biased by ~c_0 (h/2) v' (O(h)). Wave 1's scheme, kept to show the effect.
+  biased by ~c_0 (h/2) v' (O(h)). The first implementation's scheme, kept to show the effect.
 - ``"analog"``: the continuous filters integrated together with the plant by its RK4
-  (:func:`ehss_gym.core.control.integrate_lanes`); Phi, E, D are unused (identity, 0, 0).
+  (:func:`ehss_gym.core.physics.integrate_lanes`); Phi, E, D are unused (identity, 0, 0).
 """
 
 from __future__ import annotations
@@ -30,11 +30,27 @@ import functools
 import math
 
 import numpy as np
-import scipy.linalg
 
-from .layout import MAX_ORDER, SVF_ESTIMATORS
+from .layout import (
+    FB_D_OBS,
+    FB_E_OBS,
+    FB_PHI_EST,
+    FB_PHI_OBS,
+    FB_PHI_REF,
+    FB_VEC,
+    FB_VEC2,
+    FBV_C_EST,
+    FBV_C_REF,
+    FBV_D_EST,
+    FBV_D_REF,
+    FBV_E_EST,
+    FBV_E_REF,
+    MAX_ORDER,
+    N_FB,
+)
+from .registry import ESTIMATORS, entry
 
-SCHEMES = SVF_ESTIMATORS  # how a continuous filter runs: "foh", "zoh" or "analog"
+SCHEMES = ("foh", "zoh", "analog")  # how a continuous filter runs (an estimator's ``svf`` is one of them)
 
 
 def butterworth_coefficients(order: int, cutoff_hz: float) -> np.ndarray:
@@ -90,6 +106,8 @@ def hold_integrals_ab(A: np.ndarray, Bm: np.ndarray, h: float) -> tuple[np.ndarr
     M[:n, :n] = A * h
     M[:n, n:n + p] = Bm * h
     M[n:n + p, n + p:] = np.eye(p)
+    import scipy.linalg  # 0.5 s to import, only where a filter is discretised: the command line reads this module
+
     E = scipy.linalg.expm(M)
     return E[:n, :n].copy(), E[:n, n:n + p].copy(), E[:n, n + p:].copy()
 
@@ -175,3 +193,38 @@ def padded_filter(order: int, cutoff_hz: float, h: float, scheme: str = "foh", s
     for arr in (cp, P, ep, dp):
         arr.flags.writeable = False
     return cp, P, ep, dp
+
+
+def filter_block(order: int, ref_hz: float, est_hz: float, h: float, estimator: str = "foh",
+                 observer_hz: float = 200.0) -> np.ndarray:
+    """The (N_FB, 4, 4) filter block (layout FB_*) read by the controller kernels.
+
+    The reference model and the SVF run in the estimator's scheme (its ``svf``: "foh" for "state" and "eso", whose
+    SVF rows are then unused); an estimator with an observer gets its block (bandwidth ``observer_hz`` [Hz]).
+
+    Args:
+        order: relative degree m of the output (the reference model's order; the SVF's is m - 1).
+        ref_hz: reference-model cutoff [Hz].
+        est_hz: SVF cutoff [Hz].
+        h: control period [s].
+        estimator: the estimator's name (a row of :data:`ehss_gym.core.registry.ESTIMATORS`).
+        observer_hz: the observer's error bandwidth [Hz].
+    """
+    row = entry(ESTIMATORS, estimator, "estimator")
+    cr, pr, er, dr = padded_filter(order, ref_hz, h, row.svf)
+    ce, pe, ee, de = padded_filter(order - 1, est_hz, h, row.svf)
+    f = np.zeros((N_FB, MAX_ORDER, MAX_ORDER))
+    if row.observer:
+        po, eo, do = observer_filter(float(observer_hz), float(h))
+        f[FB_PHI_OBS, :2, :2] = po
+        f[FB_E_OBS, :2, :2] = eo
+        f[FB_D_OBS, :2, :2] = do
+    f[FB_PHI_REF] = pr
+    f[FB_PHI_EST] = pe
+    f[FB_VEC, FBV_C_REF] = cr
+    f[FB_VEC, FBV_C_EST] = ce
+    f[FB_VEC, FBV_E_REF] = er
+    f[FB_VEC, FBV_E_EST] = ee
+    f[FB_VEC2, FBV_D_REF] = dr
+    f[FB_VEC2, FBV_D_EST] = de
+    return f

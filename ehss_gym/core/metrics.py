@@ -1,8 +1,8 @@
 """Tracking and control metrics of a closed-loop run.
 
 Most metrics are accumulated at the full control rate inside the compiled loop
-(layout ``M_*``), so logging decimation does not bias them. Recovery times need
-the time history and use the logged trajectory.
+(layout ``M_*``, :func:`accumulate`), so logging decimation does not bias them; :func:`summarize_acc` turns an
+accumulator row into the metrics. Recovery times need the time history and use the logged trajectory.
 
 Definitions (e = y - y_d in the output unit, u the applied current in mA, h the
 control period, T the simulated time):
@@ -49,10 +49,140 @@ import math
 
 import numpy as np
 
-from . import layout as L
+from .jit import jit_inline
+from .layout import (
+    DIV_NAMES,
+    DIV_NONE,
+    EV_AMP,
+    EV_END,
+    EV_START,
+    I_E,
+    I_E_R,
+    I_E_TRUE,
+    I_SAT,
+    I_T,
+    I_UAPP,
+    I_UCMD,
+    I_V,
+    LOST_TRACK_WINDOW,
+    M_DIVERGED,
+    M_LAST_U,
+    M_LAST_V,
+    M_LOST,
+    M_LOST_BOUND,
+    M_LOST_EMA,
+    M_MAX_E,
+    M_MAX_E_FRIC,
+    M_MAX_E_FRIC_TRUE,
+    M_N_SAT,
+    M_N_VDEC,
+    M_PEAK_UAPP,
+    M_PEAK_UCMD,
+    M_STEPS,
+    M_STEPS_FRIC,
+    M_STEPS_NOFRIC,
+    M_STEPS_QUIET,
+    M_STEPS_SETTLED,
+    M_SUM_ABS_E,
+    M_SUM_E2,
+    M_SUM_E2_NOFRIC,
+    M_SUM_E2_QUIET,
+    M_SUM_E2_QUIET_TRUE,
+    M_SUM_E2_SETTLED,
+    M_SUM_E2_TRUE,
+    M_SUM_ER2,
+    M_SUM_T_ABS_E,
+    M_SUM_U2,
+    M_T_DIVERGED,
+    M_T_LOST,
+    M_TV_U,
+    QUIET_GUARD,
+    QUIET_STARTUP,
+    R_A1,
+    R_T0,
+)
 from .response import step_metrics
 
 RECOVERY_SHARE = 0.1  # the settling band includes this share of the edge's peak |e| (a 90 % recovery)
+
+
+# --- The accumulator, at the control rate (compiled) ----------------------------------------------------
+
+
+def init_accumulator(acc: np.ndarray, lost_track_bound: float) -> None:
+    """Set the parameters of a fresh (zeroed) accumulator row (layout M_*): the lost-track bound [output unit]."""
+    acc[M_T_DIVERGED] = -1.0
+    acc[M_LOST_BOUND] = lost_track_bound
+    acc[M_T_LOST] = -1.0
+
+
+@jit_inline
+def accumulate(acc, info, h, k, events):
+    """Fold one control step's info into the metrics accumulator (layout M_*): what :func:`summarize_acc` reads.
+
+    Called once per control period and lane by :func:`ehss_gym.core.loop.lanes_period`, after the period's
+    divergence checks passed. ``h`` is the control period [s], ``k`` the step index, ``events`` the run's friction
+    events (E, 3), which classify the sample: in a friction event, or *quiet* (past the start-up, and neither in an
+    event nor within QUIET_GUARD after one ends).
+    """
+    t = info[I_T]
+    fric_on = False
+    quiet = t >= QUIET_STARTUP
+    for i in range(events.shape[0]):
+        if events[i, EV_AMP] != 0.0 and events[i, EV_START] <= t < events[i, EV_END] + QUIET_GUARD:
+            quiet = False
+            if t < events[i, EV_END]:
+                fric_on = True
+    e = info[I_E]
+    ae = abs(e)
+    et = info[I_E_TRUE]
+    acc[M_SUM_E2_TRUE] += et * et
+    acc[M_SUM_ER2] += info[I_E_R] * info[I_E_R]
+    acc[M_STEPS] += 1.0
+    acc[M_SUM_E2] += e * e
+    acc[M_SUM_ABS_E] += ae * h
+    acc[M_SUM_T_ABS_E] += t * ae * h
+    if ae > acc[M_MAX_E]:
+        acc[M_MAX_E] = ae
+    if fric_on:
+        acc[M_STEPS_FRIC] += 1.0
+        if ae > acc[M_MAX_E_FRIC]:
+            acc[M_MAX_E_FRIC] = ae
+        if abs(et) > acc[M_MAX_E_FRIC_TRUE]:
+            acc[M_MAX_E_FRIC_TRUE] = abs(et)
+    else:
+        acc[M_STEPS_NOFRIC] += 1.0
+        acc[M_SUM_E2_NOFRIC] += e * e
+    if quiet:
+        acc[M_STEPS_QUIET] += 1.0
+        acc[M_SUM_E2_QUIET] += e * e
+        acc[M_SUM_E2_QUIET_TRUE] += et * et
+    if t >= QUIET_STARTUP:
+        if not fric_on:
+            acc[M_STEPS_SETTLED] += 1.0
+            acc[M_SUM_E2_SETTLED] += e * e
+        # lost track: the windowed RMS of e above its bound (from the start-up's end; the window starts empty)
+        acc[M_LOST_EMA] += (e * e - acc[M_LOST_EMA]) * min(1.0, h / LOST_TRACK_WINDOW)
+        if acc[M_LOST] == 0.0 and acc[M_LOST_EMA] > acc[M_LOST_BOUND] * acc[M_LOST_BOUND]:
+            acc[M_LOST] = 1.0
+            acc[M_T_LOST] = t
+    u = info[I_UAPP]
+    if k > 0:
+        acc[M_TV_U] += abs(u - acc[M_LAST_U])
+        if info[I_V] < acc[M_LAST_V]:
+            acc[M_N_VDEC] += 1.0
+    acc[M_LAST_U] = u
+    acc[M_LAST_V] = info[I_V]
+    uc = abs(info[I_UCMD])
+    if uc > acc[M_PEAK_UCMD]:
+        acc[M_PEAK_UCMD] = uc
+    if abs(u) > acc[M_PEAK_UAPP]:
+        acc[M_PEAK_UAPP] = abs(u)
+    acc[M_SUM_U2] += u * u
+    acc[M_N_SAT] += info[I_SAT]
+
+
+# --- The summary, from the accumulator and the logged trajectory ---------------------------------------
 
 
 def recovery_times(t: np.ndarray, e: np.ndarray, friction) -> tuple[float, float]:
@@ -102,7 +232,7 @@ def step_summary(traj) -> dict:
     """
     ref = traj.scenario.reference
     y0 = ref.offset
-    m = step_metrics(traj.t, traj.y, float(ref.spec[L.R_T0]), y0, y0 + float(ref.spec[L.R_A1]))
+    m = step_metrics(traj.t, traj.y, float(ref.spec[R_T0]), y0, y0 + float(ref.spec[R_A1]))
     return {f"step_{k}": v for k, v in m.items() if k != "final_value"}
 
 
@@ -112,35 +242,35 @@ def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray 
     ``t`` and ``e`` (a sampled error history) are needed only for the recovery
     times; without them those are NaN.
     """
-    steps = max(a[L.M_STEPS], 1.0)
+    steps = max(a[M_STEPS], 1.0)
     T = steps * sc.control_period
     out = {
-        "diverged": bool(a[L.M_DIVERGED] != L.DIV_NONE),
-        "divergence_reason": L.DIV_NAMES[int(a[L.M_DIVERGED])],
-        "t_diverged": float(a[L.M_T_DIVERGED]) if a[L.M_DIVERGED] else None,
-        "rmse": float(math.sqrt(a[L.M_SUM_E2] / steps)),
-        "rmse_nominal": math.sqrt(a[L.M_SUM_E2_NOFRIC] / max(a[L.M_STEPS_NOFRIC], 1.0)),
-        "rmse_nominal_settled": (math.sqrt(a[L.M_SUM_E2_SETTLED] / a[L.M_STEPS_SETTLED]) if a[L.M_STEPS_SETTLED]
+        "diverged": bool(a[M_DIVERGED] != DIV_NONE),
+        "divergence_reason": DIV_NAMES[int(a[M_DIVERGED])],
+        "t_diverged": float(a[M_T_DIVERGED]) if a[M_DIVERGED] else None,
+        "rmse": float(math.sqrt(a[M_SUM_E2] / steps)),
+        "rmse_nominal": math.sqrt(a[M_SUM_E2_NOFRIC] / max(a[M_STEPS_NOFRIC], 1.0)),
+        "rmse_nominal_settled": (math.sqrt(a[M_SUM_E2_SETTLED] / a[M_STEPS_SETTLED]) if a[M_STEPS_SETTLED]
                                  else math.nan),
-        "lost_track": bool(a[L.M_LOST] > 0.0),
-        "t_lost_track": float(a[L.M_T_LOST]) if a[L.M_LOST] > 0.0 else None,
-        "rmse_quiet": math.sqrt(a[L.M_SUM_E2_QUIET] / a[L.M_STEPS_QUIET]) if a[L.M_STEPS_QUIET] else math.nan,
-        "rmse_true": float(math.sqrt(a[L.M_SUM_E2_TRUE] / steps)),
-        "rmse_r": float(math.sqrt(a[L.M_SUM_ER2] / steps)),
-        "rmse_quiet_true": (math.sqrt(a[L.M_SUM_E2_QUIET_TRUE] / a[L.M_STEPS_QUIET]) if a[L.M_STEPS_QUIET]
+        "lost_track": bool(a[M_LOST] > 0.0),
+        "t_lost_track": float(a[M_T_LOST]) if a[M_LOST] > 0.0 else None,
+        "rmse_quiet": math.sqrt(a[M_SUM_E2_QUIET] / a[M_STEPS_QUIET]) if a[M_STEPS_QUIET] else math.nan,
+        "rmse_true": float(math.sqrt(a[M_SUM_E2_TRUE] / steps)),
+        "rmse_r": float(math.sqrt(a[M_SUM_ER2] / steps)),
+        "rmse_quiet_true": (math.sqrt(a[M_SUM_E2_QUIET_TRUE] / a[M_STEPS_QUIET]) if a[M_STEPS_QUIET]
                             else math.nan),
-        "iae": float(a[L.M_SUM_ABS_E]),
-        "itae": float(a[L.M_SUM_T_ABS_E]),
-        "max_abs_e": float(a[L.M_MAX_E]),
-        "max_abs_e_friction": float(a[L.M_MAX_E_FRIC]) if a[L.M_STEPS_FRIC] else math.nan,
-        "max_abs_e_friction_true": float(a[L.M_MAX_E_FRIC_TRUE]) if a[L.M_STEPS_FRIC] else math.nan,
-        "tv_u": float(a[L.M_TV_U]),
-        "tv_u_rate": float(a[L.M_TV_U] / T),
-        "peak_u": float(a[L.M_PEAK_UCMD]),
-        "peak_u_applied": float(a[L.M_PEAK_UAPP]),
-        "rms_u": math.sqrt(a[L.M_SUM_U2] / steps),
-        "saturation": float(a[L.M_N_SAT] / steps),
-        "v_decrease": float(a[L.M_N_VDEC] / max(steps - 1.0, 1.0)),
+        "iae": float(a[M_SUM_ABS_E]),
+        "itae": float(a[M_SUM_T_ABS_E]),
+        "max_abs_e": float(a[M_MAX_E]),
+        "max_abs_e_friction": float(a[M_MAX_E_FRIC]) if a[M_STEPS_FRIC] else math.nan,
+        "max_abs_e_friction_true": float(a[M_MAX_E_FRIC_TRUE]) if a[M_STEPS_FRIC] else math.nan,
+        "tv_u": float(a[M_TV_U]),
+        "tv_u_rate": float(a[M_TV_U] / T),
+        "peak_u": float(a[M_PEAK_UCMD]),
+        "peak_u_applied": float(a[M_PEAK_UAPP]),
+        "rms_u": math.sqrt(a[M_SUM_U2] / steps),
+        "saturation": float(a[M_N_SAT] / steps),
+        "v_decrease": float(a[M_N_VDEC] / max(steps - 1.0, 1.0)),
         "steps": int(steps),
     }
     on, off = (math.nan, math.nan) if t is None or e is None else recovery_times(t, e, sc.friction)

@@ -25,7 +25,7 @@ class PlantParams(NamedTuple):
         P_s: supply pressure [Pa].
         K: servo-valve amplifier gain [m^2/mA]; the control u is in mA.
         tau: servo-valve time constant [s].
-        delta_valve: sigmoid constant for sign(x4), Eq. (2) [m^4] (NOTES item 3).
+        delta_valve: sigmoid constant for sign(x4), Eq. (2) [m^4] (docs/MODEL.md, "Plant").
         delta_friction: sigmoid constant for sign(x2) in the friction law,
             Eq. (25) [(rad/s)^2].
         dp_transition: pressure below which the orifice turns laminar [Pa].

@@ -1,6 +1,6 @@
 r"""The EHSS plant, Eq. (1), and its Lie derivatives, as pure compiled functions.
 
-Model (NOTES.md items 1-3; friction T_f from the event list, Eq. 25)::
+Model (docs/MODEL.md, "The plant"; friction T_f from the event list, Eq. 25)::
 
     x1' = x2
     x2' = (d_m x3 - B x2 - T_f) / J
@@ -25,25 +25,40 @@ with C = 4 beta / V_m, Q_3 = dQ/dx3, Q_4 = dQ/dx4. The position output y = x1
 has one more integrator: h = (x1, x2, f2, h2) and y'''' = F + G u with the same
 F and G. These are checked against finite differences and a symbolic
 derivation in ``tests/test_physics.py``.
+
+The loop's one integrator is here too: :func:`integrate_lanes` advances B loops over a control period by classic
+RK4, the plants and, for the "analog" estimator, the continuous reference model and state-variable filter with them
+(:func:`analog_filter_rhs`).
 """
 
 from __future__ import annotations
 
 import math
 
-import numba as nb
 import numpy as np
 
-from .layout import F_AMP, F_END, F_START, X_AV, X_OMEGA, X_PL, X_THETA
+from .jit import jit, jit_noalloc
+from .layout import (
+    EV_AMP,
+    EV_END,
+    EV_START,
+    FB_VEC,
+    FBV_C_EST,
+    FBV_C_REF,
+    MAX_ORDER,
+    N_FB,
+    N_PLANT,
+    N_REF,
+    X_AV,
+    X_OMEGA,
+    X_PL,
+    X_THETA,
+    Z_EST,
+    Z_REF,
+)
 from .params import P_B, P_BETA, P_CD, P_CSM, P_DF, P_DM, P_DPT, P_DV, P_J, P_K, P_PS, P_RHO, P_TAU, P_VM
-
-jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
-# The hot per-period kernels (lanes, controller, env step) are compiled without numba's reference-counting
-# runtime (NRT): they never allocate, and with NRT every array view they take (z[b], work[0], events[b], ...)
-# costs an atomic incref/decref pair, measured at ~40 % of an env step. Without NRT such a view is a plain
-# struct; a kernel that tries to allocate fails to compile ("NRT required but not enabled") rather than
-# misbehaving. ``_nrt`` is numba's (underscore) flag for this; 0.68 honours it.
-jit_noalloc = nb.njit(cache=True, fastmath=False, error_model="numpy", _nrt=False)
+from .references import reference_value
+from .settings import C_ANALOG, C_ORDER, N_CTRL
 
 
 @jit
@@ -92,8 +107,8 @@ def active_amplitude(t, events):
     """Sum of the amplitudes [N*m] of the friction events active at time t [s]."""
     amp = 0.0
     for i in range(events.shape[0]):
-        if events[i, F_START] <= t < events[i, F_END]:
-            amp += events[i, F_AMP]
+        if events[i, EV_START] <= t < events[i, EV_END]:
+            amp += events[i, EV_AMP]
     return amp
 
 
@@ -108,11 +123,8 @@ def friction_torque(t, omega, events, delta_friction):
 
 @jit
 def plant_rhs(x, u, tf, p, dx):
-    """Write x' of Eq. (1) into ``dx`` for current u [mA] and friction tf [N*m].
-
-    The expression shapes match :func:`lane_rhs` exactly, so the scalar and
-    lane integrators agree to the last bit.
-    """
+    """Write x' of Eq. (1) into ``dx`` for current u [mA] and friction tf [N*m] (one state; the loop integrates
+    :func:`lane_rhs`, the same expressions over lanes)."""
     x2 = x[X_OMEGA]
     x3 = x[X_PL]
     x4 = x[X_AV]
@@ -123,37 +135,6 @@ def plant_rhs(x, u, tf, p, dx):
     dx[X_OMEGA] = p[P_DM] / p[P_J] * x3 - p[P_B] / p[P_J] * x2 - 1.0 / p[P_J] * tf
     dx[X_PL] = 4.0 * p[P_BETA] / p[P_VM] * (q - p[P_DM] * x2 - p[P_CSM] * x3)
     dx[X_AV] = p[P_K] / p[P_TAU] * u - 1.0 / p[P_TAU] * x4
-
-
-@jit_noalloc
-def integrate_plant(x, u, t0, h, substeps, p, events, work):
-    """Advance the plant state ``x`` in place over [t0, t0+h] with u held (ZOH).
-
-    Classic RK4 with ``substeps`` equal steps. The friction events are switched
-    on the substep grid: the amplitude is taken at each substep's midpoint and
-    held over it, so an edge on the grid is exact and one between grid points
-    is resolved to within a substep. (Evaluating it per RK4 stage would let
-    the step just before an edge see the new value at its end point.)
-    ``work`` is scratch of shape (5, 4).
-    """
-    dt = h / substeps
-    k1, k2, k3, k4, xt = work[0], work[1], work[2], work[3], work[4]  # the RK4 stages and the stage state
-    n = x.shape[0]
-    for j in range(substeps):
-        amp = active_amplitude(t0 + (j + 0.5) * dt, events)
-        plant_rhs(x, u, amp * (x[X_OMEGA] / math.sqrt(x[X_OMEGA] * x[X_OMEGA] + p[P_DF])), p, k1)
-        for i in range(n):
-            xt[i] = x[i] + 0.5 * dt * k1[i]
-        plant_rhs(xt, u, amp * (xt[X_OMEGA] / math.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k2)
-        for i in range(n):
-            xt[i] = x[i] + 0.5 * dt * k2[i]
-        plant_rhs(xt, u, amp * (xt[X_OMEGA] / math.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k3)
-        for i in range(n):
-            xt[i] = x[i] + dt * k3[i]
-        plant_rhs(xt, u, amp * (xt[X_OMEGA] / math.sqrt(xt[X_OMEGA] * xt[X_OMEGA] + p[P_DF])), p, k4)
-        for i in range(n):
-            x[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-        x[X_PL] = relief(x[X_PL], p[P_PS])
 
 
 # Lane constants: per-scenario coefficients laid out (N_LANE_CONST, lanes) so the
@@ -244,6 +225,98 @@ def lie_derivatives(x, p, order, h):
         h[2] = f2
         h[3] = h2
     return F, G
+
+
+# --- The loop's integrator: RK4 over a control period, the plants and the analog filters ------------------
+
+
+@jit
+def analog_filter_rhs(X, ts, ctrl, ref, filt, ynoise, D, B):
+    """D[4:, b] = the continuous reference model's and estimator's derivatives for the "analog" lanes.
+
+    The reference model is driven by r(ts), the estimator by the plant output in X plus the sensor noise
+    of the last sample (held: a sampled sensor). Other lanes get zeros (their filters are digital).
+    """
+    for b in range(B):
+        for i in range(N_PLANT, D.shape[0]):
+            D[i, b] = 0.0
+        if ctrl[b, C_ANALOG] == 0.0:
+            continue
+        m = int(ctrl[b, C_ORDER])
+        cr = filt[b, FB_VEC, FBV_C_REF]
+        acc = cr[0] * reference_value(ts, ref[b])
+        for i in range(m):
+            acc -= cr[i] * X[Z_REF + i, b]
+        for i in range(m - 1):
+            D[Z_REF + i, b] = X[Z_REF + i + 1, b]
+        D[Z_REF + m - 1, b] = acc
+        ce = filt[b, FB_VEC, FBV_C_EST]
+        me = m - 1
+        y = (X[X_THETA, b] if m == 4 else X[X_OMEGA, b]) + ynoise[b]
+        acc = ce[0] * y
+        for i in range(me):
+            acc -= ce[i] * X[Z_EST + i, b]
+        for i in range(me - 1):
+            D[Z_EST + i, b] = X[Z_EST + i + 1, b]
+        D[Z_EST + me - 1, b] = acc
+
+
+@jit_noalloc
+def integrate_lanes(X, U, t0, h, substeps, c, events, work, analog, ctrl, ref, filt, ynoise):
+    """Advance B loops over [t0, t0+h] with their currents held (ZOH): classic RK4, ``substeps`` equal steps.
+
+    The plant rows X[:4] of every lane are integrated (:func:`lane_rhs`); with ``analog`` also the filter rows X[4:]
+    of the lanes whose estimator is analog: the reference model (input r(t)) and the estimator (input y(t) + the
+    held noise) in the same RK4 stages (:func:`analog_filter_rhs`), so they see the plant's intra-period motion as a
+    continuous filter would. Friction events switch on the substep grid: the amplitude is taken at each substep's
+    midpoint and held over it, so an edge on the grid is exact and one between grid points is resolved to within a
+    substep (evaluating it per RK4 stage would let the step just before an edge see the new value at its end point).
+
+    Args:
+        X: loop states (N_LOOP, B) (rows as the loop state z; only 4 rows are read without ``analog``),
+            updated in place.
+        U: held currents (B,) [mA].
+        t0: start time [s].
+        h: control period [s].
+        substeps: RK4 steps per period.
+        c: lane constants (N_LANE_CONST, B).
+        events: friction events (B, E, 3).
+        work: scratch (6, N_LOOP, B).
+        analog: integrate the analog lanes' filters too (some lane's estimator is analog).
+        ctrl: controller rows (B, N_CTRL); read with ``analog``.
+        ref: reference spec rows (B, N_REF); read with ``analog``.
+        filt: filter blocks (B, N_FB, 4, 4); read with ``analog``.
+        ynoise: the sensor noise on the output at the last sample (B,) [output unit]; read with ``analog``.
+    """
+    B = X.shape[1]
+    n = X.shape[0] if analog else N_PLANT
+    dt = h / substeps
+    k1, k2, k3, k4, xt = work[0], work[1], work[2], work[3], work[4]  # the RK4 stages and the stage state
+    amp = work[5, 0]
+    for j in range(substeps):
+        ts = t0 + j * dt
+        for b in range(B):
+            amp[b] = active_amplitude(t0 + (j + 0.5) * dt, events[b])
+        for xs, kk, tstage, half in ((X, k1, ts, 0.5), (xt, k2, ts + 0.5 * dt, 0.5), (xt, k3, ts + 0.5 * dt, 1.0)):
+            lane_rhs(xs, amp, U, c, kk, B)
+            if analog:
+                analog_filter_rhs(xs, tstage, ctrl, ref, filt, ynoise, kk, B)
+            for i in range(n):
+                for b in range(B):
+                    xt[i, b] = X[i, b] + half * dt * kk[i, b]
+        lane_rhs(xt, amp, U, c, k4, B)
+        if analog:
+            analog_filter_rhs(xt, ts + dt, ctrl, ref, filt, ynoise, k4, B)
+        for i in range(n):
+            for b in range(B):
+                X[i, b] += dt / 6.0 * (k1[i, b] + 2.0 * k2[i, b] + 2.0 * k3[i, b] + k4[i, b])
+        for b in range(B):
+            X[X_PL, b] = relief(X[X_PL, b], c[LC_PS, b])
+
+
+def plant_only_arrays(B: int):
+    """(ctrl, ref, filt, ynoise) placeholders for :func:`integrate_lanes` without analog filters (never read)."""
+    return np.zeros((B, N_CTRL)), np.zeros((B, N_REF)), np.zeros((B, N_FB, MAX_ORDER, MAX_ORDER)), np.zeros(B)
 
 
 # --- Counter-based Gaussian noise: deterministic whatever the thread layout ---

@@ -1,6 +1,6 @@
 """Episode scenarios for the Gymnasium env: the paper's run and a randomised training distribution.
 
-A scenario is a core :class:`~ehss_gym.core.sim.Scenario`. The env supplies the controller settings (task, n,
+A scenario is a core :class:`~ehss_gym.core.settings.Scenario`. The env supplies the controller settings (task, n,
 f_r, sigma, smoothing, current limit, control period, substeps, estimator); this module supplies the
 *physical* episode: the reference, the friction events, the true plant (model mismatch), the sensor
 noise, the noise seed and the duration (:data:`PHYSICAL_FIELDS`).
@@ -40,14 +40,12 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from .params import PlantParams
+from .settings import PAPER_FRICTION, PHYSICAL_FIELDS, Scenario
 from .signals import FAMILIES, chirp, multisine, paper_reference, sine, step
-from .sim import PAPER_FRICTION, Scenario
 
 TRAIN_SEED_LIMIT = 2**62  # training scenario seeds are < this; held-out seeds are >= this
 HELDOUT_SEED_BASE = TRAIN_SEED_LIMIT
 PAPER_T_END = 20.0  # [s]
-# Scenario fields an episode (not the controller) sets; the rest must match the env's settings.
-PHYSICAL_FIELDS = ("reference", "friction", "plant", "model", "noise_std", "seed", "t_end", "log_interval")
 MISMATCH_PARAMS = ("beta", "J", "B", "c_sm", "P_s")
 
 

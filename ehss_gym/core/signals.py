@@ -1,8 +1,9 @@
 """Reference signals r(t): the paper's sine, plus step, chirp and multi-sine, and any signal given as samples
 (:func:`from_array`) or as a Python function (:func:`from_function`).
 
-Each reference is a flat float64 spec row (layout ``R_*``) evaluated by one
-compiled function, so a batch of scenarios can mix families. A sampled ("table") reference carries its samples
+Each reference is a flat float64 spec row (layout ``R_*``) evaluated by one compiled function
+(:func:`ehss_gym.core.references.reference_value`), so a batch of scenarios can mix families; the families are the
+rows of :data:`ehss_gym.core.registry.REFERENCE_FAMILIES`. A sampled ("table") reference carries its samples
 in its row, so its row is longer: :func:`~ehss_gym.core.sim.simulate` and
 :func:`~ehss_gym.core.sim.simulate_batch` run it; the env, whose lanes hold fixed-size rows, does not.
 """
@@ -14,86 +15,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .layout import (
-    MAX_SINES,
-    N_REF,
-    R_A1,
-    R_KIND,
-    R_MS0,
-    R_OFFSET,
-    R_P1,
-    R_T0,
-    R_T1,
-    R_TAB0,
-    R_TAB_N,
-    R_W1,
-    R_W_END,
-    REF_CHIRP,
-    REF_MULTISINE,
-    REF_SINE,
-    REF_STEP,
-    REF_TABLE,
-)
-from .physics import jit
+from .layout import MAX_SINES, N_REF, R_A1, R_KIND, R_MS0, R_OFFSET, R_P1, R_T0, R_T1, R_TAB0, R_TAB_N, R_W1, R_W_END
+from .registry import REFERENCE_FAMILIES, code
 from .validate import check_finite
 
-FAMILIES = ("sine", "step", "chirp", "multisine")  # the parametric families (the env's and the CLI's)
+FAMILIES = tuple(f.name for f in REFERENCE_FAMILIES if f.parametric)  # the parametric families (the env's and CLI's)
 MAX_TABLE = 1_000_000  # samples of a table reference
-
-
-@jit
-def reference_value(t, spec):
-    """r(t) for a spec row [output unit: rad/s (velocity) or rad (position)]."""
-    kind = int(spec[R_KIND])
-    r = spec[R_OFFSET]
-    if kind == REF_SINE:
-        r += spec[R_A1] * math.sin(spec[R_W1] * t + spec[R_P1])
-    elif kind == REF_STEP:
-        if t >= spec[R_T0]:
-            r += spec[R_A1]
-    elif kind == REF_CHIRP:
-        # linear frequency sweep w1 -> w_end over [t0, t1], then constant w_end
-        t0 = spec[R_T0]
-        t1 = spec[R_T1]
-        w0 = spec[R_W1]
-        w1 = spec[R_W_END]
-        if t < t0:
-            ph = w0 * (t - t0)
-        elif t < t1:
-            tau = t - t0
-            ph = w0 * tau + 0.5 * (w1 - w0) / (t1 - t0) * tau * tau
-        else:
-            ph = 0.5 * (w0 + w1) * (t1 - t0) + w1 * (t - t1)
-        r += spec[R_A1] * math.sin(ph + spec[R_P1])
-    elif kind == REF_TABLE:
-        r += _table_value(t, spec)
-    else:
-        for i in range(MAX_SINES):
-            j = R_MS0 + 3 * i
-            r += spec[j] * math.sin(spec[j + 1] * t + spec[j + 2])
-    return r
-
-
-@jit
-def _table_value(t, spec):
-    """Linear interpolation in a table row's samples (layout R_TAB*); the end values are held outside them."""
-    n = int(spec[R_TAB_N])
-    t0 = R_TAB0
-    r0 = R_TAB0 + n
-    if t <= spec[t0]:
-        return spec[r0]
-    if t >= spec[t0 + n - 1]:
-        return spec[r0 + n - 1]
-    lo = 0
-    hi = n - 1
-    while hi - lo > 1:  # bisection: spec[t0 + lo] <= t < spec[t0 + hi]
-        mid = (lo + hi) // 2
-        if spec[t0 + mid] <= t:
-            lo = mid
-        else:
-            hi = mid
-    w = (t - spec[t0 + lo]) / (spec[t0 + hi] - spec[t0 + lo])
-    return spec[r0 + lo] + w * (spec[r0 + hi] - spec[r0 + lo])
 
 
 @dataclass(frozen=True)
@@ -102,7 +29,7 @@ class Reference:
     :func:`from_array` or :func:`from_function`.
 
     Attributes:
-        family: "sine", "step", "chirp", "multisine" or "table".
+        family: its family's name (a row of :data:`ehss_gym.core.registry.REFERENCE_FAMILIES`).
         spec: the flat parameter row read by the compiled kernels.
         description: human-readable parameters.
     """
@@ -112,7 +39,9 @@ class Reference:
     description: str = ""
 
     def __call__(self, t):
-        """Evaluate r at time(s) t [s]."""
+        """Evaluate r at time(s) t [s] (with the compiled kernel the simulator uses)."""
+        from .references import reference_value  # numba only when a signal is evaluated: the CLI reads this module
+
         t = np.asarray(t, dtype=np.float64)
         out = np.array([reference_value(float(ti), self.spec) for ti in t.ravel()])
         return out.reshape(t.shape)
@@ -122,11 +51,11 @@ class Reference:
         """The largest |r - offset| the family's parameters allow [output unit] (multi-sine: the sum of the
         components' amplitudes; a table: half its range)."""
         kind = int(self.spec[R_KIND])
-        if kind == REF_TABLE:
+        if kind == code(REFERENCE_FAMILIES, "table"):
             n = int(self.spec[R_TAB_N])
             r = self.spec[R_TAB0 + n:R_TAB0 + 2 * n]
             return float(0.5 * (r.max() - r.min()))
-        if kind == REF_MULTISINE:
+        if kind == code(REFERENCE_FAMILIES, "multisine"):
             return float(sum(abs(self.spec[R_MS0 + 3 * i]) for i in range(MAX_SINES)))
         return float(abs(self.spec[R_A1]))
 
@@ -139,9 +68,9 @@ class Reference:
         return {"family": self.family, "description": self.description, "spec": self.spec.tolist()}
 
 
-def _row(kind: int) -> np.ndarray:
+def _row(family: str) -> np.ndarray:
     row = np.zeros(N_REF)
-    row[R_KIND] = kind
+    row[R_KIND] = code(REFERENCE_FAMILIES, family)
     return row
 
 
@@ -154,7 +83,7 @@ def sine(amplitude: float = 1.0, omega: float = 2.0, phase: float = 0.0, offset:
         phase: [rad].
         offset: output unit.
     """
-    row = _row(REF_SINE)
+    row = _row("sine")
     row[R_A1] = check_finite("amplitude", amplitude)
     row[R_W1] = check_finite("omega", omega, low=0.0)
     row[R_P1] = check_finite("phase", phase)
@@ -170,7 +99,7 @@ def step(amplitude: float = 1.0, t_step: float = 0.1, offset: float = 0.0) -> Re
         t_step: switching time [s], >= 0.
         offset: output unit.
     """
-    row = _row(REF_STEP)
+    row = _row("step")
     row[R_A1] = check_finite("amplitude", amplitude)
     row[R_T0] = check_finite("t_step", t_step, low=0.0)
     row[R_OFFSET] = check_finite("offset", offset)
@@ -183,7 +112,7 @@ def chirp(amplitude: float = 1.0, omega_start: float = 1.0, omega_end: float = 2
 
     Holds omega_end after t_end, omega_start before t_start.
     """
-    row = _row(REF_CHIRP)
+    row = _row("chirp")
     row[R_OFFSET] = check_finite("offset", offset)
     row[R_A1] = check_finite("amplitude", amplitude)
     row[R_W1] = check_finite("omega_start", omega_start, low=0.0)
@@ -202,7 +131,7 @@ def multisine(amplitudes, omegas, phases=None, offset: float = 0.0) -> Reference
     if not 1 <= len(amplitudes) <= MAX_SINES or len(omegas) != len(amplitudes) or len(phases) != len(amplitudes):
         raise ValueError(f"multisine needs 1 to {MAX_SINES} components with equal-length amplitudes, omegas "
                          f"and phases; got {len(amplitudes)}, {len(omegas)}, {len(phases)}")
-    row = _row(REF_MULTISINE)
+    row = _row("multisine")
     row[R_OFFSET] = check_finite("offset", offset)
     for i, (a, w, ph) in enumerate(zip(amplitudes, omegas, phases)):
         j = R_MS0 + 3 * i
@@ -236,7 +165,7 @@ def from_array(t, values, description: str | None = None) -> Reference:
     if not np.all(np.isfinite(v)):
         raise ValueError("values must be finite numbers [output unit]")
     row = np.zeros(R_TAB0 + 2 * t.size)
-    row[R_KIND] = REF_TABLE
+    row[R_KIND] = code(REFERENCE_FAMILIES, "table")
     row[R_TAB_N] = t.size
     row[R_TAB0:R_TAB0 + t.size] = t
     row[R_TAB0 + t.size:] = v
@@ -277,4 +206,4 @@ def paper_reference() -> Reference:
 
 
 __all__ = ["Reference", "sine", "step", "chirp", "multisine", "from_array", "from_function", "paper_reference",
-           "reference_value", "FAMILIES"]
+           "FAMILIES"]

@@ -1,8 +1,8 @@
 """The one module of validators: every bad value raises a ValueError naming the parameter and the accepted range.
 
-The records (:class:`~ehss_gym.core.params.PlantParams`, :class:`~ehss_gym.core.sim.Scenario`,
+The records (:class:`~ehss_gym.core.params.PlantParams`, :class:`~ehss_gym.core.settings.Scenario`,
 :class:`~ehss_gym.envs.config.EnvConfig`, the agents' and the study's configs) and the CLI's argparse
-types (:mod:`ehss_gym.cli.args`) all check through these functions, so a message reads the same wherever
+types (:mod:`ehss_gym.cli.options`) all check through these functions, so a message reads the same wherever
 the value came from.
 """
 

@@ -1,6 +1,8 @@
 """Every default of ``EHSSTracking-v0`` and the one validated record of an env's settings (:class:`EnvConfig`).
 
-The defaults are the recommendation of two studies, restated here (tests check both): the reproduction study
+The env's settings are the loop settings of :class:`ehss_gym.core.settings.Scenario` (:data:`LOOP_KEYS`; a setting
+without an env default here takes the Scenario's) and the env's own (:data:`ENV_KEYS`: mode, reward, episode). The
+defaults are the recommendation of two studies, restated here (tests check both): the reproduction study
 (``reports/paper/recommended_defaults.json``, made by ``ehss reproduce``: period, substeps, current limit, n, f_r,
 smoothing, the SVF cutoff) and the noise study (``reports/noise/recommended.json``, made by ``ehss noise``: per
 task the estimator, the law and its sigma, the observer bandwidth, the adaptive boundary layer, the bumpless start
@@ -9,14 +11,14 @@ and the reference shaper). The evidence is in docs/ENV.md.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from ehss_gym.core import layout as L
-from ehss_gym.core.scenarios import PHYSICAL_FIELDS, controller_mismatch, paper_scenario
-from ehss_gym.core.sim import LAYER_GAIN_MAX, TASKS, Scenario
-from ehss_gym.core.validate import check_bool, check_choice, check_even_n, check_finite, check_int, check_positive
+from ehss_gym.core.registry import LAWS, names
+from ehss_gym.core.scenarios import controller_mismatch, paper_scenario
+from ehss_gym.core.settings import LOOP_SETTINGS, PHYSICAL_FIELDS, TASKS, Scenario
+from ehss_gym.core.validate import check_choice, check_finite, check_int, check_positive
 
 
 @dataclass(frozen=True)
@@ -29,8 +31,8 @@ class TaskDefaults:
         smoothing: sign(s) smoothing width w [unit of s].
         estimator_hz: cutoff of the paper's state-variable filter [Hz].
         error_scale: tracking-error scale of the reward and observation [output unit].
-        estimator: output-derivative estimator (core.layout.ESTIMATORS).
-        law: CLF law (core.layout.LAWS).
+        estimator: output-derivative estimator (a row of :data:`ehss_gym.core.registry.ESTIMATORS`).
+        law: CLF law (a row of :data:`ehss_gym.core.registry.LAWS`).
         sigma_by_law: (law, sigma) pairs: the sigma a law gets when the law is chosen and sigma is not.
         observer_hz: error bandwidth of the "eso" observer [Hz].
         layer_gain: adaptive boundary-layer gain (0 = the fixed width ``smoothing``).
@@ -106,55 +108,59 @@ DEFAULTS = EnvDefaults()
 MODES = ("residual", "direct")
 SCENARIOS = ("random", "paper")
 REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence")
-# settings whose default depends on the task (residual_scale: on the current limit, sigma: on the law too); None
-# selects that default
-TASK_DEPENDENT = ("fr", "sigma", "smoothing", "estimator_hz", "error_scale", "residual_scale", "estimator", "law",
-                  "observer_hz", "layer_gain", "bumpless", "ref_accel")
-# The settings issue 14 added, at the values that reproduce the loop before them (a policy trained before them, whose
-# recorded env_kwargs lack them, acts in its own loop with these; the estimator was already recorded).
-PRE_ISSUE14_ENV = {"law": "sontag", "layer_gain": 0.0, "bumpless": False, "ref_accel": 0.0, "pressure_domain": None}
+# Loop settings the env keeps at the Scenario's defaults (not keyword arguments of the env).
+FIXED_LOOP = ("ref_model_hz", "omega_max", "pressure_bound")
+# The env's settings: the loop settings it exposes, then its own.
+LOOP_KEYS = tuple(k for k in LOOP_SETTINGS if k not in FIXED_LOOP)
+ENV_KEYS = ("mode", "residual_scale", "agent_period", "scenario", "reward_weights", "error_scale", "episode_seconds",
+            "terminate_on_lost_track")
+# What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends.
+POLICY_KEYS = tuple(k for k in LOOP_KEYS + ENV_KEYS
+                    if k not in ("scenario", "episode_seconds", "lost_track", "terminate_on_lost_track"))
+# Settings whose default depends on the task (residual_scale: on the current limit, sigma: on the law too); None
+# selects that default.
+TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_by_law") + ("residual_scale",)
+# Settings for which None is a value (no current limit, the model at the measured pressure, no lost-track detection,
+# the episode's own duration); for the others a keyword argument None selects the default.
+NONE_IS_A_VALUE = tuple(f.name for f in fields(Scenario) if f.name in LOOP_KEYS and "None" in str(f.type)) + (
+    "episode_seconds",)
+# The loop of the first policies of release 0.1: the settings added since (the law, the adaptive boundary layer, the
+# bumpless start, the reference shaper, the model's pressure domain) at the values that reproduce the loop before
+# them. A policy whose recorded settings lack them was trained in that loop and acts in it (:func:`in_legacy_loop`).
+LEGACY_LOOP = {"law": "sontag", "layer_gain": 0.0, "bumpless": False, "ref_accel": 0.0, "pressure_domain": None}
 
 
-def recorded_loop(env_kwargs: dict) -> dict:
-    """The env settings a recorded policy acts in: ``env_kwargs`` with issue 14's settings it lacks (it was trained
-    before them) at :data:`PRE_ISSUE14_ENV`, so that a change of the env's defaults does not change its loop."""
-    return {**PRE_ISSUE14_ENV, **env_kwargs}
+def in_legacy_loop(env_kwargs: dict) -> dict:
+    """The env settings a recorded policy acts in: ``env_kwargs`` with the settings of :data:`LEGACY_LOOP` it lacks
+    at their legacy values, so that a change of the env's defaults does not change the loop it was trained in."""
+    return {**LEGACY_LOOP, **env_kwargs}
 
 
 @dataclass(frozen=True)
 class EnvConfig:
-    """Validated settings of an :class:`EHSSTrackingEnv` (see its docstring for each field)."""
+    """Validated settings of an :class:`~ehss_gym.envs.env.EHSSTrackingEnv` (its docstring gives each).
 
-    task: str
-    n: int
-    fr: float
-    sigma: float
-    smoothing: float
+    The loop settings (:data:`LOOP_KEYS`) are those of :attr:`loop`, a :class:`~ehss_gym.core.settings.Scenario`
+    with the paper's episode (:meth:`template`), and read as attributes (``cfg.sigma``); the env's own are fields.
+    """
+
+    loop: Scenario
     mode: str
     residual_scale: float
     agent_period: int
-    control_period: float
-    substeps: int
-    current_limit: float | None
-    estimator_hz: float
-    estimator: str
-    observer_hz: float
-    law: str
-    layer_gain: float
-    bumpless: bool
-    ref_accel: float
-    pressure_domain: float | None
     scenario: object
     reward_weights: dict
     error_scale: float
     episode_seconds: float | None
-    lost_track: float | None = DEFAULTS.lost_track
     terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track
 
-    KEYS = ("task", "n", "fr", "sigma", "smoothing", "mode", "residual_scale", "agent_period", "control_period",
-            "substeps", "current_limit", "estimator_hz", "estimator", "observer_hz", "law", "layer_gain", "bumpless",
-            "ref_accel", "pressure_domain", "scenario", "reward_weights", "error_scale", "episode_seconds",
-            "lost_track", "terminate_on_lost_track")
+    KEYS = LOOP_KEYS + ENV_KEYS
+
+    def __getattr__(self, name: str):
+        # only for names that are not fields: the loop settings, from the template
+        if name in LOOP_KEYS:
+            return getattr(object.__getattribute__(self, "loop"), name)
+        raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
 
     @classmethod
     def from_kwargs(cls, kwargs: dict) -> EnvConfig:
@@ -166,55 +172,23 @@ class EnvConfig:
         task = check_choice("task", kwargs.get("task", "velocity"), tuple(TASKS))
         td: TaskDefaults = getattr(d, task)
         mode = check_choice("mode", kwargs.get("mode", d.mode), MODES)
-        n = kwargs.get("n", d.n)
-        n = check_even_n(n)
-        fr = check_positive("fr", kwargs.get("fr", td.fr))
-        law = check_choice("law", kwargs.get("law", td.law), L.LAWS)
-        sigma = check_positive("sigma", kwargs.get("sigma", td.sigma_for(law)))
-        smoothing = check_finite("smoothing", kwargs.get("smoothing", td.smoothing), low=0.0)
-        limit = kwargs.get("current_limit", d.current_limit)
-        if limit is not None:
-            limit = check_positive("current_limit", limit)
+        law = check_choice("law", kwargs.get("law", td.law), names(LAWS))
+        loop = {k: kwargs[k] if k in kwargs else _default(k, td, d) for k in LOOP_KEYS}
+        loop.update(task=task, law=law, sigma=kwargs.get("sigma", td.sigma_for(law)))
+        # the env's ranges beyond the Scenario's own checks
+        loop["control_period"] = check_finite("control_period", loop["control_period"], low=1e-7, high=1e-2)
+        loop["substeps"] = check_int("substeps", loop["substeps"], 1)
+        template = paper_scenario(Scenario(**loop))  # every loop setting checked, with the core record's messages
+        limit = template.current_limit
         scale = kwargs.get("residual_scale")
         if scale is None:
             scale = d.residual_scale if limit is None else limit
         scale = check_positive("residual_scale", scale)
         agent_period = check_int("agent_period", kwargs.get("agent_period", d.agent_period), 1)
-        h = check_finite("control_period", kwargs.get("control_period", d.control_period), low=1e-7, high=1e-2)
-        substeps = check_int("substeps", kwargs.get("substeps", d.substeps), 1)
-        est = check_positive("estimator_hz", kwargs.get("estimator_hz", td.estimator_hz))
-        scheme = check_choice("estimator", kwargs.get("estimator", td.estimator), L.ESTIMATORS)
-        loop = _loop_settings(kwargs, td, d)
-        scenario = kwargs.get("scenario", d.scenario)
-        if not (isinstance(scenario, Scenario) or scenario in SCENARIOS):
-            raise ValueError(f"scenario must be one of {list(SCENARIOS)} or an ehss_gym.Scenario, got {scenario!r}")
-        rw = dict(d.reward_weights)
-        given = kwargs.get("reward_weights") or {}
-        if not isinstance(given, dict):
-            raise ValueError(f"reward_weights must be a dict with keys from {list(REWARD_KEYS)}, got {given!r}")
-        bad = sorted(set(given) - set(REWARD_KEYS))
-        if bad:
-            raise ValueError(f"unknown reward_weights key(s) {bad}; valid: {list(REWARD_KEYS)}")
-        for key, v in given.items():
-            rw[key] = check_finite(f"reward_weights[{key!r}]", v, low=0.0)
-        err = check_positive("error_scale", kwargs.get("error_scale", td.error_scale))
-        eps = kwargs.get("episode_seconds")
-        if eps is not None:
-            eps = check_finite("episode_seconds", eps, low=h * agent_period)
-        lost = kwargs.get("lost_track", d.lost_track)
-        if lost is not None:
-            lost = check_positive("lost_track", lost)
-        stop_lost = kwargs.get("terminate_on_lost_track", d.terminate_on_lost_track)
-        if not isinstance(stop_lost, (bool, np.bool_)):
-            raise ValueError(f"terminate_on_lost_track must be True or False, got {stop_lost!r}")
-        cfg = cls(task=task, n=int(n), fr=fr, sigma=sigma, smoothing=smoothing, mode=mode, residual_scale=scale,
-                  agent_period=agent_period, control_period=h, substeps=substeps, current_limit=limit,
-                  estimator_hz=est, estimator=scheme, law=law, **loop, scenario=scenario, reward_weights=rw,
-                  error_scale=err, episode_seconds=eps, lost_track=lost, terminate_on_lost_track=bool(stop_lost))
-        cfg.template()  # the cross-field checks of the core record (lin-sontag needs a limit, ref_accel a position
-        # task with a digital reference model), with its messages
-        if isinstance(scenario, Scenario):
-            cfg.check_pinned(scenario)
+        cfg = cls(loop=template, mode=mode, residual_scale=scale, agent_period=agent_period,
+                  **_episode_settings(kwargs, td, d, template.control_period * agent_period))
+        if isinstance(cfg.scenario, Scenario):
+            cfg.check_pinned(cfg.scenario)
         return cfg
 
     @property
@@ -228,13 +202,7 @@ class EnvConfig:
 
     def template(self) -> Scenario:
         """A Scenario with these controller settings (its physical fields are the paper's)."""
-        return paper_scenario(Scenario(task=self.task, n=self.n, fr=self.fr, sigma=self.sigma,
-                                       smoothing=self.smoothing, current_limit=self.current_limit,
-                                       control_period=self.control_period, substeps=self.substeps,
-                                       estimator_hz=self.estimator_hz, estimator=self.estimator,
-                                       lost_track=self.lost_track, observer_hz=self.observer_hz, law=self.law,
-                                       layer_gain=self.layer_gain, bumpless=self.bumpless, ref_accel=self.ref_accel,
-                                       pressure_domain=self.pressure_domain))
+        return self.loop
 
     def check_pinned(self, sc: Scenario) -> None:
         """A pinned Scenario must carry exactly these controller settings."""
@@ -250,16 +218,42 @@ class EnvConfig:
             raise ValueError(f"scenario t_end ({sc.t_end:g} s) is shorter than one agent step ({self.agent_dt:g} s)")
 
 
+_SCENARIO_DEFAULTS = {f.name: f.default for f in fields(Scenario)}
 
-def _loop_settings(kwargs: dict, td: TaskDefaults, d: EnvDefaults) -> dict:
-    """The observer, boundary-layer, start-up, shaper and model-domain settings, validated (the ranges are the core
-    record's, :class:`ehss_gym.core.sim.Scenario`)."""
-    out = {"observer_hz": check_positive("observer_hz", kwargs.get("observer_hz", td.observer_hz)),
-           "layer_gain": check_finite("layer_gain", kwargs.get("layer_gain", td.layer_gain), low=0.0,
-                                      high=LAYER_GAIN_MAX),
-           "bumpless": check_bool("bumpless", kwargs.get("bumpless", td.bumpless)),
-           "ref_accel": check_finite("ref_accel", kwargs.get("ref_accel", td.ref_accel), low=0.0)}
-    pd = kwargs.get("pressure_domain", d.pressure_domain)
-    out["pressure_domain"] = None if pd is None else check_finite("pressure_domain", pd, low=0.0, high=1.0,
-                                                                  low_open=True)
-    return out
+
+def _default(key: str, td: TaskDefaults, d: EnvDefaults):
+    """The env's default of loop setting ``key``: the task's, the env's, else the Scenario's."""
+    for where in (td, d):
+        if key in {f.name for f in fields(where)}:
+            return getattr(where, key)
+    return _SCENARIO_DEFAULTS[key]
+
+
+def _episode_settings(kwargs: dict, td: TaskDefaults, d: EnvDefaults, agent_dt: float) -> dict:
+    """The episode's choice, the reward and the end of an episode, validated."""
+    scenario = kwargs.get("scenario", d.scenario)
+    if not (isinstance(scenario, Scenario) or scenario in SCENARIOS):
+        raise ValueError(f"scenario must be one of {list(SCENARIOS)} or an ehss_gym.Scenario, got {scenario!r}")
+    rw = dict(d.reward_weights)
+    given = kwargs.get("reward_weights") or {}
+    if not isinstance(given, dict):
+        raise ValueError(f"reward_weights must be a dict with keys from {list(REWARD_KEYS)}, got {given!r}")
+    bad = sorted(set(given) - set(REWARD_KEYS))
+    if bad:
+        raise ValueError(f"unknown reward_weights key(s) {bad}; valid: {list(REWARD_KEYS)}")
+    for key, v in given.items():
+        rw[key] = check_finite(f"reward_weights[{key!r}]", v, low=0.0)
+    err = check_positive("error_scale", kwargs.get("error_scale", td.error_scale))
+    eps = kwargs.get("episode_seconds")
+    if eps is not None:
+        eps = check_finite("episode_seconds", eps, low=agent_dt)
+    stop_lost = kwargs.get("terminate_on_lost_track", d.terminate_on_lost_track)
+    if not isinstance(stop_lost, (bool, np.bool_)):
+        raise ValueError(f"terminate_on_lost_track must be True or False, got {stop_lost!r}")
+    return {"scenario": scenario, "reward_weights": rw, "error_scale": err, "episode_seconds": eps,
+            "terminate_on_lost_track": bool(stop_lost)}
+
+
+__all__ = ["TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
+           "ENV_KEYS", "POLICY_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
+           "in_legacy_loop"]

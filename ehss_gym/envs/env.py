@@ -1,6 +1,6 @@
 """Gymnasium environment ``EHSSTracking-v0``: the EHSS servo loop with a residual (or direct) RL action.
 
-The env is a thin adapter over the compiled core (:func:`ehss_gym.core.sim.lanes_period`): it holds the
+The env is a thin adapter over the compiled core (:func:`ehss_gym.core.loop.lanes_period`): it holds the
 state and the RNG, and one compiled call (:func:`ehss_gym.envs.kernels.advance`) advances ``agent_period``
 control periods for B lanes. The single env uses B = 1, the vector env (:mod:`ehss_gym.envs.vector`) B = N,
 so both run the same code and give identical results for the same seeds.
@@ -14,13 +14,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from ehss_gym.core import layout as L
-from ehss_gym.core.layout import F_REW, F_STATS, S_N, S_SAT
-from ehss_gym.core.sim import Scenario
+from ehss_gym.core.layout import I_E, I_R, I_T, I_TF, I_UAPP, I_UBASE, I_URES, I_YD, I_YE, M_LOST
+from ehss_gym.core.settings import Scenario
 
-from .config import DEFAULTS, TASK_DEPENDENT, EnvConfig
-from .kernels import advance
-from .lanes import Lanes
+from .buffers import F_REW, F_STATS, S_N, S_UMAX, S_UMIN
+from .config import DEFAULTS, NONE_IS_A_VALUE, EnvConfig
+from .lanes import Lanes, step_info
 from .observation import OBS_BOUND
 
 # what the dashboard records per agent step (at its last control sample; u_min/u_max over its control periods)
@@ -58,7 +57,7 @@ class EHSSTrackingEnv(gym.Env):
     controller samples (with sensor noise), forms the tracking errors e = y - y_d and their estimates
     (``estimator``: by default an extended-state observer; the paper's state-variable filter is "foh"),
     the combined error s = e^(m-1) + lambda_{m-2} e^(m-2) + ... and the CLF current on
-    V = (s/sigma)^n / n (:mod:`ehss_gym.core.control`; ``law``: Sontag's formula by default)::
+    V = (s/sigma)^n / n (:mod:`ehss_gym.core.laws`; ``law``: Sontag's formula by default)::
 
         u_base = -psi/G - sgn_w(s) sign(G) hypot(psi/G, |s/sigma|^(n-1) |G| / sigma)
 
@@ -145,23 +144,25 @@ class EHSSTrackingEnv(gym.Env):
         substeps: RK4 plant steps per control period, >= 1 (default 1).
         current_limit: |u| limit [mA] or None = unlimited (default 10).
         estimator_hz: cutoff of the paper's state-variable filter (SVF) [Hz] (default 1000, the paper's).
-        estimator: how the output derivatives are estimated (default "foh" velocity, "eso" position): "foh"
-            (the paper's SVF, first-order-hold discretisation, O(h^2) to its continuous filters), "zoh" (wave 1's
-            zero-order hold, biased by O(h)), "analog" (continuous filters integrated with the plant), "state"
-            (the model's Lie derivatives of the measured state) or "eso" (an extended-state observer of the
-            velocity and a lumped disturbance acceleration). See docs/MODEL.md, "Digital filters" and "Estimators".
+        estimator: how the output derivatives are estimated, a row of :data:`ehss_gym.core.registry.ESTIMATORS`
+            (default "foh" velocity, "eso" position): "foh" (the paper's SVF, first-order-hold discretisation,
+            O(h^2) to its continuous filters), "zoh" (the first implementation's zero-order hold, biased by O(h)),
+            "analog" (continuous filters integrated with the plant), "state" (the model's Lie derivatives of the
+            measured state) or "eso" (an extended-state observer of the velocity and a lumped disturbance
+            acceleration). See docs/MODEL.md, "Digital filters" and "Estimators".
         observer_hz: error bandwidth of the "eso" observer [Hz] (default 200 velocity, where it is unused, 1000
             position).
-        law: "sontag" (default, both tasks; Sontag's universal formula, the paper's) or "lin-sontag" (Lin &
-            Sontag's formula for controls bounded by current_limit). Without ``sigma`` each law gets its own
-            default sigma (:attr:`TaskDefaults.sigma_by_law`). See docs/MODEL.md, "Laws".
+        law: the CLF law, a row of :data:`ehss_gym.core.registry.LAWS` (default "sontag", both tasks: Sontag's
+            universal formula, the paper's; "lin-sontag": Lin & Sontag's formula for controls bounded by
+            current_limit). Without ``sigma`` each law gets its own default sigma, where the env has one
+            (:attr:`TaskDefaults.sigma_by_law`; else the task's). See docs/MODEL.md, "Laws".
         layer_gain: adaptive boundary layer: width max(smoothing, layer_gain * running noise std of s), in
             [0, 100] (default 3 both tasks; 0: the fixed width ``smoothing``).
         bumpless: the reference model starts at the measured output instead of at r(0) (default False).
         ref_accel: position task: the reference shaper's acceleration bound [rad/s^2], 0 = none (default 100
             position, 0 velocity). See docs/MODEL.md, "Reference shaper".
         pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (default 0.95;
-            None = at the measured pressure as is, the loop before issue 14).
+            None = at the measured pressure as is, as in the legacy loop).
         scenario: "random" (default; the training distribution of :mod:`ehss_gym.core.scenarios`), "paper",
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
@@ -183,16 +184,20 @@ class EHSSTrackingEnv(gym.Env):
             friction).
 
     Version history:
-        v0 (ehss-gym 0.1): first release. Before release the defaults moved to the reproduction
-        study's recommendation (``ehss reproduce``: h = 30 us, smoothing 100 for velocity; they were
-        50 us and 0); then, when the derivative estimator's O(h) bias was fixed (``estimator="foh"``;
-        wave 1's scheme is ``"zoh"``), to the study's recommendation on the corrected loop: h = 50 us,
-        f_r = 60 Hz and smoothing 1e3 (velocity), f_r = 20 Hz, sigma = 1e6, smoothing 100 and a 1 kHz
-        estimator (position). Policies record every setting they were trained with, the estimator
-        included; those of wave 1 (without it) were retrained. Issue 14 (noise and the current bound) added
-        the settings estimator "state"/"eso", observer_hz, law, layer_gain, bumpless, ref_accel and
-        pressure_domain, and made its noise study's choices the defaults (``ehss noise``; docs/ENV.md); a policy
-        recorded without them acts with :data:`ehss_gym.envs.config.PRE_ISSUE14_ENV`.
+        v0 (ehss-gym 0.1): first release. Within 0.1 the defaults changed three times; the settings that
+        reproduce each earlier loop are given.
+
+        1. The reproduction study's recommendation (``ehss reproduce``): h = 30 us and smoothing 100 for
+           velocity (they were 50 us and 0).
+        2. The derivative estimator's O(h) bias fixed (``estimator="foh"``; ``estimator="zoh"`` is the
+           earlier scheme), with the study's recommendation on the corrected loop: h = 50 us, f_r = 60 Hz and
+           smoothing 1e3 (velocity), f_r = 20 Hz, sigma = 1e6, smoothing 100 and a 1 kHz estimator (position).
+           Policies record every setting they were trained with, the estimator included; those trained before
+           (without it) were retrained.
+        3. The settings estimator "state"/"eso", observer_hz, law, layer_gain, bumpless, ref_accel and
+           pressure_domain, with the noise study's choices as the defaults (``ehss noise``; docs/ENV.md).
+           :data:`ehss_gym.envs.config.LEGACY_LOOP` holds the values that reproduce the loop before them; a
+           policy recorded without them acts in it (:func:`ehss_gym.envs.config.in_legacy_loop`).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -214,8 +219,8 @@ class EHSSTrackingEnv(gym.Env):
                              f"{render_mode!r}")
         self.render_mode = render_mode
         given = {k: v for k, v in locals().items() if k in EnvConfig.KEYS}  # the arguments above, by name
-        # None selects the task's default for the per-task settings (current_limit=None means unlimited)
-        given = {k: v for k, v in given.items() if v is not None or k not in TASK_DEPENDENT}
+        # None selects the default, except where None is a value (current_limit=None means unlimited)
+        given = {k: v for k, v in given.items() if v is not None or k in NONE_IS_A_VALUE}
         self.config = cfg = EnvConfig.from_kwargs({**given, **unknown})
         self._lanes = Lanes(cfg, 1)
         self.observation_layout = self._lanes.layout
@@ -266,20 +271,15 @@ class EHSSTrackingEnv(gym.Env):
             self._n_clipped += 1
         lanes = self._lanes
         lanes.u_res[0] = v * self._scale
-        advance(*lanes._args)
+        lanes.step()
         self._steps += 1
-        lost = lanes.acc0.item(L.M_LOST) > 0.0
+        lost = lanes.acc0.item(M_LOST) > 0.0
         diverged = not lanes.run[0]
         terminated = diverged or (lost and self.config.terminate_on_lost_track)
         truncated = not terminated and self._steps >= self._T
         # Python floats in two list conversions of pre-made row views (numpy scalar reads cost ~0.1 us each)
-        i = lanes.info_ok0.tolist()
         st = lanes.tail0.tolist()
-        n = st[S_N]
-        info = {"t": i[L.I_T], "e": i[L.I_E], "s": i[L.I_S], "V": i[L.I_V], "u_base": i[L.I_UBASE],
-                "u_residual": i[L.I_URES], "u_applied": i[L.I_UAPP], "saturated": i[L.I_SAT] > 0.0,
-                "sat_fraction": st[S_SAT] / n if n > 0 else 0.0, "friction_torque": i[L.I_TF],
-                "clipped": clipped, "n_clipped": self._n_clipped, "diverged": diverged, "lost_track": lost}
+        info = step_info(lanes.info_ok0.tolist(), st, clipped, self._n_clipped, diverged, lost)
         if terminated or truncated:
             self._ready = False
             m = lanes.metrics(0)
@@ -296,9 +296,9 @@ class EHSSTrackingEnv(gym.Env):
     def _record(self):
         i = self._lanes.info_ok[0]
         st = self._lanes.stats[0]
-        lo, hi = (st[L.S_UMIN], st[L.S_UMAX]) if st[S_N] > 0 else (i[L.I_UAPP], i[L.I_UAPP])
-        self._hist.append((i[L.I_T], i[L.I_YE], i[L.I_YD], i[L.I_E], i[L.I_UAPP], i[L.I_UBASE], i[L.I_URES],
-                           i[L.I_TF], i[L.I_R], lo, hi))
+        lo, hi = (st[S_UMIN], st[S_UMAX]) if st[S_N] > 0 else (i[I_UAPP], i[I_UAPP])
+        self._hist.append((i[I_T], i[I_YE], i[I_YD], i[I_E], i[I_UAPP], i[I_UBASE], i[I_URES], i[I_TF], i[I_R], lo,
+                           hi))
 
     def render(self):
         """An RGB dashboard (H, W, 3) uint8 of the episode so far, or None without render_mode."""

@@ -1,6 +1,6 @@
 """The env's compiled step: B lanes advanced ``agent_period`` control periods in one call, reward and observation.
 
-Every buffer index is named in :mod:`ehss_gym.core.layout` (F_*, IB_*, BB_*, S_*, W_*, LAY_*).
+Every buffer index is named in :mod:`ehss_gym.envs.buffers` (F_*, IB_*, BB_*, S_*, W_*, LAY_*).
 """
 
 from __future__ import annotations
@@ -10,9 +10,13 @@ import math
 import numba as nb
 import numpy as np
 
-from ehss_gym.core import layout as L
-from ehss_gym.core.control import controller_update
-from ehss_gym.core.layout import (
+from ehss_gym.core.controller import controller_update
+from ehss_gym.core.jit import jit, jit_noalloc
+from ehss_gym.core.layout import I_E, I_SAT, I_UAPP, M_TV_U, N_INFO, N_LOOP, N_METRICS, N_PARAM, N_REF
+from ehss_gym.core.loop import lanes_period
+from ehss_gym.core.settings import N_CTRL
+
+from .buffers import (
     BB_ACT,
     BB_PRE,
     BB_RUN,
@@ -39,11 +43,11 @@ from ehss_gym.core.layout import (
     LAY_FLAGS,
     LAY_SCALE,
     LAY_SRC,
-    N_PARAM,
     N_STATS,
     N_WEIGHTS,
     S_N,
     S_SAT,
+    S_SATF,
     S_SUM_E2,
     S_TV0,
     S_UMAX,
@@ -57,9 +61,6 @@ from ehss_gym.core.layout import (
     W_TV,
     W_TVU,
 )
-from ehss_gym.core.physics import jit, jit_noalloc
-from ehss_gym.core.sim import lanes_period
-
 from .observation import OBS_BOUND
 
 
@@ -91,14 +92,13 @@ def _peek(F, BB, b, k, h, events, filt, work):
 
     The filters are advanced on a copy of the loop state, kept in F_PEEKZ, and BB_PRE is set: the lane's
     next control period (at this k, from this state) reuses all of it and only applies its residual
-    (see :func:`ehss_gym.core.sim.lanes_period`), so look-ahead and step share one controller evaluation.
+    (see :func:`ehss_gym.core.loop.lanes_period`), so look-ahead and step share one controller evaluation.
     """
-    zt = F[b, F_PEEKZ:F_PEEKZ + L.N_LOOP]
-    for i in range(L.N_LOOP):
+    zt = F[b, F_PEEKZ:F_PEEKZ + N_LOOP]
+    for i in range(N_LOOP):
         zt[i] = F[b, F_Z + i]
-    controller_update(zt, k, h, F[b, F_PLANT:F_PLANT + N_PARAM], F[b, F_MODEL:F_MODEL + N_PARAM],
-                      F[b, F_CTRL:F_CTRL + L.N_CTRL], F[b, F_REF:F_REF + L.N_REF], events[b], filt[b], F[b, F_URES],
-                      F[b, F_PEEK:F_PEEK + L.N_INFO], work)
+    controller_update(zt, k, h, F[b, F_MODEL:F_MODEL + N_PARAM], F[b, F_CTRL:F_CTRL + N_CTRL],
+                      F[b, F_REF:F_REF + N_REF], filt[b], F[b, F_URES], F[b, F_PEEK:F_PEEK + N_INFO], work)
     BB[b, BB_PRE] = True
 
 
@@ -111,9 +111,9 @@ def observe(h, F, IB, BB, events, filt, work, obs, lay):
     for b in range(F.shape[0]):
         if not BB[b, BB_ACT]:
             continue
-        F[b, F_INFO_OK:F_INFO_OK + L.N_INFO] = 0.0
+        F[b, F_INFO_OK:F_INFO_OK + N_INFO] = 0.0
         _peek(F, BB, b, IB[b, IB_K], h, events, filt, work)
-        _write_obs(obs[b], F[b, F_PEEK:F_PEEK + L.N_INFO], F[b, F_INFO_OK:F_INFO_OK + L.N_INFO], lay)
+        _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], F[b, F_INFO_OK:F_INFO_OK + N_INFO], lay)
 
 
 def reward_weights(weights: dict, error_scale: float, residual_scale: float) -> np.ndarray:
@@ -161,7 +161,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
     """Advance ``n_per`` control periods for every running lane; the env's one compiled step.
 
     Lanes are grouped by their step index k (lanes reset at different times are out of phase) and each
-    group is stepped by :func:`ehss_gym.core.sim.lanes_period`, so a lane's arithmetic does not depend on
+    group is stepped by :func:`ehss_gym.core.loop.lanes_period`, so a lane's arithmetic does not depend on
     the others. Per lane this then writes the observation (from the controller's view at the next
     sample, so the agent acts on the freshest measurement), the reward, the agent-rate error log, and
     clears the run flag if the lane diverged (the F_INFO_OK block keeps the last finite sample).
@@ -179,20 +179,20 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
         wts: reward weights (N_WEIGHTS,).
     """
     B = F.shape[0]
-    z = F[:, F_Z:F_Z + L.N_LOOP]
+    z = F[:, F_Z:F_Z + N_LOOP]
     plant = F[:, F_PLANT:F_PLANT + N_PARAM]
     model = F[:, F_MODEL:F_MODEL + N_PARAM]
-    ctrl = F[:, F_CTRL:F_CTRL + L.N_CTRL]
-    ref = F[:, F_REF:F_REF + L.N_REF]
-    info = F[:, F_INFO:F_INFO + L.N_INFO]
-    info_ok = F[:, F_INFO_OK:F_INFO_OK + L.N_INFO]
-    acc = F[:, F_ACC:F_ACC + L.N_METRICS]
-    zprev = F[:, F_ZPREV:F_ZPREV + L.N_LOOP]
+    ctrl = F[:, F_CTRL:F_CTRL + N_CTRL]
+    ref = F[:, F_REF:F_REF + N_REF]
+    info = F[:, F_INFO:F_INFO + N_INFO]
+    info_ok = F[:, F_INFO_OK:F_INFO_OK + N_INFO]
+    acc = F[:, F_ACC:F_ACC + N_METRICS]
+    zprev = F[:, F_ZPREV:F_ZPREV + N_LOOP]
     u_res = F[:, F_URES]
     run = BB[:, BB_RUN]
     act = BB[:, BB_ACT]
     pre = BB[:, BB_PRE]
-    peek = F[:, F_PEEK:F_PEEK + L.N_INFO + L.N_LOOP]
+    peek = F[:, F_PEEK:F_PEEK + N_INFO + N_LOOP]
     for b in range(B):
         IB[b, IB_GID] = -1
         for j in range(N_STATS):
@@ -207,7 +207,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             act[b] = member
             if member:
                 IB[b, IB_GID] = g
-                F[b, F_STATS + S_TV0] = acc[b, L.M_TV_U]
+                F[b, F_STATS + S_TV0] = acc[b, M_TV_U]
         for j in range(n_per):
             # Periods alternate between the F_INFO and F_INFO_OK blocks, so the last finite period's info
             # survives a divergence in the next one without a per-period copy (lanes only ever stop).
@@ -216,11 +216,11 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
                                  c, X, U, zprev, work, lwork, pre, peek)
             for b in range(B):
                 if act[b]:
-                    e = inf[b, L.I_E]
+                    e = inf[b, I_E]
                     F[b, F_STATS + S_SUM_E2] += e * e
                     F[b, F_STATS + S_N] += 1.0
-                    F[b, F_STATS + S_SAT] += inf[b, L.I_SAT]
-                    u = inf[b, L.I_UAPP]
+                    F[b, F_STATS + S_SAT] += inf[b, I_SAT]
+                    u = inf[b, I_UAPP]
                     if j == 0 or u < F[b, F_STATS + S_UMIN]:
                         F[b, F_STATS + S_UMIN] = u
                     if j == 0 or u > F[b, F_STATS + S_UMAX]:
@@ -233,21 +233,23 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             # S_N finite periods ran: the last one (index S_N - 1) wrote F_INFO if its index is even
             n_ok = int(F[b, F_STATS + S_N])
             if n_ok > 0 and (n_ok - 1) % 2 == 0:
-                for i in range(L.N_INFO):
+                for i in range(N_INFO):
                     info_ok[b, i] = info[b, i]
+            n_run = F[b, F_STATS + S_N]
+            F[b, F_STATS + S_SATF] = F[b, F_STATS + S_SAT] / n_run if n_run > 0.0 else 0.0
             diverged = not act[b]
             run[b] = act[b]
             IB[b, IB_K] = kk + n_per
             a = u_res[b] * wts[W_INV_SCALE]
             F[b, F_REW] = agent_reward(a, F[b, F_APREV], F[b, F_STATS + S_N], F[b, F_STATS + S_SUM_E2],
-                                       acc[b, L.M_TV_U] - F[b, F_STATS + S_TV0], diverged, wts)
+                                       acc[b, M_TV_U] - F[b, F_STATS + S_TV0], diverged, wts)
             F[b, F_APREV] = a
             j = IB[b, IB_NSTEP]
             if j < elog.shape[1]:
-                elog[b, j] = info_ok[b, L.I_E]
+                elog[b, j] = info_ok[b, I_E]
             IB[b, IB_NSTEP] = j + 1
             _peek(F, BB, b, kk + n_per, h, events, filt, work)
-            _write_obs(obs[b], F[b, F_PEEK:F_PEEK + L.N_INFO], info_ok[b], lay)
+            _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], info_ok[b], lay)
         g += 1
 
 

@@ -1,4 +1,5 @@
-"""The arrays of B closed loops, shared by the single and the vector env, and the calls into the kernels."""
+"""The arrays of B closed loops, shared by the single and the vector env: their one step (:meth:`Lanes.step`) and the
+info it reports (:func:`step_info`)."""
 
 from __future__ import annotations
 
@@ -6,10 +7,31 @@ import math
 
 import numpy as np
 
-from ehss_gym.core import layout as L
-from ehss_gym.core.metrics import summarize_acc
+from ehss_gym.core.filters import filter_block
+from ehss_gym.core.layout import (
+    EV_END,
+    EV_START,
+    I_E,
+    I_S,
+    I_SAT,
+    I_T,
+    I_TF,
+    I_UAPP,
+    I_UBASE,
+    I_URES,
+    I_V,
+    N_INFO,
+    N_LOOP,
+    N_METRICS,
+    N_PARAM,
+    N_REF,
+)
+from ehss_gym.core.loop import init_filters
+from ehss_gym.core.metrics import init_accumulator, summarize_acc
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import N_LANE_CONST, lane_constants
+from ehss_gym.core.references import reference_value
+from ehss_gym.core.registry import REFERENCE_FAMILIES
 from ehss_gym.core.scenarios import (
     DEFAULT_DISTRIBUTION,
     PHYSICAL_FIELDS,
@@ -18,14 +40,56 @@ from ehss_gym.core.scenarios import (
     paper_scenario,
     sample_scenario,
 )
-from ehss_gym.core.signals import reference_value
-from ehss_gym.core.sim import Scenario, ctrl_row, filter_block, init_filters
+from ehss_gym.core.settings import C_BASE, C_NOISE_THETA, C_OMEGA_MAX, C_P_BOUND, C_SEED, N_CTRL, Scenario, ctrl_row
 
+from .buffers import (
+    BB_ACT,
+    BB_PRE,
+    BB_RUN,
+    F_ACC,
+    F_CTRL,
+    F_INFO_OK,
+    F_MODEL,
+    F_PLANT,
+    F_REF,
+    F_REW,
+    F_STATS,
+    F_URES,
+    F_Z,
+    FLAG_LAST,
+    FLAG_SQUASH,
+    IB_K,
+    IB_NSTEP,
+    LAY_FLAGS,
+    LAY_SCALE,
+    LAY_SRC,
+    N_BB,
+    N_F,
+    N_IB,
+    N_STATS,
+    S_SATF,
+)
 from .config import SCENARIOS, EnvConfig
 from .kernels import advance, advance_chunks, observe, reward_weights
 from .observation import observation_layout
 
 MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
+
+
+def step_info(i, st, clipped, n_clipped, diverged, lost_track) -> dict:
+    """The ``info`` of an env step (the env's docstring lists it): the same keys for the single and the vector env.
+
+    Args:
+        i: the last finite control sample's info row (layout I_*): one lane's as a list (the single env), or the
+            lanes' block transposed, ``i[k]`` the column of index k (the vector env).
+        st: the step's statistics (S_*), the same way.
+        clipped, n_clipped, diverged, lost_track: the action was clipped, clipped actions in the episode, the loop
+            diverged in the step, the episode has lost track (values, or arrays over the lanes).
+    """
+    return {"t": i[I_T], "e": i[I_E], "s": i[I_S], "V": i[I_V], "u_base": i[I_UBASE], "u_residual": i[I_URES],
+            "u_applied": i[I_UAPP], "saturated": i[I_SAT] > 0.0, "sat_fraction": st[S_SATF],
+            "friction_torque": i[I_TF], "clipped": clipped, "n_clipped": n_clipped, "diverged": diverged,
+            "lost_track": lost_track}
 
 
 class Lanes:
@@ -39,30 +103,30 @@ class Lanes:
         self.n_lanes = n_lanes
         tmpl = cfg.template()
         base = ctrl_row(tmpl)
-        base[L.C_BASE] = 1.0 if cfg.mode == "residual" else 0.0
+        base[C_BASE] = 1.0 if cfg.mode == "residual" else 0.0
         self.ctrl_base = base
         nominal = PlantParams().as_array()
-        self.F = np.zeros((B, L.N_F))
-        self.IB = np.zeros((B, L.N_IB), dtype=np.int64)
-        self.BB = np.zeros((B, L.N_BB), dtype=np.bool_)
+        self.F = np.zeros((B, N_F))
+        self.IB = np.zeros((B, N_IB), dtype=np.int64)
+        self.BB = np.zeros((B, N_BB), dtype=np.bool_)
         # named views into the buffers (writes go to F, IB, BB)
-        self.z = self.F[:, L.F_Z:L.F_Z + L.N_LOOP]
-        self.plant = self.F[:, L.F_PLANT:L.F_PLANT + L.N_PARAM]
-        self.model = self.F[:, L.F_MODEL:L.F_MODEL + L.N_PARAM]
-        self.ctrl = self.F[:, L.F_CTRL:L.F_CTRL + L.N_CTRL]
-        self.ref = self.F[:, L.F_REF:L.F_REF + L.N_REF]
-        self.info_ok = self.F[:, L.F_INFO_OK:L.F_INFO_OK + L.N_INFO]
-        self.acc = self.F[:, L.F_ACC:L.F_ACC + L.N_METRICS]
-        self.stats = self.F[:, L.F_STATS:L.F_STATS + L.N_STATS]
-        self.u_res = self.F[:, L.F_URES]
-        self.rew = self.F[:, L.F_REW]
-        # lane 0's rows, pre-made for the single env's step: stats (L.N_STATS), residual and reward in one view
+        self.z = self.F[:, F_Z:F_Z + N_LOOP]
+        self.plant = self.F[:, F_PLANT:F_PLANT + N_PARAM]
+        self.model = self.F[:, F_MODEL:F_MODEL + N_PARAM]
+        self.ctrl = self.F[:, F_CTRL:F_CTRL + N_CTRL]
+        self.ref = self.F[:, F_REF:F_REF + N_REF]
+        self.info_ok = self.F[:, F_INFO_OK:F_INFO_OK + N_INFO]
+        self.acc = self.F[:, F_ACC:F_ACC + N_METRICS]
+        self.stats = self.F[:, F_STATS:F_STATS + N_STATS]
+        self.u_res = self.F[:, F_URES]
+        self.rew = self.F[:, F_REW]
+        # lane 0's rows, pre-made for the single env's step: stats (N_STATS), residual and reward in one view
         self.info_ok0 = self.info_ok[0]
         self.acc0 = self.acc[0]
-        self.tail0 = self.F[0, L.F_STATS:L.F_REW + 1]
-        self.k = self.IB[:, L.IB_K]
-        self.nstep = self.IB[:, L.IB_NSTEP]
-        self.run = self.BB[:, L.BB_RUN]
+        self.tail0 = self.F[0, F_STATS:F_REW + 1]
+        self.k = self.IB[:, IB_K]
+        self.nstep = self.IB[:, IB_NSTEP]
+        self.run = self.BB[:, BB_RUN]
         self.plant[:] = nominal
         self.model[:] = nominal
         self.ctrl[:] = base
@@ -72,17 +136,17 @@ class Lanes:
         self.c = np.zeros((self.n_chunks, N_LANE_CONST, self.chunk))
         for i in range(self.n_chunks):
             lane_constants(np.ascontiguousarray(self.plant[i * self.chunk:(i + 1) * self.chunk]), self.c[i])
-        self.X = np.zeros((self.n_chunks, L.N_LOOP, self.chunk))
+        self.X = np.zeros((self.n_chunks, N_LOOP, self.chunk))
         self.U = np.zeros((self.n_chunks, self.chunk))
         self.work = np.zeros((self.n_chunks, 8, 4))
-        self.lwork = np.zeros((self.n_chunks, 6, L.N_LOOP, self.chunk))
+        self.lwork = np.zeros((self.n_chunks, 6, N_LOOP, self.chunk))
         self.layout = observation_layout(cfg)
         self.lay = np.zeros((3, len(self.layout)))
         for i, (_, src, scale, squash, _) in enumerate(self.layout):
-            self.lay[L.LAY_SRC, i] = src
-            self.lay[L.LAY_SCALE, i] = scale
-            last = src in (L.I_UAPP, L.I_URES)  # the applied/residual current of the last period, not a peek
-            self.lay[L.LAY_FLAGS, i] = (L.FLAG_SQUASH if squash else 0) + (L.FLAG_LAST if last else 0)
+            self.lay[LAY_SRC, i] = src
+            self.lay[LAY_SCALE, i] = scale
+            last = src in (I_UAPP, I_URES)  # the applied/residual current of the last period, not a peek
+            self.lay[LAY_FLAGS, i] = (FLAG_SQUASH if squash else 0) + (FLAG_LAST if last else 0)
         self.obs = np.zeros((B, len(self.layout)), dtype=np.float32)
         self.obs0 = self.obs[0]
         rw = cfg.reward_weights
@@ -96,14 +160,15 @@ class Lanes:
     @staticmethod
     def _empty_events(B: int, E: int) -> np.ndarray:
         ev = np.zeros((B, E, 3))
-        ev[:, :, L.F_START] = ev[:, :, L.F_END] = math.inf  # padding never fires
+        ev[:, :, EV_START] = ev[:, :, EV_END] = math.inf  # padding never fires
         return ev
 
     def load(self, b: int, sc: Scenario) -> None:
         """Put lane b at the start of scenario ``sc`` (rows as :meth:`ehss_gym.core.sim.LoopArrays.build` has them)."""
         cfg = self.cfg
-        if len(sc.reference.spec) != L.N_REF:
-            raise ValueError(f"the env runs the parametric references (sine, step, chirp, multisine), not a "
+        if len(sc.reference.spec) != N_REF:
+            parametric = ", ".join(f.name for f in REFERENCE_FAMILIES if f.parametric)
+            raise ValueError(f"the env runs the parametric references ({parametric}), not a "
                              f"{sc.reference.family!r} reference: its lanes hold fixed-size rows; simulate it with "
                              "ehss_gym.simulate")
         if len(sc.friction) > self.events.shape[1]:
@@ -116,23 +181,21 @@ class Lanes:
         self.model[b] = (sc.model or sc.plant).as_array()
         row = self.ctrl[b]
         row[:] = self.ctrl_base
-        row[L.C_SEED] = sc.seed
-        row[L.C_NOISE_THETA:L.C_NOISE_THETA + 4] = sc.noise_std
-        row[L.C_OMEGA_MAX] = sc.omega_max
-        row[L.C_P_BOUND] = sc.pressure_bound
+        row[C_SEED] = sc.seed
+        row[C_NOISE_THETA:C_NOISE_THETA + 4] = sc.noise_std
+        row[C_OMEGA_MAX] = sc.omega_max
+        row[C_P_BOUND] = sc.pressure_bound
         self.ref[b] = sc.reference.spec
         self.events[b, :, :] = 0.0
-        self.events[b, :, L.F_START] = self.events[b, :, L.F_END] = math.inf
+        self.events[b, :, EV_START] = self.events[b, :, EV_END] = math.inf
         if sc.friction:
             self.events[b, :len(sc.friction)] = sc.friction
         init_filters(self.z[b], self.filt[b], reference_value(0.0, self.ref[b]))
         lane_constants(self.plant[b:b + 1].copy(), self.tmp_c)
         self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
-        self.acc[b, L.M_T_DIVERGED] = -1.0
-        self.acc[b, L.M_LOST_BOUND] = sc.lost_track_bound
-        self.acc[b, L.M_T_LOST] = -1.0
+        init_accumulator(self.acc[b], sc.lost_track_bound)
         self.IB[b] = 0
-        self.BB[b, L.BB_PRE] = False  # the look-ahead of the previous episode is stale
+        self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
         self.run[b] = True
         T = sc.n_steps // cfg.agent_period
         self.T[b] = T
@@ -145,8 +208,8 @@ class Lanes:
 
     def observe(self, lanes) -> None:
         """Fill the observations of the given lanes from their current state (no time passes)."""
-        self.BB[:, L.BB_ACT] = False
-        self.BB[lanes, L.BB_ACT] = True
+        self.BB[:, BB_ACT] = False
+        self.BB[lanes, BB_ACT] = True
         observe(self.cfg.control_period, self.F, self.IB, self.BB, self.events, self.filt, self.work[0], self.obs,
                 self.lay)
 
@@ -160,18 +223,20 @@ class Lanes:
                        self.events, self.filt, self.c, self.X, self.U, self.work, self.lwork, self.obs, self.elog,
                        self.lay, self.wts)
 
-    def advance_single(self) -> None:
-        """One agent step of all lanes in one sequential call (needs a single chunk)."""
-        advance(*self._args)
-
-    def advance_parallel(self) -> None:
-        """One agent step of all lanes, chunks in parallel threads."""
-        advance_chunks(*self._pargs)
+    def step(self) -> None:
+        """One agent step of every running lane (``run``), each with its residual ``u_res`` [mA]: one compiled call
+        (:func:`ehss_gym.envs.kernels.advance`; with several chunks, :func:`~ehss_gym.envs.kernels.advance_chunks`
+        in parallel threads). Afterwards ``obs``, ``rew``, ``info_ok``, ``stats`` and ``acc`` hold each lane's
+        observation, reward, last finite control sample, step statistics and metrics accumulator."""
+        if self.n_chunks == 1:
+            advance(*self._args)
+        else:
+            advance_chunks(*self._pargs)
 
     def metrics(self, b: int) -> dict:
         """The core metrics summary of lane b's episode so far (with recovery times from the agent-rate log)."""
         sc = self.scenarios[b]
-        n = int(min(self.IB[b, L.IB_NSTEP], self.elog.shape[1]))
+        n = int(min(self.IB[b, IB_NSTEP], self.elog.shape[1]))
         per = self.cfg.agent_period
         t = ((np.arange(n) + 1) * per - 1) * self.cfg.control_period
         return summarize_acc(self.acc[b], sc, t, self.elog[b, :n].astype(np.float64))

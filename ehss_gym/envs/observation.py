@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 
-from ehss_gym.core import layout as L
+from ehss_gym.core.layout import I_E, I_S, I_UAPP, I_UBASE, I_URES, I_XM, I_YD
 from ehss_gym.core.params import PlantParams
-from ehss_gym.core.sim import UNITS
+from ehss_gym.core.settings import UNITS
 
 from .config import EnvConfig
 
@@ -27,17 +27,17 @@ def observation_layout(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]
     p = PlantParams()
     out = []
     for i in range(m):
-        out.append((f"e_d{i}" if i else "e", L.I_E + i, cfg.error_scale * wr**i, True, f"{unit}/s^{i}"))
-    out.append(("s", L.I_S, cfg.error_scale * wr ** (m - 1), True, f"{unit}/s^{m - 1}"))
+        out.append((f"e_d{i}" if i else "e", I_E + i, cfg.error_scale * wr**i, True, f"{unit}/s^{i}"))
+    out.append(("s", I_S, cfg.error_scale * wr ** (m - 1), True, f"{unit}/s^{m - 1}"))
     for i in range(m + 1):
-        out.append((f"y_ref_d{i}" if i else "y_ref", L.I_YD + i, Y_SCALE * W_Y**i, True, f"{unit}/s^{i}"))
-    out.append(("x1", L.I_XM + 0, 1.0, True, "rad"))
-    out.append(("x2", L.I_XM + 1, 1.0, True, "rad/s"))
-    out.append(("x3", L.I_XM + 2, p.P_s, True, "Pa"))
-    out.append(("x4", L.I_XM + 3, p.K * U_SCALE, True, "m^2"))
-    out.append(("u_applied", L.I_UAPP, U_SCALE, True, "mA"))
-    out.append(("u_base", L.I_UBASE, U_SCALE, True, "mA"))
-    out.append(("last_action", L.I_URES, cfg.residual_scale, False, "-"))
+        out.append((f"y_ref_d{i}" if i else "y_ref", I_YD + i, Y_SCALE * W_Y**i, True, f"{unit}/s^{i}"))
+    out.append(("x1", I_XM + 0, 1.0, True, "rad"))
+    out.append(("x2", I_XM + 1, 1.0, True, "rad/s"))
+    out.append(("x3", I_XM + 2, p.P_s, True, "Pa"))
+    out.append(("x4", I_XM + 3, p.K * U_SCALE, True, "m^2"))
+    out.append(("u_applied", I_UAPP, U_SCALE, True, "mA"))
+    out.append(("u_base", I_UBASE, U_SCALE, True, "mA"))
+    out.append(("last_action", I_URES, cfg.residual_scale, False, "-"))
     return out
 
 

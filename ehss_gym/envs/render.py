@@ -6,7 +6,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ehss_gym.core.sim import UNITS, Scenario
+from ehss_gym.core.settings import UNITS, Scenario
 
 from .config import EnvConfig
 

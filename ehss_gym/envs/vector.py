@@ -16,7 +16,7 @@ Conventions (Gymnasium 1.x):
   reward 0, ``terminated = truncated = False``, and ignores its action; its ``info["scenario"]`` is set.
   ``autoreset_mode=AutoresetMode.DISABLED``: an ended sub-env is not advanced again (its observation and
   info stay those of its last step, its actions are ignored) until ``reset`` (e.g. with a ``reset_mask``);
-  this is what :func:`ehss_gym.envs.rollout.rollout` uses to run a fixed set of episodes.
+  this is what :func:`ehss_gym.envs.rollouts.rollout` uses to run a fixed set of episodes.
 - ``infos`` is a dict of arrays (with ``_key`` masks): t, e, s, V, u_base, u_residual, u_applied,
   saturated, sat_fraction, friction_torque, clipped, n_clipped, diverged, lost_track every step; ``metrics``
   (and ``divergence_reason``) for sub-envs whose episode ended this step.
@@ -34,11 +34,10 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ehss_gym.core import layout as L
-from ehss_gym.core.layout import S_N, S_SAT
+from ehss_gym.core.layout import M_LOST
 
 from .config import EnvConfig
-from .lanes import Lanes
+from .lanes import Lanes, step_info
 from .observation import OBS_BOUND
 
 MAX_CHUNK = 128  # lanes integrated in lock-step by one thread
@@ -184,16 +183,13 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         lanes.u_res[resetting] = 0.0
         lanes.run[resetting] = False  # not advanced on their reset step
         lanes.run[idle] = False
-        if lanes.n_chunks == 1:
-            lanes.advance_single()
-        else:
-            lanes.advance_parallel()
+        lanes.step()
         stepped = np.ones(N, dtype=np.bool_)
         stepped[resetting] = False
         stepped[idle] = False
         run = lanes.run[:N]
         diverged = stepped & ~run
-        lost = lanes.acc[:N, L.M_LOST] > 0.0
+        lost = lanes.acc[:N, M_LOST] > 0.0
         if self.config.terminate_on_lost_track:
             run &= ~(stepped & lost)  # the lane stops here, as a diverged one does
         terminated = stepped & ~run
@@ -202,17 +198,9 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         run[resetting] = True
         rewards = lanes.rew[:N].copy()
         rewards[resetting] = 0.0
-        i = lanes.info_ok[:N]
-        st = lanes.stats[:N]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            satf = np.where(st[:, S_N] > 0, st[:, S_SAT] / st[:, S_N], 0.0)
-        step_info = {"t": i[:, L.I_T], "e": i[:, L.I_E], "s": i[:, L.I_S], "V": i[:, L.I_V],
-                     "u_base": i[:, L.I_UBASE], "u_residual": i[:, L.I_URES], "u_applied": i[:, L.I_UAPP],
-                     "saturated": i[:, L.I_SAT] > 0.0, "sat_fraction": satf, "friction_torque": i[:, L.I_TF],
-                     "clipped": clipped, "n_clipped": self._n_clipped.copy(), "diverged": diverged,
-                     "lost_track": lost}
+        step = step_info(lanes.info_ok[:N].T, lanes.stats[:N].T, clipped, self._n_clipped, diverged, lost)
         mask = np.ones(N, dtype=np.bool_)
-        for key, v in step_info.items():
+        for key, v in step.items():
             infos[key] = np.array(v, copy=True)
             infos["_" + key] = mask
         ended = np.nonzero(terminated | truncated)[0]

@@ -18,37 +18,17 @@ The report of an evaluation (markdown, CSVs, figures) is :mod:`ehss_gym.reportin
 
 from __future__ import annotations
 
-# the harness re-exports the names of the modules below it (its callers use ``harness.<name>``)
-from .harness import (
-    METRICS,
-    REFERENCE_POLICY,
-    SCORE_CAP,
-    SCRIPTED_DEFAULT,
-    SUITES,
-    SWEEP_WINDOW,
-    TASKS,
-    UNITS,
-    Episode,
-    EvalConfig,
-    PolicyError,
-    PolicySpec,
-    Results,
-    build_episodes,
-    check_fit,
-    default_specs,
-    evaluate,
-    learned_spec,
-    object_spec,
-    parse_policy,
-    primary_score,
-    rollout,
-    scripted_spec,
-    shipped_specs,
-)
-from .specs import PolicyWarning, parse_policies, saved_env_kwargs, valid_forms
+from ehss_gym.infra.lazy import lazy_exports
 
-__all__ = ["EvalConfig", "PolicySpec", "PolicyError", "PolicyWarning", "saved_env_kwargs",
-           "Episode", "Results", "evaluate", "parse_policy",
-           "parse_policies", "valid_forms", "scripted_spec", "learned_spec", "object_spec", "shipped_specs",
-           "default_specs", "primary_score", "build_episodes", "rollout", "check_fit", "REFERENCE_POLICY",
-           "SCRIPTED_DEFAULT", "SCORE_CAP", "METRICS", "TASKS", "SUITES", "UNITS", "SWEEP_WINDOW"]
+# the names load on first use: the command line reads the suites' settings without the harness's dependencies
+_EXPORTS = {
+    **dict.fromkeys(("evaluate", "Results", "rollout"), ".harness"),
+    **dict.fromkeys(("EvalConfig", "Episode", "build_episodes", "SUITES", "SWEEP_WINDOW", "TASKS", "UNITS"), ".suites"),
+    **dict.fromkeys(("PolicySpec", "PolicyWarning", "saved_env_kwargs", "parse_policy", "parse_policies",
+                     "valid_forms", "scripted_spec", "learned_spec", "object_spec", "shipped_specs", "default_specs",
+                     "check_fit", "REFERENCE_POLICY", "SCRIPTED_DEFAULT"), ".specs"),
+    "PolicyError": ".loading",
+    **dict.fromkeys(("primary_score", "SCORE_CAP", "METRICS"), ".scoring"),
+}
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
+__all__ = list(_EXPORTS)

@@ -3,7 +3,7 @@
 Every policy acts in the Gymnasium env ``EHSSTracking-v0`` (:class:`ehss_gym.envs.env.EHSSTrackingEnv`) through
 SB3's ``predict(obs, state, episode_start, deterministic=True)``; every episode is pinned to a scenario
 (``reset(options={"scenario": ...})``), so all policies see exactly the same references, friction
-events, plants and sensor noise. The episodes run as jobs of the execution layer (:mod:`ehss_gym.core.execution`):
+events, plants and sensor noise. The episodes run as jobs of the execution layer (:mod:`ehss_gym.infra.execution`):
 in this process, in ``spawn`` worker processes across the cores, or as Ray tasks (``--backend ray``); the split
 of episodes into jobs depends neither on the number of workers nor on the backend, so results are identical
 for any ``--workers`` and on both backends.
@@ -31,9 +31,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ehss_gym.core.execution import Backend, Executor, canonical, pin_blas, usable_cores
-from ehss_gym.core.execution import Job as ExecJob
-from ehss_gym.envs.rollout import rollout as run_rollout
+from ehss_gym.envs.rollouts import rollout as run_rollout
+from ehss_gym.infra.execution import Backend, Executor, Job, canonical, pin_blas, usable_cores
 
 from .loading import PolicyError, load_run, portable, restore
 from .scoring import METRIC_KEYS, METRICS, SCORE_CAP, primary_score, score_rows, summarize
@@ -58,8 +57,8 @@ ROW_EXTRAS = ("rmse_nominal", "peak_u", "tv_u", "divergence_reason", "t_diverged
 
 
 @dataclass
-class Job:
-    """One policy run on a list of episodes of one suite and task (what a worker does).
+class EpisodeBatch:
+    """One policy run on a list of episodes of one suite and task (what one executor job does).
 
     Attributes:
         job_id: index in the job list.
@@ -118,20 +117,20 @@ def item_digest(item: tuple) -> str:
 
 
 def _eval_job(config: dict, seed: int, items: dict) -> dict:
-    """An executor job (:mod:`ehss_gym.core.execution`): one :class:`Job`'s episodes with its policy, made once
-    per process from its item in ``items``; plain data back (per-episode metrics, traces or None)."""
-    job: Job = config["job"]
+    """An executor job (:mod:`ehss_gym.infra.execution`): one :class:`EpisodeBatch` with its policy, made once per
+    process from its item in ``items``; plain data back (per-episode metrics, traces or None)."""
+    batch: EpisodeBatch = config["batch"]
     # one object per item *and* (policy, run, task): a scripted law's item is the same for both tasks, its object
     # is built for one
-    made = (config["item"], job.key)
+    made = (config["item"], batch.key)
     if made not in _MADE:
-        _MADE[made] = restore(items[job.key], job.task, job.env_kwargs)
-    res, traces = rollout(_MADE[made], job.env_kwargs, job.episodes, job.trace, job.policy)
+        _MADE[made] = restore(items[batch.key], batch.task, batch.env_kwargs)
+    res, traces = rollout(_MADE[made], batch.env_kwargs, batch.episodes, batch.trace, batch.policy)
     return {"metrics": res, "traces": traces}
 
 
 def rollout(policy, env_kwargs: dict, episodes: Sequence[Episode], trace: bool = False, name: str = "policy"):
-    """Run ``policy`` on pinned episodes side by side: :func:`ehss_gym.envs.rollout.rollout`, the one loop.
+    """Run ``policy`` on pinned episodes side by side: :func:`ehss_gym.envs.rollouts.rollout`, the one loop.
 
     Args:
         policy: an object with SB3's ``predict``.
@@ -149,9 +148,9 @@ def rollout(policy, env_kwargs: dict, episodes: Sequence[Episode], trace: bool =
     return [r.metrics for r in res], ([r.trace for r in res] if trace else None)
 
 
-def make_jobs(specs: Sequence[PolicySpec], episodes: Sequence[Episode], chunk: int) -> list[Job]:
-    """Split the work into jobs: (policy, run, task, suite) groups cut into at most ``chunk`` episodes."""
-    jobs: list[Job] = []
+def make_batches(specs: Sequence[PolicySpec], episodes: Sequence[Episode], chunk: int) -> list[EpisodeBatch]:
+    """Split the work into batches: (policy, run, task, suite) groups cut into at most ``chunk`` episodes."""
+    batches: list[EpisodeBatch] = []
     for spec in specs:
         for r in range(len(spec.runs)):
             for task in TASKS:
@@ -163,9 +162,9 @@ def make_jobs(specs: Sequence[PolicySpec], episodes: Sequence[Episode], chunk: i
                         continue
                     n_parts = -(-len(eps) // chunk)
                     for part in np.array_split(np.arange(len(eps)), n_parts):
-                        jobs.append(Job(len(jobs), spec.name, r, task, spec.env_kwargs_for(task),
-                                        [eps[i] for i in part], trace=suite == "paper"))
-    return jobs
+                        batches.append(EpisodeBatch(len(batches), spec.name, r, task, spec.env_kwargs_for(task),
+                                                    [eps[i] for i in part], trace=suite == "paper"))
+    return batches
 
 
 def default_workers() -> int:
@@ -173,11 +172,11 @@ def default_workers() -> int:
     return usable_cores()
 
 
-def run_jobs(jobs: Sequence[Job], items: dict, executor: Executor, in_process: bool = False) -> dict:
-    """Run jobs on ``executor``'s backend (:mod:`ehss_gym.core.execution`), longest first.
+def run_batches(batches: Sequence[EpisodeBatch], items: dict, executor: Executor, in_process: bool = False) -> dict:
+    """Run the batches as jobs on ``executor``'s backend (:mod:`ehss_gym.infra.execution`), longest first.
 
     Args:
-        jobs: the jobs.
+        batches: the batches.
         items: (policy, run, task) -> how to make the policy (:func:`ehss_gym.evaluation.loading.portable`, or
             ("object", policy) in this process).
         executor: where they run (its store, if any, keeps each job's result under its content address).
@@ -186,18 +185,18 @@ def run_jobs(jobs: Sequence[Job], items: dict, executor: Executor, in_process: b
     Returns:
         job_id -> (per-episode metrics, traces or None).
     """
-    order = sorted(jobs, key=lambda j: -j.cost)  # longest first keeps the workers busy to the end
+    order = sorted(batches, key=lambda b: -b.cost)  # longest first keeps the workers busy to the end
     digests = {k: item_digest(item) if item[0] != "object" else f"object-{id(item[1])}" for k, item in items.items()}
-    ejobs = [ExecJob(_eval_job, {"job": j, "item": digests[j.key]}, seed=0, label=f"{j.policy}/{j.task}#{j.job_id}")
-             for j in order]
+    jobs = [Job(_eval_job, {"batch": b, "item": digests[b.key]}, seed=0, label=f"{b.policy}/{b.task}#{b.job_id}")
+            for b in order]
     store = executor.store
     if any(item[0] == "object" for item in items.values()):  # a Python object has no content address
         executor.store = None
     try:
-        results = executor.map(ejobs, context=items, desc="ehss evaluate", in_process=True if in_process else None)
+        results = executor.map(jobs, context=items, desc="ehss evaluate", in_process=True if in_process else None)
     finally:
         executor.store = store
-    return {j.job_id: (r["metrics"], r["traces"]) for j, r in zip(order, results)}
+    return {b.job_id: (r["metrics"], r["traces"]) for b, r in zip(order, results)}
 
 
 def _complete_specs(specs: list, cfg: EvalConfig, notes: list) -> list:
@@ -251,7 +250,7 @@ def _load_runs(specs: list, cfg: EvalConfig, notes: list) -> dict:
 
 
 def _policy_items(specs: list, loaded: dict, workers: int, notes: list) -> tuple[dict, int]:
-    """How each process gets each policy: (items for :func:`run_jobs`, workers; 1 = in this process).
+    """How each process gets each policy: (items for :func:`run_batches`, workers; 1 = in this process).
 
     Scripted laws are built afresh from their description where their episodes run; loaded models are handed
     over (in this process) or sent as bytes (to workers). An object that does not pickle keeps the episodes in
@@ -268,21 +267,21 @@ def _policy_items(specs: list, loaded: dict, workers: int, notes: list) -> tuple
     return items, 1
 
 
-def _gather(jobs: Sequence[Job], done: dict) -> tuple[list, dict]:
-    """Per-episode rows (labels, metrics) and the paper traces of finished jobs, in job order."""
+def _gather(batches: Sequence[EpisodeBatch], done: dict) -> tuple[list, dict]:
+    """Per-episode rows (labels, metrics) and the paper traces of finished batches, in batch order."""
     rows, traces = [], {}
-    for job in jobs:
-        res, tr = done[job.job_id]
-        for ep, m in zip(job.episodes, res):
-            row = {"suite": ep.suite, "task": ep.task, "policy": job.policy, "run": job.run_index,
+    for batch in batches:
+        res, tr = done[batch.job_id]
+        for ep, m in zip(batch.episodes, res):
+            row = {"suite": ep.suite, "task": ep.task, "policy": batch.policy, "run": batch.run_index,
                    "episode": ep.episode_id, "sweep": ep.sweep, "level": ep.level, "scenario_seed": ep.scenario_seed,
                    "t_end": ep.t_end}
             row.update({k: m[k] for k in METRIC_KEYS})
             row.update({k: m[k] for k in ROW_EXTRAS})
             rows.append(row)
         if tr is not None:
-            for ep, trace in zip(job.episodes, tr):
-                traces[(job.policy, job.run_index, ep.task)] = trace
+            for ep, trace in zip(batch.episodes, tr):
+                traces[(batch.policy, batch.run_index, ep.task)] = trace
     return rows, traces
 
 
@@ -297,7 +296,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
         workers: processes (default: the cores available); 1 runs in this process.
         progress: show a tqdm progress bar on stderr.
         command: the command line recorded in the report.
-        executor: where the episodes run (:mod:`ehss_gym.core.execution`; its backend, and its store if it has
+        executor: where the episodes run (:mod:`ehss_gym.infra.execution`; its backend, and its store if it has
             one); default: this machine's processes, ``workers`` of them, nothing stored.
 
     Raises:
@@ -315,16 +314,16 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
     specs = [replace(s, tasks=tuple(t for t in s.tasks if t in cfg.tasks)) for s in specs]
     specs = [s for s in specs if s.tasks]
     episodes = build_episodes(cfg)
-    jobs = make_jobs(specs, episodes, cfg.chunk)
+    batches = make_batches(specs, episodes, cfg.chunk)
     executor = executor or Executor(Backend("local", workers=workers), progress=progress)
     remote = executor.backend.name != "local"
-    workers = max(1, min(executor.workers(), len(jobs)))
+    workers = max(1, min(executor.workers(), len(batches)))
     # off this process (worker processes, Ray), a policy travels as its item; in it, as the object itself
     items, travel = _policy_items(specs, loaded, max(2, workers) if remote else workers, notes)
     workers = workers if travel > 1 else 1
     t0 = time.perf_counter()
-    done = run_jobs(jobs, items, executor, in_process=travel == 1)
-    rows, traces = _gather(jobs, done)
+    done = run_batches(batches, items, executor, in_process=travel == 1)
+    rows, traces = _gather(batches, done)
     t1 = time.perf_counter()
     score_rows(rows)
     summary, comparisons = summarize(rows, specs, cfg)
@@ -337,8 +336,8 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
 
 # the names callers use as ``harness.<name>`` (the training report and validation: ``from ehss_gym.evaluation
 # import harness as ev``); each is defined in the module named in the package docstring
-__all__ = ["EvalConfig", "PolicySpec", "PolicyError", "Episode", "Job", "Results", "evaluate", "parse_policy",
+__all__ = ["EvalConfig", "PolicySpec", "PolicyError", "Episode", "EpisodeBatch", "Results", "evaluate", "parse_policy",
            "scripted_spec", "learned_spec", "object_spec", "shipped_specs", "default_specs", "primary_score",
-           "build_episodes", "rollout", "check_fit", "make_jobs", "run_jobs", "default_workers",
+           "build_episodes", "rollout", "check_fit", "make_batches", "run_batches", "default_workers",
            "REFERENCE_POLICY", "SCRIPTED_DEFAULT", "SCORE_CAP", "METRICS", "METRIC_KEYS", "TASKS", "SUITES", "UNITS",
            "SWEEP_WINDOW"]

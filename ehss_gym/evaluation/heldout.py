@@ -51,7 +51,7 @@ class _ActFn:
 
 
 def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
-    """One episode per scenario through the rollout loop (:func:`ehss_gym.envs.rollout.rollout`).
+    """One episode per scenario through the rollout loop (:func:`ehss_gym.envs.rollouts.rollout`).
 
     Args:
         env_kwargs: ``EHSSTracking-v0`` keyword arguments (scenario pinned per episode).

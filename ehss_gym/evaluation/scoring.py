@@ -21,7 +21,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from . import stats as st
+from . import stats
 from .specs import CLF_RE, REFERENCE_POLICY, PolicySpec, controller_settings
 from .suites import SUITES, TASKS, EvalConfig
 
@@ -178,7 +178,7 @@ def _mean_metrics(sel: list) -> dict:
 def _score_statistics(m: np.ndarray, k: int, cfg: EvalConfig) -> dict:
     """Mean, IQM and median of one policy's (runs, episodes) score matrix ``m`` with bootstrap CIs (over episodes;
     with several runs also over seeds and both); ``k`` = its place in the block (the bootstrap seeds differ)."""
-    s = st.summarize_scores(m, n_boot=cfg.n_boot, seed=cfg.seed + 101 * k)
+    s = stats.summarize_scores(m, n_boot=cfg.n_boot, seed=cfg.seed + 101 * k)
     d = {"n_runs": s["n_runs"], "n_episodes": s["n_episodes"],
          "score_mean": s["mean"], "score_mean_lo": s["mean_ci"][0], "score_mean_hi": s["mean_ci"][1],
          "score_iqm": s["iqm"], "score_iqm_lo": s["iqm_ci"][0], "score_iqm_hi": s["iqm_ci"][1],
@@ -200,7 +200,7 @@ def _block_summary(rows: list, present: list, mats: dict, suite: str, task: str,
         d.update(_score_statistics(m, k, cfg))
         d["best_clf"] = best or ""
         if best is not None and n != best:
-            p, lo, hi = st.probability_of_improvement_ci(m, mats[best], n_boot=cfg.n_boot, seed=cfg.seed + 7 + k)
+            p, lo, hi = stats.probability_of_improvement_ci(m, mats[best], n_boot=cfg.n_boot, seed=cfg.seed + 7 + k)
             d["poi_vs_best_clf"], d["poi_lo"], d["poi_hi"] = p, lo, hi
         else:
             d["poi_vs_best_clf"] = d["poi_lo"] = d["poi_hi"] = math.nan
@@ -230,8 +230,8 @@ def _comparison(rows: list, spec: PolicySpec, specs: Sequence[PolicySpec], mats:
           for x in [n] + [s.name for s in same]}
     best_same = min(same, key=lambda s: (sm[s.name].mean(), s.name))
     m = sm[n]
-    imp, lo, hi = st.relative_improvement_ci(m, sm[best_same.name], n_boot=cfg.n_boot, seed=cfg.seed + 3)
-    p, plo, phi = st.probability_of_improvement_ci(m, sm[best_same.name], n_boot=cfg.n_boot, seed=cfg.seed + 5)
+    imp, lo, hi = stats.relative_improvement_ci(m, sm[best_same.name], n_boot=cfg.n_boot, seed=cfg.seed + 3)
+    p, plo, phi = stats.probability_of_improvement_ci(m, sm[best_same.name], n_boot=cfg.n_boot, seed=cfg.seed + 5)
     c = {"suite": suite, "task": task, "policy": n, "n_runs": m.shape[0], "best_clf": best_same.name,
          "score_reference": ref_same, "score_mean": float(m.mean()),
          "best_clf_score_mean": float(sm[best_same.name].mean()),

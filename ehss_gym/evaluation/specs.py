@@ -37,7 +37,7 @@ from ehss_gym.agents.safeweights import shipped_models
 from ehss_gym.controllers import parse_scripted
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
-from ehss_gym.envs.config import recorded_loop
+from ehss_gym.envs.config import LOOP_KEYS, in_legacy_loop
 
 from .loading import ZOO_ARGS, ZOO_CONFIG, PolicyError, load_safe, make_env, read_zoo_record
 from .suites import TASKS
@@ -45,8 +45,9 @@ from .suites import TASKS
 REFERENCE_POLICY = "clf-n2"  # the law the primary score is normalised by
 SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "pid")
 LEARNED_KINDS = ("residual-ppo", "ppo-direct", "sb3")  # sb3: any algorithm, its mode from the saved env spec
-CONTROLLER_KEYS = ("fr", "sigma", "smoothing", "current_limit", "control_period", "substeps", "estimator_hz",
-                   "estimator", "observer_hz", "law", "layer_gain", "bumpless", "ref_accel", "pressure_domain")
+# The settings that shape the base law's closed loop (the env's loop settings but the task, n and when a run is
+# flagged as lost): a learned policy trained at other values is compared with the laws at its own.
+CONTROLLER_KEYS = tuple(k for k in LOOP_KEYS if k not in ("task", "n", "lost_track"))
 CLF_RE = re.compile(r"^clf-n(\d+)$")
 _SEED_RE = re.compile(r"^(.*?)[-_](?:seed|s)(\d+)$")
 LABEL_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}$")  # a policy's report name given as LABEL=SPEC
@@ -293,7 +294,7 @@ def _run_env_kwargs(path: str, kind: str, spec_text: str) -> dict:
                               "'direct'), or sb3:PATH (the mode read from the saved env spec)")
     kw["mode"] = mode
     if pinned:  # our run folders and safe weights pin every env setting: a missing one predates that setting
-        kw = recorded_loop(kw)  # ... so the model acts in the loop it was trained in, not today's defaults
+        kw = in_legacy_loop(kw)  # ... so the model acts in the loop it was trained in (LEGACY_LOOP)
     # a generic env spec (STEM.json, a Gymnasium EnvSpec, rl-zoo3's records) lists only the kwargs that were passed:
     # a missing setting is the env's current default, as it was in training
     for k in _NOT_ENV:

@@ -20,7 +20,7 @@ import numpy as np
 
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.scenarios import HELDOUT_SEED_BASE, PHYSICAL_FIELDS, heldout_scenarios, paper_scenario
-from ehss_gym.core.sim import UNITS  # task -> unit of its output y (re-exported: the report's tables use it)
+from ehss_gym.core.settings import UNITS  # task -> unit of its output y (re-exported: the report's tables use it)
 from ehss_gym.envs import EnvConfig
 
 TASKS = ("velocity", "position")
@@ -101,7 +101,7 @@ class EvalConfig:
 
 @dataclass(frozen=True)
 class Episode:
-    """One pinned episode: its physical fields (:data:`ehss_gym.core.scenarios.PHYSICAL_FIELDS`) and labels.
+    """One pinned episode: its physical fields (:data:`ehss_gym.core.settings.PHYSICAL_FIELDS`) and labels.
 
     Attributes:
         suite: "paper", "heldout" or "robustness".

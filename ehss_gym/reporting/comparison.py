@@ -15,8 +15,6 @@ import time
 from collections.abc import Sequence
 
 from ehss_gym._version import __version__
-from ehss_gym.core.fmt import fmt_cell
-from ehss_gym.core.util import atomic_write_text
 from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.harness import Results
 from ehss_gym.evaluation.scoring import METRIC_KEYS, METRICS, RATE_KEYS, SCORE_CAP
@@ -29,6 +27,8 @@ from ehss_gym.evaluation.suites import (
     TASKS,
     UNITS,
 )
+from ehss_gym.infra.fmt import fmt_cell
+from ehss_gym.infra.util import atomic_write_text
 
 from .comparison_figures import FIGURE_KINDS, make_figures
 from .render import render
@@ -41,7 +41,7 @@ EPISODE_COLUMNS = ("suite", "task", "policy", "run", "episode", "sweep", "level"
 
 
 def fmt(x, digits: int = 3) -> str:
-    """A table cell (:func:`ehss_gym.core.fmt.fmt_cell`: scientific below 1e-3 and from 1e4)."""
+    """A table cell (:func:`ehss_gym.infra.fmt.fmt_cell`: scientific below 1e-3 and from 1e4)."""
     return fmt_cell(x, digits)
 
 def _md(text: str) -> str:

@@ -12,14 +12,14 @@ from collections.abc import Sequence
 import numpy as np
 
 from ehss_gym._version import __version__
-from ehss_gym.core.util import atomic_write
-from ehss_gym.evaluation import stats as st
+from ehss_gym.evaluation import stats
 from ehss_gym.evaluation.harness import Results
 from ehss_gym.evaluation.scoring import matrix
 from ehss_gym.evaluation.specs import REFERENCE_POLICY
 from ehss_gym.evaluation.suites import SUITES, TASKS, UNITS
+from ehss_gym.infra.util import atomic_write
 
-from .plotting import plt
+from .trajectory_figures import plt
 
 DPI = 90
 FIGURE_KINDS = ("bars", "traces", "robustness", "metrics")
@@ -129,7 +129,7 @@ def _mean_ci(res: Results, v: np.ndarray) -> tuple[float, float, float]:
     v = v[np.isfinite(v)]
     if not v.size:
         return math.nan, math.nan, math.nan
-    lo, hi = st.bootstrap_ci(v, "mean", n_boot=res.cfg.n_boot, seed=res.cfg.seed)
+    lo, hi = stats.bootstrap_ci(v, "mean", n_boot=res.cfg.n_boot, seed=res.cfg.seed)
     return float(v.mean()), lo, hi
 
 
@@ -215,7 +215,7 @@ def _sweep_curve(res: Results, pr: list, key: str) -> tuple[list, list, list, li
         xs.append(lv)
         ms.append(v.mean())
         if v.size > 1:
-            lo, hi = st.bootstrap_ci(v, "mean", n_boot=res.cfg.n_boot, seed=res.cfg.seed)
+            lo, hi = stats.bootstrap_ci(v, "mean", n_boot=res.cfg.n_boot, seed=res.cfg.seed)
         else:
             lo = hi = float(v.mean())
         los.append(lo)

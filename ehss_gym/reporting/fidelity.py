@@ -15,8 +15,8 @@ import numpy as np
 from matplotlib.ticker import NullFormatter, ScalarFormatter
 
 from ehss_gym._version import __version__
-from ehss_gym.core.sim import UNITS
-from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.core.settings import UNITS
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 from ehss_gym.study.fidelity import (
     OMEGA,
     SCHEMES,
@@ -28,8 +28,8 @@ from ehss_gym.study.fidelity import (
     observed_order,
 )
 
-from .plotting import plt
 from .render import render
+from .trajectory_figures import plt
 
 BEGIN = "<!-- fidelity-table:begin -->"
 END = "<!-- fidelity-table:end -->"
@@ -172,7 +172,7 @@ def closed_order_table(cl: list[dict], periods) -> str:
     return "\n".join(lines)
 
 
-def plotobserved_order(ol: list[dict], cl: list[dict], path: str, cmd: str) -> None:
+def plot_observed_order(ol: list[dict], cl: list[dict], path: str, cmd: str) -> None:
     """Log-log error against h with reference slopes 1 and 2: open loop (top derivatives) and closed loop."""
     fig, ax = plt.subplots(1, 2, figsize=(12, 6.8))
     colors = {"velocity": "tab:blue", "position": "tab:red"}
@@ -247,7 +247,7 @@ def summary(ol: list[dict], cl: list[dict]) -> dict:
     for task in TASK_ORDER:
         sel = {s: [r for r in cl if r["task"] == task and r["scheme"] == s] for s in ("zoh", "foh")}
         # the longest open-loop period (the closed loop may also run at the env's period, which the open loop
-        # does not: wave 1 of this report looked that one up and so dropped these bullets)
+        # does not: an earlier version of this report looked that one up and so dropped these bullets)
         o = next((r for r in ol if r["task"] == task and r["filter"] == "estimator" and r["top"]
                   and r["scheme"] == "foh" and r["h"] == max(x["h"] for x in ol)), None)
         rs = [r for r in sel["foh"] if (task, r["h"]) in top]
@@ -300,7 +300,7 @@ def write_report(ol, cl, out: str, cmd: str, periods, cl_periods, t_end: float, 
     os.makedirs(figs, exist_ok=True)
     atomic_write_text(os.path.join(data, "open_loop.csv"), _csv(ol, OPEN_COLS))
     atomic_write_text(os.path.join(data, "closed_loop.csv"), _csv(cl, CLOSED_COLS))
-    plotobserved_order(ol, cl, os.path.join(figs, "order.png"), cmd)
+    plot_observed_order(ol, cl, os.path.join(figs, "order.png"), cmd)
     docs_ref = "docs/MODEL.md"
     if docs is not None:
         rel = os.path.relpath(os.path.abspath(docs), os.path.abspath(out)).replace(os.sep, "/")

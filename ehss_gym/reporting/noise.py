@@ -18,11 +18,11 @@ import numpy as np
 
 from ehss_gym._version import __version__
 from ehss_gym.core.filters import butterworth_coefficients
-from ehss_gym.core.fmt import fmt_num as _f
-from ehss_gym.core.fmt import md_table
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import lie_derivatives
-from ehss_gym.core.util import atomic_write_text
+from ehss_gym.infra.fmt import fmt_num as _f
+from ehss_gym.infra.fmt import md_table
+from ehss_gym.infra.util import atomic_write_text
 from ehss_gym.study.noise import (
     NoiseStudy,
     final_variants,
@@ -467,7 +467,7 @@ def figures(st: NoiseStudy, figs: str, cmd: str) -> dict:
     plot_channels(chan, est, ["1x", "realistic"], os.path.join(figs, "noise_channels.png"), cmd)
     for i in st.rec["examples"]:
         trs = [st.group(f"example|{i}|{lab}")[0].traj for lab in ("old", "P", "new")]
-        plot_step(trs, ["before issue 14", "+ the model's pressure domain", "the new defaults"],
+        plot_step(trs, ["the legacy loop", "+ the model's pressure domain", "the new defaults"],
                   os.path.join(figs, f"startup_example_{i}.png"), cmd,
                   f"held-out position episode {i} ({trs[0].scenario.reference.description[:60]})")
     return out

@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ehss_gym.core.sim import UNITS  # noqa: E402
+from ehss_gym.core.settings import UNITS  # noqa: E402
 
 MAP_METRICS = (("rmse_quiet", "quiet RMSE (true error)", True), ("fric", "peak |e| in friction", True),
                ("tv", "control TV [mA/s]", True), ("sat", "saturation (share of steps)", False),

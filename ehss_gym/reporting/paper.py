@@ -17,10 +17,10 @@ from collections.abc import Sequence
 import numba as nb
 
 from ehss_gym._version import __version__
-from ehss_gym.core.fmt import fmt_axis, md_table
-from ehss_gym.core.fmt import fmt_num as _f
 from ehss_gym.core.params import PlantParams
-from ehss_gym.core.util import atomic_write, atomic_write_text
+from ehss_gym.infra.fmt import fmt_axis, md_table
+from ehss_gym.infra.fmt import fmt_num as _f
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 from ehss_gym.study.claims import CLAIM_FIG, CLAIMS, VERDICTS, best_verdict, evaluate_claims, sweep_claims
 from ehss_gym.study.config import (
     C4_TOL,
@@ -44,7 +44,7 @@ from ehss_gym.study.records import Record
 from ehss_gym.study.rules import attraction_bounds, lost_table
 from ehss_gym.study.stages import Study
 
-from . import paper_facts as F
+from . import paper_facts as facts
 from .paper_figures import (
     plot_divergence,
     plot_lost_track,
@@ -66,12 +66,13 @@ SET_TITLES = {
     "P2": "sigma = 1 with a 10 mA limit at 100 kHz",
     "P3": "normalised CLF (recommended sigma, period, substeps, limit), plain law w = 0",
     "P4": "the recommended env defaults (P3 plus the chosen smoothing)",
-    "P1_old": "P1 with wave 1's biased ZOH filters",
-    "P3_old": "wave 1's P3 (its recommended settings) with its ZOH filters",
+    "P1_old": "P1 with the first implementation's biased ZOH filters",
+    "P3_old": "the first implementation's P3 (its recommended settings) with its ZOH filters",
 }
 CLAIM_SETS = ("P0", "P1", "P2", "P3")
 OLD_NEW = (("P1", "P1_old"), ("P3", "P3_old"))
-FINAL_ROWS = (("old", "wave 1's defaults, its ZOH filters"), ("fixed", "wave 1's defaults, corrected filters"),
+FINAL_ROWS = (("old", "the first implementation's defaults, its ZOH filters"),
+              ("fixed", "the first implementation's defaults, corrected filters"),
               ("new", "the new defaults, corrected filters"))
 
 
@@ -377,20 +378,21 @@ def report_context(st: Study, data: str, cmd: str, wall_s: float | None) -> dict
                math=math, G_NOMINAL=G_NOMINAL)
     ctx.update(paper_tables(st))
     ctx.update(claims_context(st, data))
-    ctx.update(regions=F.regions(st), div=F.divergence_facts(st), probes=F.probe_facts(st), lim=F.limit_facts(st),
-               fr=F.fr_facts(st), n_counts=F.n_matters_counts(st), lost=F.lost_track(st),
+    ctx.update(regions=facts.regions(st), div=facts.divergence_facts(st), probes=facts.probe_facts(st),
+               lim=facts.limit_facts(st),
+               fr=facts.fr_facts(st), n_counts=facts.n_matters_counts(st), lost=facts.lost_track(st),
                smooth_rows=md_table(["n", "w", "diverged", "RMSE quiet", "friction peak", "rec. on [s]",
-                                     "TV rate [mA/s]", "saturation"], F.smoothing_rows(st, "smoothing")),
+                                     "TV rate [mA/s]", "saturation"], facts.smoothing_rows(st, "smoothing")),
                smooth_pos_rows=md_table(["n", "w", "diverged", "RMSE quiet [rad]", "friction peak [rad]",
                                          "rec. on [s]", "TV rate [mA/s]", "saturation"],
-                                        F.smoothing_rows(st, "smoothing_position")),
-               smooth_gain=F.smoothing_gain(st, "smoothing", rec["smoothing"]),
-               smooth_gain_pos=F.smoothing_gain(st, "smoothing_position", rec["smoothing_position"]),
+                                        facts.smoothing_rows(st, "smoothing_position")),
+               smooth_gain=facts.smoothing_gain(st, "smoothing", rec["smoothing"]),
+               smooth_gain_pos=facts.smoothing_gain(st, "smoothing_position", rec["smoothing_position"]),
                period_rows=md_table(["h [s]", "best sigma", "RMSE quiet", "saturation"],
-                                    F.period_rows(rec["period_table"])),
+                                    facts.period_rows(rec["period_table"])),
                pos_period_rows=md_table(["h [s]", "best sigma", "RMSE quiet [rad]", "saturation"],
-                                        F.period_rows(rec["pos_period_table"])),
-               best_n=F.best_by_n(st, "sigma_period", rec["h_paper"]), qmax=F.qmax,
+                                        facts.period_rows(rec["pos_period_table"])),
+               best_n=facts.best_by_n(st, "sigma_period", rec["h_paper"]), qmax=facts.qmax,
                p3=runs_by_set(st, "P3"), p4=runs_by_set(st, "P4"), p1=runs_by_set(st, "P1"), p2=runs_by_set(st, "P2"),
                p3_old=runs_by_set(st, "P3_old"), d_m=PlantParams().d_m,
                dist_limit_rows=md_table(["limit [mA]", "lost", "mean RMSE", "median RMSE", "mean saturation"],

@@ -8,9 +8,9 @@ import numpy as np
 import scipy.linalg
 
 from ehss_gym.core.filters import butterworth_coefficients, companion
-from ehss_gym.core.fmt import fmt_axis, md_table
-from ehss_gym.core.fmt import fmt_num as _f
 from ehss_gym.core.params import PlantParams
+from ehss_gym.infra.fmt import fmt_axis, md_table
+from ehss_gym.infra.fmt import fmt_num as _f
 from ehss_gym.study.config import G_NOMINAL, NS, SAT_MATTERS
 from ehss_gym.study.rules import attraction_bounds, cells_of, is_lost, lost_table, n_effect, n_matters
 from ehss_gym.study.stages import Study

@@ -11,13 +11,13 @@ from matplotlib import colors
 from matplotlib.ticker import LogLocator, NullLocator
 
 from ehss_gym._version import __version__
-from ehss_gym.core.fmt import fmt_axis
-from ehss_gym.core.sim import UNITS
+from ehss_gym.core.settings import UNITS
+from ehss_gym.infra.fmt import fmt_axis
 from ehss_gym.study.config import NS
 from ehss_gym.study.records import Record
 from ehss_gym.study.rules import MAP_METRICS, cells_of, n_effect
 
-from .plotting import plt
+from .trajectory_figures import plt
 
 
 def _made_by(cmd: str) -> str:

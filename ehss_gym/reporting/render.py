@@ -7,7 +7,7 @@ import os
 
 import jinja2
 
-from ehss_gym.core.fmt import fmt_axis, fmt_num, fmt_range, md_table
+from ehss_gym.infra.fmt import fmt_axis, fmt_num, fmt_range, md_table
 
 TEMPLATES = os.path.join(os.path.dirname(__file__), "templates")
 

@@ -1,6 +1,6 @@
 """The training report (``ehss training-report``): ``TRAINING.md`` with its prose in templates/training.md.j2, the
-learning curves, ``episodes.csv`` and ``results.json``; numbers and tables are computed here from the analyses
-of :mod:`ehss_gym.train.analysis`.
+learning curves, ``episodes.csv`` and ``results.json``, rendered from the training study
+(:func:`ehss_gym.study.training.run_training_study`, which evaluates the runs and ships the models).
 
     ehss training-report --runs runs/final runs/final_ppo --out reports/training --episodes 48 --ship ehss_gym/models
 """
@@ -11,14 +11,13 @@ import csv
 import io
 import json
 import os
-import time
 
 import matplotlib
 
 from ehss_gym.agents.specs import AGENTS
-from ehss_gym.core.fmt import fmt_cell
-from ehss_gym.core.util import atomic_write, atomic_write_text
-from ehss_gym.train import analysis as an
+from ehss_gym.infra.fmt import fmt_cell
+from ehss_gym.infra.util import atomic_write, atomic_write_text
+from ehss_gym.study import training as an
 
 from .render import render
 
@@ -33,7 +32,7 @@ CURVES = (("score", "validation score (ref. CLF n=2 = 1)"), ("rmse", "RMSE / bas
 
 
 def cell(x, d: int = 3) -> str:
-    """A table cell (:func:`ehss_gym.core.fmt.fmt_cell`): ``d`` decimals, significant digits below 0.01 and from
+    """A table cell (:func:`ehss_gym.infra.fmt.fmt_cell`): ``d`` decimals, significant digits below 0.01 and from
     1e4."""
     return fmt_cell(x, d, decimals=True)
 
@@ -95,8 +94,8 @@ def hyperparameter_rows() -> list[list[str]]:
     return cells([[f] + [json.dumps(AGENTS[a].as_dict()[f]) for a in AGENTS] for f in fields])
 
 
-def noise_rows(noise: dict) -> list[list[str]]:
-    """The initial-exploration-noise study (``noise_study.json``), one row per candidate log_std_init."""
+def exploration_rows(noise: dict) -> list[list[str]]:
+    """The exploration-noise study (``exploration_noise.json``), one row per candidate log_std_init."""
     return cells([[r["log_std_init"], r["std_mA"], r["explore_score"],
                    "; ".join(", ".join(f"{x:.3f}" for x in v) for v in r["early_scores"].values()),
                    r["mean_early_score"], r["worst_early_score"], "yes" if r["below_base"] else "no"]
@@ -130,23 +129,17 @@ def comparison_rows(res) -> list[list[str]]:
                    c.get("friction_peak_ratio")] for c in res.comparisons])
 
 
-def tv_rows(groups: dict, task: str, episodes: int) -> list[list[str]]:
-    """Where each residual group's added control TV comes from (:func:`ehss_gym.train.analysis.tv_sources`)."""
-    rows = []
-    for k, rs in groups.items():
-        if k[1] == task and rs[0]["config"]["env_kwargs"]["mode"] == "residual":
-            ts = an.tv_sources([os.path.join(r["dir"], "best", "policy") for r in rs], episodes)
-            rows.append([an.label(k), ts["policies"], ts["episodes"], ts["tv_ratio"], ts["own_share_of_added"],
-                         ts["own_share_of_total"], ts["crossings_ratio"], ts["rmse_ratio"]])
-    return cells(rows)
+def tv_rows(tv: list) -> list[list[str]]:
+    """Where each residual group's added control TV comes from (:func:`ehss_gym.study.training.tv_sources`)."""
+    return cells([[lab, ts["policies"], ts["episodes"], ts["tv_ratio"], ts["own_share_of_added"],
+                   ts["own_share_of_total"], ts["crossings_ratio"], ts["rmse_ratio"]] for lab, ts in tv])
 
 
-def task_context(task: str, res, groups: dict, episodes: int, wall_s: float) -> dict:
-    """Everything the report's section on ``task`` shows (its analyses run here)."""
-    return {"task": task, "summary_rows": summary_rows(res), "comparison_rows": comparison_rows(res),
-            "targets": an.residual_targets(res), "seed_rows": cells(an.seed_scores(res)),
-            "diag": an.base_law_diagnostics(res), "eb": an.error_budget(task, episodes),
-            "fa": an.friction_authority(task, episodes), "tv_rows": tv_rows(groups, task, episodes), "wall": wall_s}
+def task_context(t: dict, res) -> dict:
+    """Everything the report's section on task ``t["task"]`` shows, from its analyses (:class:`TrainingStudy`)."""
+    return {"task": t["task"], "summary_rows": summary_rows(res), "comparison_rows": comparison_rows(res),
+            "targets": t["targets"], "seed_rows": cells(t["seed_scores"]), "diag": t["diag"], "eb": t["eb"],
+            "fa": t["fa"], "tv_rows": tv_rows(t["tv"]), "wall": t["wall"]}
 
 
 def shipped_context(groups: dict, shipped: list[str], folder: str) -> dict | None:
@@ -161,12 +154,13 @@ def shipped_context(groups: dict, shipped: list[str], folder: str) -> dict | Non
             "names": [os.path.basename(p) for p in shipped]}
 
 
-def markdown(command: str, groups: dict, tasks: list[dict], noise: dict | None, shipped: dict | None,
+def markdown(command: str, groups: dict, tasks: list[dict], exploration: dict | None, shipped: dict | None,
              figure: str, episodes: int) -> str:
     """TRAINING.md: the template filled with the numbers and tables above."""
     return render("training.md.j2", command=command, runs=runs_context(groups), agents=list(AGENTS),
-                  hyperparameter_rows=hyperparameter_rows(), noise=noise,
-                  noise_rows=noise_rows(noise) if noise else [], agent_log_std=AGENTS["residual-ppo"].log_std_init,
+                  hyperparameter_rows=hyperparameter_rows(), exploration=exploration,
+                  exploration_rows=exploration_rows(exploration) if exploration else [],
+                  agent_log_std=AGENTS["residual-ppo"].log_std_init,
                   has_variants=any("log_std_init" in k[3] for k in groups), cost_rows=cost_rows(groups),
                   figure=os.path.basename(figure), made_by=COMMAND, tasks=tasks, episodes=episodes,
                   shipped=shipped, onset_peak=an.ONSET_PEAK, target_improvement=an.TARGET_IMPROVEMENT,
@@ -200,48 +194,26 @@ def command_line(runs: list[str], out: str, episodes: int, ship: str | None) -> 
             + (f" --ship {ship}" if ship else ""))
 
 
-def make_report(runs: list[str], out: str, episodes: int = 48, noise: str | None = None, ship: str | None = None,
-                workers: int = 2, progress: bool = True) -> dict:
-    """Evaluate the finished runs under the ``runs`` folders and write the report to ``out``.
+def write_report(study, out: str, command: str) -> list[str]:
+    """Write the report of a :class:`~ehss_gym.study.training.TrainingStudy` to ``out``; the paths written.
 
     Args:
-        runs: folders of run folders (each run folder as ``ehss train`` writes it).
+        study: the training study (evaluated runs, analyses, shipped models).
         out: output folder (TRAINING.md, learning_curves.png, episodes.csv, results.json).
-        episodes: held-out episodes per task.
-        noise: the noise study's JSON (``python -m ehss_gym.train.noise_study``), or None to leave it out.
-        ship: copy the chosen residual policies' safe weights to this folder (e.g. ``ehss_gym/models``), or None.
-        workers: evaluation worker processes.
-        progress: show progress bars.
-
-    Returns:
-        {"files": the paths written, "shipped": the model stems shipped}.
-
-    Raises:
-        ValueError: a missing ``runs`` folder, runs of one group with different settings, or no finished runs.
+        command: the command line that made it (printed at the top of TRAINING.md).
     """
-    groups = an.group_runs([r for folder in runs for r in an.load_runs(folder)])
-    if not groups:
-        raise ValueError(f"no finished runs under {runs}")
-    cmd = command_line(runs, out, episodes, ship)
     os.makedirs(out, exist_ok=True)
     figure = os.path.join(out, "learning_curves.png")
-    plot_curves(groups, figure)
-    results, tasks = {}, []
-    for task in sorted({k[1] for k in groups}):
-        t0 = time.perf_counter()
-        results.update(an.evaluate_groups({k: v for k, v in groups.items() if k[1] == task}, episodes, workers,
-                                          progress, COMMAND))
-        tasks.append((task, time.perf_counter() - t0))
-    shipped = an.ship(groups, ship, COMMAND) if ship else []
-    study = an.read_json(noise) if noise and os.path.isfile(noise) else None
-    sections = [task_context(task, results[task], groups, episodes, wall) for task, wall in tasks]
-    files = {"TRAINING.md": markdown(cmd, groups, sections, study, shipped_context(groups, shipped, ship), figure,
-                                     episodes),
-             "episodes.csv": episodes_csv(results), "results.json": results_json(results)}
+    plot_curves(study.groups, figure)
+    sections = [task_context(t, study.results[t["task"]]) for t in study.tasks]
+    shipped = shipped_context(study.groups, study.shipped, study.models_dir)
+    files = {"TRAINING.md": markdown(command, study.groups, sections, study.exploration, shipped, figure,
+                                     study.episodes),
+             "episodes.csv": episodes_csv(study.results), "results.json": results_json(study.results)}
     for name, text in files.items():
         atomic_write_text(os.path.join(out, name), text)
-    return {"files": [figure] + [os.path.join(out, name) for name in files], "shipped": shipped}
+    return [figure] + [os.path.join(out, name) for name in files]
 
 
 __all__ = ["COMMAND", "cell", "plot_curves", "markdown", "episodes_csv", "results_json", "command_line",
-           "make_report"]
+           "write_report"]

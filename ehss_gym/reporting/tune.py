@@ -10,7 +10,7 @@ import os
 import statistics
 
 from ehss_gym._version import __version__
-from ehss_gym.core.util import atomic_write_text
+from ehss_gym.infra.util import atomic_write_text
 
 
 def _csv(rows: list[dict]) -> str:

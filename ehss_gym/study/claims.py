@@ -6,8 +6,8 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from ehss_gym.core.fmt import fmt_axis
-from ehss_gym.core.fmt import fmt_num as _f
+from ehss_gym.infra.fmt import fmt_axis
+from ehss_gym.infra.fmt import fmt_num as _f
 
 from .config import (
     C4_CLAIM,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ehss_gym.core.sim import PAPER_FRICTION
+from ehss_gym.core.settings import PAPER_FRICTION
 
 NS = (2, 4, 6)
 # the paper's three configurations: (task, f_r [Hz]) -> paper figures
@@ -81,9 +81,10 @@ class StudyConfig:
         roa_sigmas: sigmas of the start-up probe.
         roa_t_end: its duration [s].
         estimator: the filter scheme of the study's runs ("foh": the corrected digital filters).
-        old_estimator: wave 1's scheme ("zoh"), re-run where the study compares old and new.
-        old_defaults: wave 1's env defaults per task (Scenario fields), the "old loop" of the comparisons.
-        old_paper_sigma: wave 1's recommended sigma per task (its set P3, re-run as P3_old).
+        old_estimator: the first implementation's scheme ("zoh"), re-run where the study compares old and new.
+        old_defaults: the first implementation's env defaults per task (Scenario fields), the "old loop" of the
+            comparisons.
+        old_paper_sigma: the first implementation's recommended sigma per task (its set P3, re-run as P3_old).
         pos_widths: smoothing widths w of the position smoothing study (its s is ~100x the velocity's).
         map_widths: smoothing widths w of the lost-track map on the randomised scenarios.
         map_limits: current limits [mA] of the lost-track map.
@@ -167,7 +168,7 @@ class StudyConfig:
                    map_widths=(0.0, 100.0), map_limits=(10.0,))
 
     def old(self, task: str) -> dict:
-        """Wave 1's env defaults of ``task`` as Scenario fields."""
+        """The first implementation's env defaults of ``task`` as Scenario fields."""
         return dict(dict(self.old_defaults)[task])
 
     def substeps_for(self, h: float) -> int:

@@ -5,8 +5,8 @@ runs them digitally at its period h (``Scenario.estimator``, derivation in docs/
 filters"). This module measures, for the schemes "zoh" and "foh" at h = 30, 10 and 3 us:
 
 (a) open loop: each filter driven by the sampled paper sine v = sin(2 t) (amplitude 1 in the output unit)
-    through the kernels' own functions (:func:`ehss_gym.core.control.filter_outputs`,
-    :func:`ehss_gym.core.control.advance_filter` on :func:`ehss_gym.core.filters.padded_filter`), against the
+    through the kernels' own functions (:func:`ehss_gym.core.estimators.filter_outputs`,
+    :func:`ehss_gym.core.estimators.advance_filter` on :func:`ehss_gym.core.filters.padded_filter`), against the
     continuous filter's exact steady-state response, Im((j w)^i c_0 / P(j w) e^{j w t}), at the samples:
     the RMS and relative RMS error of every derivative, and the error of the top derivative fitted by least
     squares to the signals it can come from, ``err = beta v' + alpha v''`` (beta predicted c_0 h / 2 for
@@ -30,10 +30,11 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from ehss_gym.core.control import advance_filter, filter_outputs
+from ehss_gym.core.estimators import advance_filter, filter_outputs
 from ehss_gym.core.filters import butterworth_coefficients, padded_filter
+from ehss_gym.core.jit import jit
 from ehss_gym.core.layout import L_E, L_UBASE, L_X, L_YD
-from ehss_gym.core.physics import jit, lie_derivatives
+from ehss_gym.core.physics import lie_derivatives
 from ehss_gym.core.sim import Scenario, lambdas, simulate_batch
 from ehss_gym.envs import DEFAULTS
 

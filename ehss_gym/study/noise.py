@@ -1,7 +1,7 @@
 """The noise study's runs (``ehss noise``), stage by stage; later stages use what earlier ones chose.
 
-Every run starts from the env's loop before issue 14 (:func:`old_template`: the reproduction study's period,
-f_r, sigma, smoothing, limit and the paper's SVF, :data:`ehss_gym.envs.config.PRE_ISSUE14_ENV`); each stage
+Every run starts from the env's legacy loop (:func:`old_template`: the reproduction study's period,
+f_r, sigma, smoothing, limit and the paper's SVF, :data:`ehss_gym.envs.config.LEGACY_LOOP`); each stage
 changes only the settings it studies. The rules are the pure functions of :mod:`.noise_rules`.
 
 1. :func:`stage_startup`: the old law's lost episodes (randomised and held-out, both tasks) and the levers on
@@ -26,10 +26,11 @@ import numpy as np
 from ehss_gym.controllers import PID_GAINS, PIDPolicy, tune_pid
 from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, heldout_scenarios, paper_scenario, sample_scenario
 from ehss_gym.core.sim import Scenario, lambdas, simulate_batch
-from ehss_gym.envs.config import PRE_ISSUE14_ENV, EnvConfig
-from ehss_gym.envs.rollout import rollout
+from ehss_gym.envs.config import LEGACY_LOOP, EnvConfig
+from ehss_gym.envs.rollouts import rollout
+from ehss_gym.infra.execution import Executor
 
-from . import bias as B
+from . import bias
 from .noise_config import NS, TASKS, NoiseStudyConfig
 from .noise_rules import choose_estimator_law, choose_ls_sigma, choose_startup, is_lost, summary
 from .records import RecordStore, Runner
@@ -46,8 +47,8 @@ class NoiseStudy(RecordStore):
 
 
 def old_env_kwargs(task: str) -> dict:
-    """The env's settings before issue 14 for ``task`` (its defaults with PRE_ISSUE14_ENV and the paper's SVF)."""
-    return {"task": task, **PRE_ISSUE14_ENV, "estimator": "foh"}
+    """The env's legacy loop for ``task`` (its defaults with LEGACY_LOOP and the paper's SVF)."""
+    return {"task": task, **LEGACY_LOOP, "estimator": "foh"}
 
 
 def old_template(task: str) -> Scenario:
@@ -370,11 +371,11 @@ def bias_check(tr) -> dict:
     lam = np.zeros(3)
     lv = lambdas(sc.order, sc.fr)
     lam[:len(lv)] = lv
-    b1m, b2m, i = B.measured_bias(t, x, tr.y_est_derivs, sc.task)
+    b1m, b2m, i = bias.measured_bias(t, x, tr.y_est_derivs, sc.task)
     amp = np.array([sum(a for a, t0, t1 in sc.friction if t0 <= tt < t1) for tt in t])
     x2dot = (sc.plant.d_m * x[:, 2] - sc.plant.B * x[:, 1] - tr.friction) / sc.plant.J
-    rate = B.friction_rate(x[:, 1], x2dot, amp, sc.plant.delta_friction)
-    b1d, b2d = B.bias_terms(x, sc.plant, sc.model, tr.friction, rate)
+    rate = bias.friction_rate(x[:, 1], x2dot, amp, sc.plant.delta_friction)
+    b1d, b2d = bias.bias_terms(x, sc.plant, sc.model, tr.friction, rate)
     # leave out the samples next to a friction edge (the torque jumps there; a central difference spans it)
     h = sc.control_period
     keep = np.ones(len(i), dtype=bool)
@@ -382,13 +383,14 @@ def bias_check(tr) -> dict:
         keep &= (np.abs(t[i] - t0) > 3 * h) & (np.abs(t[i] - t1) > 3 * h)
     keep &= t[i] >= 0.2  # past the start-up
     ii = i[keep]
-    bsd = B.combined_bias(b1d[ii], b2d[ii], sc.task, lam)
-    bsm = B.combined_bias(b1m[keep], b2m[keep], sc.task, lam)
+    bsd = bias.combined_bias(b1d[ii], b2d[ii], sc.task, lam)
+    bsm = bias.combined_bias(b1m[keep], b2m[keep], sc.task, lam)
     on = (t[ii] >= sc.friction[0][1] + 0.1) & (t[ii] < sc.friction[0][2])
     e = tr.e[ii]
     fric = on.any()
-    return {"b1_agree": B.relative_agreement(b1d[ii], b1m[keep]), "b2_agree": B.relative_agreement(b2d[ii], b2m[keep]),
-            "bs_agree": B.relative_agreement(bsd, bsm), "b1_rms": float(np.sqrt(np.mean(b1m[keep] ** 2))),
+    return {"b1_agree": bias.relative_agreement(b1d[ii], b1m[keep]),
+            "b2_agree": bias.relative_agreement(b2d[ii], b2m[keep]),
+            "bs_agree": bias.relative_agreement(bsd, bsm), "b1_rms": float(np.sqrt(np.mean(b1m[keep] ** 2))),
             "bs_rms": float(np.sqrt(np.mean(bsm**2))), "bs_fric_mean": float(np.mean(bsd[on])) if fric else math.nan,
             "e_pred_fric": float(-np.mean(bsd[on]) / lam[0]) if fric else math.nan,
             "e_fric": float(np.mean(e[on])) if on.any() else math.nan,
@@ -398,10 +400,11 @@ def bias_check(tr) -> dict:
 STAGES = (stage_startup, stage_ls_sigma, stage_grid, stage_choose, stage_final, stage_bias)
 
 
-def run_noise_study(cfg: NoiseStudyConfig, progress: bool = True) -> NoiseStudy:
-    """Run every stage in order."""
+def run_noise_study(cfg: NoiseStudyConfig, progress: bool = True, executor: Executor | None = None) -> NoiseStudy:
+    """Run every stage in order, the simulation batches on ``executor`` (:mod:`ehss_gym.infra.execution`; default in
+    this process, nothing stored)."""
     st = NoiseStudy(cfg=cfg)
-    runner = Runner(progress=progress, desc="ehss noise")
+    runner = Runner(progress=progress, desc="ehss noise", executor=executor)
     t0 = time.perf_counter()
     try:
         for stage in STAGES:

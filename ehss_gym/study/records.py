@@ -12,10 +12,10 @@ import numba as nb
 import numpy as np
 from tqdm import tqdm
 
-from ehss_gym.core import layout as L
-from ehss_gym.core.execution import Executor, Job
+from ehss_gym.core.layout import L_E, L_S, L_X, L_YD, M_STEPS, M_TV_U
 from ehss_gym.core.physics import lie_derivatives
 from ehss_gym.core.sim import Scenario, Trajectory, lambdas, simulate_batch
+from ehss_gym.infra.execution import Executor, Job
 
 
 @dataclass
@@ -55,14 +55,14 @@ def _relay_ratios(log, n_rows, m, n, sigma, lam, model_p, ulim):
     ga = np.empty(n_rows)
     k = 0
     for i in range(n_rows):
-        x = log[i, L.L_X:L.L_X + 4]
+        x = log[i, L_X:L_X + 4]
         F, G = lie_derivatives(x, model_p, m, hd)
         if G == 0.0 or not math.isfinite(G):
             continue
-        psi = F - log[i, L.L_YD + m]
+        psi = F - log[i, L_YD + m]
         for j in range(m - 1):
-            psi += lam[j] * log[i, L.L_E + j + 1]
-        s = log[i, L.L_S]
+            psi += lam[j] * log[i, L_E + j + 1]
+        s = log[i, L_S]
         ratio = abs(psi / G)
         if s == 0.0 or ratio == 0.0:
             continue
@@ -132,7 +132,7 @@ def features_of(traj) -> dict:
         f["tv_smooth_rate"] = float(np.sum(np.abs(np.diff(sm))) / dur)
     else:
         f["tv_smooth_rate"] = math.nan
-    tvr = traj.acc[L.M_TV_U] / max(traj.acc[L.M_STEPS] * sc.control_period, 1e-12)
+    tvr = traj.acc[M_TV_U] / max(traj.acc[M_STEPS] * sc.control_period, 1e-12)
     f["chatter_ratio"] = float(tvr / f["tv_smooth_rate"]) if f["tv_smooth_rate"] > 0 else math.nan
     if len(t) > 1:
         lam = np.zeros(3)
@@ -165,7 +165,7 @@ def probe_summary(r: Record) -> Record:
 
 
 def batch_job(config: dict, seed: int, context) -> list[dict]:
-    """An executor job (:mod:`ehss_gym.core.execution`): one ``simulate_batch`` call of the study, as plain data
+    """An executor job (:mod:`ehss_gym.infra.execution`): one ``simulate_batch`` call of the study, as plain data
     per run (params, metrics, features; with ``keep`` the trajectory's log and accumulators too). The scenarios
     carry their own noise seeds, so ``seed`` is unused."""
     out = []
@@ -198,7 +198,7 @@ class RecordStore:
 
 class Runner:
     """Batches scenarios by time grid into ``simulate_batch`` calls (jobs of an
-    :class:`~ehss_gym.core.execution.Executor`), with one tqdm bar over batches."""
+    :class:`~ehss_gym.infra.execution.Executor`), with one tqdm bar over batches."""
 
     def __init__(self, max_batch: int = 64, progress: bool = True, desc: str = "ehss reproduce",
                  executor: Executor | None = None):

@@ -9,10 +9,10 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from ehss_gym.core.execution import Executor
 from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, heldout_scenarios, paper_scenario, sample_scenario
 from ehss_gym.core.signals import sine
 from ehss_gym.core.sim import Scenario
+from ehss_gym.infra.execution import Executor
 
 from .config import CONFIGS, NS, StudyConfig
 from .records import RecordStore, Runner, probe_summary
@@ -287,7 +287,7 @@ def run_study(cfg: StudyConfig, progress: bool = True, executor: Executor | None
     Args:
         cfg: the study's settings.
         progress: show a progress bar.
-        executor: where the simulation batches run (:mod:`ehss_gym.core.execution`; default in this process).
+        executor: where the simulation batches run (:mod:`ehss_gym.infra.execution`; default in this process).
     """
     st = Study(cfg=cfg)
     runner = Runner(progress=progress, executor=executor)

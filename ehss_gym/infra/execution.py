@@ -52,8 +52,8 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-BACKENDS = ("local", "ray")
-RAY_INSTALL = "pip install 'ehss-gym[ray]'"
+from . import BACKENDS, DEFAULT_STORE, RAY_INSTALL
+
 # every thread pool a job might start: torch/OpenMP, MKL, OpenBLAS and numba
 THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
 NUMBA_CACHE_ENV = "NUMBA_CACHE_DIR"
@@ -389,32 +389,6 @@ class Backend:
         return self.address or os.environ.get("RAY_ADDRESS") or None
 
 
-DEFAULT_STORE = os.path.join("runs", "jobs")
-
-
-def backend_from_args(args, workers: int | None = None) -> Backend:
-    """A validated :class:`Backend` from the options :func:`add_backend_arguments` added."""
-    return Backend(name=args.backend, address=args.address, workers=workers).validate()
-
-
-def store_from_args(args) -> Store | None:
-    """The :class:`Store` of ``--store`` (default :data:`DEFAULT_STORE`), or None with ``--no-store``."""
-    return None if args.no_store else Store(args.store or DEFAULT_STORE)
-
-
-def add_backend_arguments(parser) -> None:
-    """``--backend``, ``--address``, ``--store`` and ``--no-store`` on an argparse parser."""
-    g = parser.add_argument_group("execution (docs/RAY.md)")
-    g.add_argument("--backend", default="local", metavar="{local,ray}",
-                   help="where the jobs run: local (default; this machine, no Ray needed) or ray (a Ray cluster: "
-                        "--address, else RAY_ADDRESS, else a local Ray instance; needs " + RAY_INSTALL + ")")
-    g.add_argument("--address", default=None, metavar="HOST:PORT",
-                   help="the Ray cluster to join (with --backend ray; default RAY_ADDRESS)")
-    g.add_argument("--store", default=None, metavar="DIR",
-                   help=f"where each job's result is kept under its content address, so a rerun (or a restart "
-                        f"after an interruption) computes only the missing jobs (default {DEFAULT_STORE})")
-    g.add_argument("--no-store", action="store_true", help="keep no job results: compute every job afresh")
-
 
 def thread_env(threads: int) -> dict:
     """The environment variables that cap a job's thread pools at ``threads``."""
@@ -670,5 +644,5 @@ def _checked(job: Job, get: Callable[[], str]) -> str:
 
 __all__ = ["BACKENDS", "RAY_INSTALL", "DEFAULT_STORE", "ExecutionError", "Job", "Store", "Backend", "Executor",
            "canonical", "code_fingerprint", "job_key", "encode", "decode", "dumps", "loads", "usable_cores",
-           "require_ray", "check_address", "backend_from_args", "store_from_args", "add_backend_arguments",
-           "thread_env", "pin_blas", "BLAS_ENV", "numba_cache_dir", "set_threads", "run_one"]
+           "require_ray", "check_address", "thread_env", "pin_blas", "BLAS_ENV", "numba_cache_dir", "set_threads",
+           "run_one"]

@@ -1,6 +1,7 @@
-"""Measurement behind the residual agent's initial exploration noise (``log_std_init``).
+"""The exploration-noise study: the measurement behind the residual agent's initial exploration noise
+(``log_std_init``, the std of PPO's Gaussian actions; not the sensor noise of ``ehss noise``).
 
-    python -m ehss_gym.train.noise_study --out reports/training/noise_study.json
+    python -m ehss_gym.study.exploration --out reports/training/exploration_noise.json
 
 For each candidate ``log_std_init`` (Gaussian std in action units; one unit = ``residual_scale`` mA):
 
@@ -26,13 +27,12 @@ import sys
 import time
 
 import numpy as np
+
 from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
-
-from ehss_gym.core.util import atomic_write_text
 from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
-
-from .config import Config
-from .loop import train
+from ehss_gym.infra.util import atomic_write_text
+from ehss_gym.train.config import Config
+from ehss_gym.train.loop import train
 
 CANDIDATES = (-4.0, -3.0, -2.0, -1.0)
 
@@ -44,7 +44,7 @@ def stochastic_zero_policy(std: float, seed: int):
 
 
 def run(candidates=CANDIDATES, timesteps: int = 40_960, eval_freq: int = 8_192, episodes: int = 16,
-        seeds=(0, 1), workdir: str = "runs/noise_study", progress: bool = False) -> dict:
+        seeds=(0, 1), workdir: str = "runs/exploration_noise", progress: bool = False) -> dict:
     """The study (see the module docstring); returns a JSON-able dict."""
     spec = get_spec("residual-ppo")
     kw = env_kwargs_for(spec, "velocity", 2)
@@ -74,18 +74,20 @@ def run(candidates=CANDIDATES, timesteps: int = 40_960, eval_freq: int = 8_192, 
                      "mean_early_score": float(np.mean(scores)), "worst_early_score": max(scores),
                      "below_base": any(x > 1.0 for x in scores), "wall_s": time.perf_counter() - t0})
     ok = [r["log_std_init"] for r in rows if not r["below_base"]]
-    return {"command": "python -m ehss_gym.train.noise_study", "timesteps": timesteps, "eval_freq": eval_freq,
+    return {"command": "python -m ehss_gym.study.exploration", "timesteps": timesteps, "eval_freq": eval_freq,
             "episodes": episodes, "seeds": list(seeds), "env_kwargs": resolved_env_kwargs(kw), "rows": rows,
             "largest_safe_log_std_init": max(ok) if ok else None, "chosen_log_std_init": spec.log_std_init}
 
 
 def main(argv=None) -> int:
     """Run the study from the command line and write its JSON."""
-    p = argparse.ArgumentParser(prog="python -m ehss_gym.train.noise_study", description=__doc__.split("\n")[0])
-    p.add_argument("--out", default=os.path.join("reports", "training", "noise_study.json"))
-    p.add_argument("--timesteps", type=int, default=40_960)
-    p.add_argument("--episodes", type=int, default=16)
-    p.add_argument("--workdir", default=os.path.join("runs", "noise_study"))
+    p = argparse.ArgumentParser(prog="python -m ehss_gym.study.exploration", description=__doc__.split("\n")[0])
+    p.add_argument("--out", default=os.path.join("reports", "training", "exploration_noise.json"),
+                   help="the JSON written (default: %(default)s)")
+    p.add_argument("--timesteps", type=int, default=40_960, help="steps of each short run (default: %(default)s)")
+    p.add_argument("--episodes", type=int, default=16, help="validation episodes (default: %(default)s)")
+    p.add_argument("--workdir", default=os.path.join("runs", "exploration_noise"),
+                   help="the short training runs' folder (default: %(default)s)")
     args = p.parse_args(argv)
     res = run(timesteps=args.timesteps, episodes=args.episodes, workdir=args.workdir)
     atomic_write_text(args.out, json.dumps(res, indent=1) + "\n")

@@ -1,4 +1,4 @@
-"""The analyses behind the training report (``ehss training-report``; the writer is
+"""The training study behind ``ehss training-report`` (:func:`run_training_study`; its report is
 :mod:`ehss_gym.reporting.training`): finished runs, their evaluation and the diagnostics of the residuals.
 
 Reads every run folder under the ``--runs`` folders (those with ``summary.json``), groups them by
@@ -23,17 +23,19 @@ from __future__ import annotations
 import json
 import math
 import os
+import time
+from dataclasses import dataclass
 
 import numpy as np
+
 from ehss_gym.agents.safeweights import load_policy, model_paths
 from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
-
 from ehss_gym.core.scenarios import heldout_scenarios
 from ehss_gym.core.sim import simulate_batch
-from ehss_gym.core.util import atomic_write, atomic_write_text
 from ehss_gym.envs import EHSSTrackingEnv
-from ehss_gym.envs.config import recorded_loop
+from ehss_gym.envs.config import in_legacy_loop
 from ehss_gym.evaluation import harness as ev
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 ONSET_PEAK = 0.01  # [s] a friction-window peak this soon after the switch-on is the torque step's transient
 TARGET_IMPROVEMENT = 0.2  # [-] the residuals' target: 1 - score/score_best >= this, ...
@@ -206,12 +208,13 @@ def agent_env_kwargs(task: str) -> dict:
     """The residual agent's env settings for ``task`` (n = 2) in the loop the shipped runs were trained in: the
     loop its diagnostics must be measured in.
 
-    The runs this report reads predate issue 14's loop settings (law, layer, estimator defaults), so, as when
-    their policies are loaded (:func:`ehss_gym.envs.config.recorded_loop`), the settings the agent spec leaves to
-    the env are those before issue 14, not today's env defaults.
+    The runs this report reads were trained in the legacy loop (:data:`ehss_gym.envs.config.LEGACY_LOOP`: before
+    the law, the adaptive layer and the estimator defaults of the noise study), so, as when their policies are
+    loaded (:func:`ehss_gym.envs.config.in_legacy_loop`), the settings the agent spec leaves to the env are the
+    legacy loop's, not today's env defaults.
     """
-    # (the paper's SVF, "foh", was every task's estimator before issue 14; safe weights pin theirs)
-    return recorded_loop({"estimator": "foh", **env_kwargs_for(get_spec("residual-ppo"), task, 2)})
+    # (the paper's SVF, "foh", was every task's estimator in the legacy loop; safe weights pin theirs)
+    return in_legacy_loop({"estimator": "foh", **env_kwargs_for(get_spec("residual-ppo"), task, 2)})
 
 
 def agent_heldout_scenarios(task: str, episodes: int) -> list:
@@ -401,9 +404,9 @@ def ship(groups: dict, models_dir: str, made_by: str) -> list[str]:
                 blob = f.read()
             cfg = read_json(js)
             cfg["name"] = name
-            # pin the env defaults it was trained with: a run from before issue 14 recorded none of its settings
-            # (recorded_loop fills in the loop of then, not today's defaults)
-            cfg["env_kwargs"] = resolved_env_kwargs(recorded_loop(cfg["env_kwargs"]))
+            # pin the env settings it was trained with: a run recorded before the loop settings of LEGACY_LOOP
+            # existed lacks them (in_legacy_loop fills in the loop of then, not today's defaults)
+            cfg["env_kwargs"] = resolved_env_kwargs(in_legacy_loop(cfg["env_kwargs"]))
             cfg["metadata"] = {"run_name": r["summary"]["run_name"], "seed": r["config"]["seed"],
                                "hp_overrides": r["config"].get("hp") or {},
                                "step": r["summary"]["best_step"], "validation": r["summary"]["best_validation"],
@@ -418,7 +421,77 @@ def ship(groups: dict, models_dir: str, made_by: str) -> list[str]:
     return written
 
 
-__all__ = ["ONSET_PEAK", "TARGET_IMPROVEMENT", "TARGET_SEEDS", "TARGET_FRICTION", "read_json", "load_runs",
+# ---------------------------------------------------------------------------------------------------
+# The study
+
+
+@dataclass
+class TrainingStudy:
+    """What the training report shows, computed (:func:`run_training_study`).
+
+    Attributes:
+        groups: the finished runs by group (:func:`group_runs`).
+        results: per task, the harness's :class:`~ehss_gym.evaluation.harness.Results`.
+        tasks: per task (in order), its analyses: ``task``, ``wall`` (the evaluation's wall time [s]),
+            ``targets`` (:func:`residual_targets`), ``seed_scores``, ``diag`` (:func:`base_law_diagnostics`),
+            ``eb`` (:func:`error_budget`), ``fa`` (:func:`friction_authority`) and ``tv``: (group label,
+            :func:`tv_sources`) per residual group.
+        shipped: the model stems shipped (empty without ``ship``).
+        exploration: the exploration-noise study's JSON (:mod:`ehss_gym.study.exploration`), or None.
+        episodes: held-out episodes per task.
+        models_dir: the folder the models were shipped to, or None.
+    """
+
+    groups: dict
+    results: dict
+    tasks: list
+    shipped: list
+    exploration: dict | None
+    episodes: int
+    models_dir: str | None = None
+
+
+def task_analyses(task: str, res, groups: dict, episodes: int) -> dict:
+    """The analyses of one task's section (see :class:`TrainingStudy`), ``wall`` aside."""
+    tv = [(label(k), tv_sources([os.path.join(r["dir"], "best", "policy") for r in rs], episodes))
+          for k, rs in groups.items() if k[1] == task and rs[0]["config"]["env_kwargs"]["mode"] == "residual"]
+    return {"task": task, "targets": residual_targets(res), "seed_scores": seed_scores(res),
+            "diag": base_law_diagnostics(res), "eb": error_budget(task, episodes),
+            "fa": friction_authority(task, episodes), "tv": tv}
+
+
+def run_training_study(runs: list[str], episodes: int = 48, exploration: str | None = None, ship_to: str | None = None,
+                       workers: int = 2, progress: bool = True, made_by: str = "ehss training-report") -> TrainingStudy:
+    """Evaluate the finished runs under the ``runs`` folders and analyse them; optionally ship the chosen policies.
+
+    Args:
+        runs: folders of run folders (each run folder as ``ehss train`` writes it).
+        episodes: held-out episodes per task.
+        exploration: the exploration-noise study's JSON, or None (a missing file is left out too).
+        ship_to: copy the chosen residual policies' safe weights to this folder (e.g. ``ehss_gym/models``), or None.
+        workers: evaluation worker processes.
+        progress: show progress bars.
+        made_by: the command, recorded with the evaluation and in the shipped models.
+
+    Raises:
+        ValueError: a missing ``runs`` folder, runs of one group with different settings, or no finished runs.
+    """
+    groups = group_runs([r for folder in runs for r in load_runs(folder)])
+    if not groups:
+        raise ValueError(f"no finished runs under {runs}")
+    results, tasks = {}, []
+    for task in sorted({k[1] for k in groups}):
+        t0 = time.perf_counter()
+        results.update(evaluate_groups({k: v for k, v in groups.items() if k[1] == task}, episodes, workers,
+                                       progress, made_by))
+        tasks.append({"wall": time.perf_counter() - t0, **task_analyses(task, results[task], groups, episodes)})
+    shipped = ship(groups, ship_to, made_by) if ship_to else []
+    study = read_json(exploration) if exploration and os.path.isfile(exploration) else None
+    return TrainingStudy(groups, results, tasks, shipped, study, episodes, ship_to)
+
+
+__all__ = ["TrainingStudy", "run_training_study", "task_analyses", "ONSET_PEAK", "TARGET_IMPROVEMENT",
+           "TARGET_SEEDS", "TARGET_FRICTION", "read_json", "load_runs",
            "group_key", "group_runs", "label", "wall_to_best", "evaluate_groups", "residual_targets", "seed_scores",
            "has_noise", "base_law_diagnostics", "agent_env_kwargs", "agent_heldout_scenarios", "friction_authority",
            "error_budget", "period_log", "tv_sources", "mean_validation", "choose_variants", "ship"]

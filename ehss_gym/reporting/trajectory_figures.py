@@ -8,7 +8,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ehss_gym.core.sim import UNITS  # noqa: E402
+from ehss_gym.core.settings import UNITS  # noqa: E402
 
 COHERENCE_MIN = 0.99  # frequencies with less coherence are drawn faint: the run did not excite them enough
 

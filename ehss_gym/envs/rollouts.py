@@ -64,7 +64,7 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
             taking a batch (N, D) of observations. Its recurrent ``state`` (a PID's integrator) is passed along
             for the whole batch, and every episode gets ``episode_start=True`` on its first step.
         env_kwargs: keyword arguments of the env the policy acts in (``EHSSTrackingEnv``'s).
-        scenarios: one pinned episode per lane: a :class:`~ehss_gym.core.sim.Scenario` with the env's
+        scenarios: one pinned episode per lane: a :class:`~ehss_gym.core.settings.Scenario` with the env's
             controller settings, or a dict of its physical fields.
         trace: record the agent-rate trace of every episode.
         name: the policy's name in error messages.

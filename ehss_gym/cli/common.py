@@ -1,0 +1,32 @@
+"""What several commands do with their parsed options: the execution layer's backend and store, the output folder."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from ehss_gym.infra.execution import DEFAULT_STORE, Backend, Store
+
+
+def backend_from_args(args, workers: int | None = None) -> Backend:
+    """A validated :class:`~ehss_gym.infra.execution.Backend` from ``--backend``, ``--address`` and ``workers``."""
+    return Backend(name=args.backend, address=args.address, workers=workers).validate()
+
+
+def store_from_args(args) -> Store | None:
+    """The :class:`~ehss_gym.infra.execution.Store` of ``--store`` (default runs/jobs), or None with ``--no-store``."""
+    return None if args.no_store else Store(args.store or DEFAULT_STORE)
+
+
+def check_out_folder(prog: str, out: str) -> bool:
+    """False (with a message naming ``--out``) unless ``out`` is a non-empty path that is not a file."""
+    if not out or not str(out).strip():
+        print(f"{prog}: error: --out must be a non-empty folder path", file=sys.stderr)
+        return False
+    if os.path.exists(out) and not os.path.isdir(out):
+        print(f"{prog}: error: --out must be a folder, {out!r} is a file", file=sys.stderr)
+        return False
+    return True
+
+
+__all__ = ["backend_from_args", "store_from_args", "check_out_folder"]

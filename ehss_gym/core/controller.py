@@ -1,0 +1,278 @@
+"""The digital controller's work at each sample: measure, estimate, the reference model, the law's current.
+
+One control period of the controller is :func:`controller_sense` (everything that does not depend on the residual:
+the sensors with their noise and the model's Lie derivatives at the measured state (:mod:`ehss_gym.core.physics`), the
+reference (:mod:`ehss_gym.core.references`), the estimated output derivatives (:mod:`ehss_gym.core.estimators`), the
+reference shaper (here) and the reference model, the combined error s, its drift psi and input gain G, the law's current
+(:mod:`ehss_gym.core.laws`)),
+:func:`controller_apply` (the residual added, the current limit) and :func:`advance_filters` (the controller's memory
+over the period); :func:`controller_update` runs the three. The controller knows its model of the plant, not the plant
+itself nor the friction events; the loop around it is :mod:`ehss_gym.core.loop`.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .estimators import advance_filters, estimate_derivatives, filter_outputs
+from .jit import jit_inline, jit_noalloc
+from .laws import base_current, clf_value
+from .layout import (
+    FB_VEC,
+    FB_VEC2,
+    FBV_C_REF,
+    FBV_D_REF,
+    I_AM,
+    I_E,
+    I_E_R,
+    I_E_TRUE,
+    I_G,
+    I_PSI,
+    I_R,
+    I_RM,
+    I_S,
+    I_SAT,
+    I_T,
+    I_UAPP,
+    I_UBASE,
+    I_UCMD,
+    I_URES,
+    I_V,
+    I_W,
+    I_XM,
+    I_YD,
+    I_YE,
+    N_PLANT,
+    X_OMEGA,
+    X_PL,
+    X_THETA,
+    Z_NOISE,
+    Z_REF,
+    Z_SHAPE,
+)
+from .params import P_PS
+from .physics import gaussian, lie_derivatives
+from .references import reference_value
+from .settings import (
+    C_ANALOG,
+    C_BASE,
+    C_BUMPLESS,
+    C_EST,
+    C_LAM0,
+    C_LAW,
+    C_LAYER_GAIN,
+    C_N,
+    C_NOISE_THETA,
+    C_ORDER,
+    C_PDOMAIN,
+    C_REF_ACCEL,
+    C_SEED,
+    C_SIGMA,
+    C_SMOOTH,
+    C_ULIM,
+)
+
+NOISE_TAU = 0.02  # [s] time constant of the adaptive boundary layer's noise estimate (docs/MODEL.md, "Laws")
+
+
+@jit_noalloc
+def controller_update(z, k, h, model_p, ctrl, ref, filt, u_res, info, work):
+    """The controller's work at t_k = k h; returns the applied current [mA].
+
+    Measure (with noise), form the estimated output derivatives and the
+    reference-model derivatives, advance the digital filters (state z[4:]),
+    compute the law's current, add the residual and apply the current limit.
+    The plant part z[:4] is left for the caller to integrate.
+
+    It is :func:`controller_sense` and :func:`controller_apply` in turn; only the
+    second depends on ``u_res``, so a caller that already sensed sample k (the
+    env's look-ahead) reuses the first.
+
+    Args:
+        z: loop state (N_LOOP,), filter part updated in place.
+        k: control step index.
+        h: control period [s].
+        model_p: the controller's model of the plant's parameters (PlantParams.as_array(); the controller knows
+            neither the true plant nor the friction events).
+        ctrl: controller row (:mod:`ehss_gym.core.settings`, C_*).
+        ref: reference spec row (layout R_*).
+        filt: (N_FB, 4, 4) filter block (layout FB_*): Phi, c, E and D of the reference model
+            and the estimator, zero-padded (:func:`ehss_gym.core.filters.filter_block`).
+        u_res: residual current [mA] added to ctrl[C_BASE] times the law's current.
+        info: output (N_INFO,), what the law saw and did at t_k.
+        work: scratch (8, 4).
+    """
+    u_base = controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work)
+    return controller_apply(info, ctrl, u_base, u_res)
+
+
+@jit_noalloc
+def controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work):
+    """Everything the controller computes at t_k that does not depend on the residual; returns u_base [mA].
+
+    Fills ``info`` except I_URES, I_UCMD, I_UAPP, I_SAT (see :func:`controller_apply`) and I_TF (the plant's, the
+    loop records it), and advances the controller's memory (z[4:]) over the period: the reference shaper, the
+    digital filters w <- Phi w + E v with the inputs v of this sample (:func:`ehss_gym.core.estimators.advance_filters`;
+    with an analog estimator the plant's integrator advances the continuous filters instead) and, with an adaptive
+    boundary layer, the running mean square of the steps of s (time constant NOISE_TAU). At k = 0 with a bumpless
+    start the reference model's rows are first set to the measured output and the estimated derivatives. The plant
+    rows z[:4] are only read. Arguments as in :func:`controller_update`.
+    """
+    t = k * h
+    m = int(ctrl[C_ORDER])
+    n = ctrl[C_N]
+    sigma = ctrl[C_SIGMA]
+    seed = int(ctrl[C_SEED])
+    xm = work[5]
+    hd = work[6]
+    # the sensors (with their noise), and the model at the measured state
+    for i in range(N_PLANT):
+        sd = ctrl[C_NOISE_THETA + i]
+        xm[i] = z[i] + (sd * gaussian(seed, k, i) if sd > 0.0 else 0.0)
+    y_meas = xm[X_THETA] if m == 4 else xm[X_OMEGA]
+    x3m = xm[X_PL]
+    pmax = ctrl[C_PDOMAIN] * model_p[P_PS]  # the model's domain (docs/MODEL.md, "The model's pressure domain")
+    if x3m > pmax:
+        xm[X_PL] = pmax
+    elif x3m < -pmax:
+        xm[X_PL] = -pmax
+    F, G = lie_derivatives(xm, model_p, m, hd)
+    xm[X_PL] = x3m
+    info[I_AM] = hd[2] if m == 4 else hd[1]  # the model's acceleration of the measured state
+    # the reference, the estimated output derivatives, and the reference's shaped form that drives the model
+    r = reference_value(t, ref)
+    estimate_derivatives(z, m, int(ctrl[C_EST]), filt, xm, hd, y_meas, info)
+    bumpless = k == 0 and ctrl[C_BUMPLESS] != 0.0
+    rm = r
+    if ctrl[C_REF_ACCEL] > 0.0:
+        rm = shape_reference(z, k, h, r, ctrl[C_REF_ACCEL], y_meas if bumpless else r)
+    info[I_RM] = rm
+    if bumpless:
+        d = filt[FB_VEC2, FBV_D_REF]
+        for i in range(m):  # outputs z_i = w_i + D_i v of the reference model = the estimator's
+            z[Z_REF + i] = info[I_YE + i] - d[i] * rm
+    # Reference model: y_d^(0..m-1) at the sample and y_d^(m) from its equation with the same input.
+    ydm = filter_outputs(z, Z_REF, m, filt[FB_VEC, FBV_C_REF], filt[FB_VEC2, FBV_D_REF], rm, info, I_YD)
+    info[I_YD + m] = ydm
+    # Errors and the combined error; e itself uses the measured output.
+    for i in range(m):
+        info[I_E + i] = info[I_YE + i] - info[I_YD + i]
+    y_true = z[X_THETA] if m == 4 else z[X_OMEGA]
+    info[I_E_TRUE] = y_true - info[I_YD]
+    info[I_E_R] = y_true - r
+    s = info[I_E + m - 1]
+    psi_lin = 0.0
+    for i in range(m - 1):
+        lam = ctrl[C_LAM0 + i]
+        s += lam * info[I_E + i]
+        psi_lin += lam * info[I_E + i + 1]
+    psi = F - ydm + psi_lin
+    w = ctrl[C_SMOOTH]
+    gain = ctrl[C_LAYER_GAIN]
+    if gain > 0.0:  # adaptive layer: the noise std of s from the running mean square of its steps
+        wn = gain * math.sqrt(0.5 * z[Z_NOISE + 1])
+        if wn > w:
+            w = wn
+    info[I_W] = w
+    info[I_T] = t
+    for i in range(N_PLANT):
+        info[I_XM + i] = xm[i]
+    info[I_R] = r
+    info[I_S] = s
+    info[I_PSI] = psi
+    info[I_G] = G
+    # the controller's memory over the period, from this sample's inputs (none depends on the residual)
+    if gain > 0.0:
+        if t > 0.0:
+            ds = s - z[Z_NOISE]
+            a = h / NOISE_TAU if h < NOISE_TAU else 1.0
+            z[Z_NOISE + 1] += a * (ds * ds - z[Z_NOISE + 1])
+        z[Z_NOISE] = s
+    if ctrl[C_ANALOG] == 0.0:
+        advance_filters(z, m, int(ctrl[C_EST]), filt, info, hd)
+    # the law
+    u_base = base_current(ctrl[C_LAW], psi, G, s, n, sigma, w, ctrl[C_ULIM])
+    info[I_V] = clf_value(s, n, sigma)
+    info[I_UBASE] = u_base
+    return u_base
+
+
+@jit_noalloc
+def controller_apply(info, ctrl, u_base, u_res):
+    """Add the residual u_res [mA] to ctrl[C_BASE] * u_base [mA], apply the current limit; returns u_app [mA].
+
+    Writes I_URES, I_UCMD, I_UAPP and I_SAT of ``info``.
+    """
+    u_cmd = ctrl[C_BASE] * u_base + u_res
+    ulim = ctrl[C_ULIM]
+    sat = 0.0
+    u_app = u_cmd
+    if u_cmd > ulim:
+        u_app = ulim
+        sat = 1.0
+    elif u_cmd < -ulim:
+        u_app = -ulim
+        sat = 1.0
+    info[I_URES] = u_res
+    info[I_UCMD] = u_cmd
+    info[I_UAPP] = u_app
+    info[I_SAT] = sat
+    return u_app
+
+
+
+@jit_inline
+def shape_reference(z, k, h, r, a_max, p0):
+    r"""The reference shaper (position task): the shaped reference p_k at sample k, which drives the reference model.
+
+    p is a double integrator, p'' = clip(r_a, +-a/2) + fhan(p - r, p' - r_v, a/2, h), with r_v, r_a the
+    reference's first and second differences: it follows r exactly where |r''| <= a/2 (then p - r and
+    p' - r_v stay 0) and closes the gap left by a jump of r time-optimally, so |p''| <= a = ``a_max``
+    [rad/s^2] always. Han's fhan (:func:`fhan`) is the discrete time-optimal law for a double integrator.
+    At k = 0 it starts at rest at ``p0`` (the measured output with a bumpless start, else r(0)). The state
+    z[Z_SHAPE:Z_SHAPE+4] = (p_k, p'_k, r_{k-1}, r_v,k-1) is advanced to k + 1 here (docs/MODEL.md, "Reference
+    shaper").
+    """
+    if k == 0:  # at rest at p0, r_{-1} = r_0
+        z[Z_SHAPE] = p0
+        z[Z_SHAPE + 1] = 0.0
+        z[Z_SHAPE + 2] = r
+        z[Z_SHAPE + 3] = 0.0
+    p = z[Z_SHAPE]
+    pv = z[Z_SHAPE + 1]
+    rv = (r - z[Z_SHAPE + 2]) / h
+    ra = (rv - z[Z_SHAPE + 3]) / h
+    half = 0.5 * a_max
+    acc = fhan(p - r, pv - rv, half, h) + (ra if -half <= ra <= half else (half if ra > 0.0 else -half))
+    # (p, p') at t_k is returned; the state moves on to t_{k+1} (Euler, as Han's tracking differentiator)
+    z[Z_SHAPE] = p + h * pv
+    z[Z_SHAPE + 1] = pv + h * acc
+    z[Z_SHAPE + 2] = r
+    z[Z_SHAPE + 3] = rv
+    return p
+
+
+@jit_inline
+def fhan(x1, x2, r, h):
+    """Han's time-optimal synthesis for the discrete double integrator x1' = x2, x2' = u, |u| <= r, period h.
+
+    Drives (x1, x2) to 0 in finite time without overshoot or chattering (J. Han, "From PID to active disturbance
+    rejection control", IEEE TIE 56(3), 2009, Eq. 8).
+    """
+    d = r * h * h
+    a0 = h * x2
+    y = x1 + a0
+    a1 = math.sqrt(d * (d + 8.0 * abs(y)))
+    a2 = a0 + _sgn(y) * (a1 - d) / 2.0
+    sy = (_sgn(y + d) - _sgn(y - d)) / 2.0
+    a = (a0 + y - a2) * sy + a2
+    sa = (_sgn(a + d) - _sgn(a - d)) / 2.0
+    return -r * (a / d - _sgn(a)) * sa - r * _sgn(a)
+
+
+@jit_inline
+def _sgn(x):
+    return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
+
+
+__all__ = ["controller_update", "controller_sense", "controller_apply", "shape_reference", "fhan", "NOISE_TAU"]

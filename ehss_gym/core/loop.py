@@ -1,0 +1,269 @@
+"""The closed loop, compiled: one control period of B lanes, and the simulator's run of a batch.
+
+Every period (:func:`lanes_period`): the controller of each lane (:mod:`ehss_gym.core.controller`), the plants of all
+lanes integrated together over the period with the currents held (:func:`ehss_gym.core.physics.integrate_lanes`),
+the divergence checks, and the metrics accumulated at the full control rate
+(:func:`ehss_gym.core.metrics.accumulate`). The simulator (:func:`run_lanes`, :func:`run_batch`) and the env's step
+(:func:`ehss_gym.envs.kernels.advance`) both run it, so they compute the same loop.
+
+A lane that produces a non-finite value or leaves the state bounds (|x2| > ``omega_max``, |x3| > ``pressure_bound`` *
+P_s) is stopped and reported as diverged with its time; it keeps its last finite state and no NaN is returned.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from .controller import controller_apply, controller_update
+from .jit import jit, jit_noalloc
+from .layout import (
+    DIV_CURRENT,
+    DIV_NONE,
+    DIV_NONFINITE,
+    DIV_OMEGA,
+    DIV_PRESSURE,
+    FB_VEC2,
+    FBV_D_REF,
+    I_E,
+    I_R,
+    I_RM,
+    I_S,
+    I_T,
+    I_TF,
+    I_UAPP,
+    I_UBASE,
+    I_UCMD,
+    I_URES,
+    I_V,
+    I_W,
+    I_YD,
+    I_YE,
+    L_E,
+    L_R,
+    L_RM,
+    L_S,
+    L_T,
+    L_TF,
+    L_UAPP,
+    L_UBASE,
+    L_UCMD,
+    L_UMAX,
+    L_UMIN,
+    L_URES,
+    L_V,
+    L_W,
+    L_X,
+    L_YD,
+    L_YE,
+    M_DIVERGED,
+    M_T_DIVERGED,
+    MAX_ORDER,
+    N_INFO,
+    N_LOOP,
+    N_PLANT,
+    X_OMEGA,
+    X_PL,
+    X_THETA,
+    Z_REF,
+)
+from .metrics import accumulate
+from .params import P_DF, P_PS
+from .physics import N_LANE_CONST, friction_torque, integrate_lanes, lane_constants
+from .settings import C_ANALOG, C_OMEGA_MAX, C_ORDER, C_P_BOUND
+
+MAX_LANES = 128  # scenarios integrated in lock-step by one thread
+
+
+@jit
+def check_state(z, ctrl, plant_p):
+    """DIV_* code of a loop state: non-finite, or outside the velocity/pressure bounds."""
+    for i in range(z.shape[0]):
+        if not math.isfinite(z[i]):
+            return DIV_NONFINITE
+    if abs(z[X_OMEGA]) > ctrl[C_OMEGA_MAX]:
+        return DIV_OMEGA
+    if abs(z[X_PL]) > ctrl[C_P_BOUND] * plant_p[P_PS]:
+        return DIV_PRESSURE
+    return DIV_NONE
+
+
+@jit
+def init_filters(z, filt, r0):
+    """Reference model at its steady state for r(0) = ``r0``, estimator at rest (y(0) = 0): z[4:] in place.
+
+    The state w of a digital filter is z - D v at the sample (layout FB_*), so w = (r0, 0, ...) - D r0.
+    """
+    for i in range(N_PLANT, N_LOOP):
+        z[i] = 0.0
+    d = filt[FB_VEC2, FBV_D_REF]
+    for i in range(MAX_ORDER):
+        z[Z_REF + i] = (r0 if i == 0 else 0.0) - d[i] * r0
+
+
+@jit
+def write_log(row, z, info):
+    row[L_T] = info[I_T]
+    for i in range(4):
+        row[L_X + i] = z[i]
+    row[L_R] = info[I_R]
+    for i in range(5):
+        row[L_YD + i] = info[I_YD + i]
+    for i in range(4):
+        row[L_YE + i] = info[I_YE + i]
+        row[L_E + i] = info[I_E + i]
+    row[L_S] = info[I_S]
+    row[L_V] = info[I_V]
+    row[L_UBASE] = info[I_UBASE]
+    row[L_URES] = info[I_URES]
+    row[L_UCMD] = info[I_UCMD]
+    row[L_UAPP] = info[I_UAPP]
+    row[L_TF] = info[I_TF]
+    row[L_W] = info[I_W]
+    row[L_RM] = info[I_RM]
+    row[L_UMIN] = info[I_UAPP]  # the envelope of the sample's log interval starts here
+    row[L_UMAX] = info[I_UAPP]
+
+
+@jit
+def widen_envelope(row, u):
+    """Widen a log row's applied-current envelope (L_UMIN, L_UMAX) [mA] by one more period's current ``u``."""
+    if u < row[L_UMIN]:
+        row[L_UMIN] = u
+    if u > row[L_UMAX]:
+        row[L_UMAX] = u
+
+
+@jit
+def _diverge(acc, code, k, h):
+    acc[M_DIVERGED] = code
+    acc[M_T_DIVERGED] = (k + 1) * h
+
+
+@jit_noalloc
+def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
+                 zprev, work, lwork, pre, peek):
+    """Advance every active lane by one control period; returns the number still active.
+
+    For each lane: the controller (with residual ``u_res[b]`` [mA]) and the friction
+    torque at the sample, then the plants of all lanes integrated together, then the
+    divergence checks and the metrics. A lane that diverges is marked inactive, keeps its last finite
+    state, and gets its DIV_* code and time in ``acc``. ``zprev`` receives the
+    state at t_k (what the logged sample shows).
+
+    A lane with ``pre[b]`` set has already been sensed at this k from this state
+    (:func:`ehss_gym.core.controller.controller_sense` and the filter advance, as the
+    env's look-ahead does): ``peek[b, :N_INFO]`` holds that info and
+    ``peek[b, N_INFO:]`` the loop state after the filter advance. The controller
+    then only applies the residual (same arithmetic, bit for bit), and
+    ``pre[b]`` is cleared. The simulator passes no such lanes.
+    """
+    B = z.shape[0]
+    n_active = 0
+    analog = False
+    for b in range(B):
+        if active[b] and ctrl[b, C_ANALOG] != 0.0:
+            analog = True
+    nx = N_LOOP if analog else N_PLANT  # rows integrated: the plant, and with analog lanes the filters too
+    ynoise = lwork[5, 1]
+    for b in range(B):
+        if not active[b]:
+            U[b] = 0.0
+            continue
+        for i in range(z.shape[1]):  # element loops: an array assignment may allocate (no NRT here)
+            zprev[b, i] = z[b, i]
+        if pre[b]:
+            pre[b] = False
+            for i in range(N_INFO):
+                info[b, i] = peek[b, i]
+            u = controller_apply(info[b], ctrl[b], peek[b, I_UBASE], u_res[b])
+            for i in range(N_PLANT, z.shape[1]):
+                z[b, i] = peek[b, N_INFO + i]
+        else:
+            u = controller_update(z[b], k, h, model[b], ctrl[b], ref[b], filt[b], u_res[b], info[b], work)
+        info[b, I_TF] = friction_torque(k * h, zprev[b, X_OMEGA], events[b], plant[b, P_DF])  # the plant's, at t_k
+        if not (math.isfinite(u) and math.isfinite(info[b, I_V]) and math.isfinite(info[b, I_S])):
+            _diverge(acc[b], DIV_CURRENT if not math.isfinite(u) else DIV_NONFINITE, k, h)
+            active[b] = False
+            for i in range(z.shape[1]):
+                z[b, i] = zprev[b, i]
+            U[b] = 0.0
+            continue
+        U[b] = u
+        for i in range(nx):
+            X[i, b] = z[b, i]
+        # the sensor noise on the output at this sample, held over the period for an analog estimator
+        ynoise[b] = info[b, I_YE] - z[b, X_THETA if ctrl[b, C_ORDER] == 4 else X_OMEGA]
+        n_active += 1
+    if n_active == 0:
+        return 0
+    integrate_lanes(X, U, k * h, h, substeps, c, events, lwork, analog, ctrl, ref, filt, ynoise)
+    for b in range(B):
+        if not active[b]:
+            continue
+        for i in range(nx):
+            z[b, i] = X[i, b]
+        code = check_state(z[b], ctrl[b], plant[b])
+        if code != DIV_NONE:
+            _diverge(acc[b], code, k, h)
+            active[b] = False
+            for i in range(z.shape[1]):
+                z[b, i] = zprev[b, i]
+            for i in range(nx):
+                X[i, b] = z[b, i]
+            n_active -= 1
+            continue
+        accumulate(acc[b], info[b], h, k, events[b])
+    return n_active
+
+
+@jit
+def run_lanes(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, events, filt, log, acc, n_log):
+    """Simulate B scenarios in lock-step from k = 0 with no residual, logging every ``log_every`` periods."""
+    B = z.shape[0]
+    c = np.zeros((N_LANE_CONST, B))
+    lane_constants(plant, c)
+    X = np.zeros((N_LOOP, B))
+    U = np.zeros(B)
+    u_res = np.zeros(B)
+    active = np.ones(B, dtype=np.bool_)
+    info = np.zeros((B, N_INFO))
+    work = np.zeros((8, 4))
+    lwork = np.zeros((6, N_LOOP, B))
+    zprev = np.zeros_like(z)
+    pre = np.zeros(B, dtype=np.bool_)  # no lane is pre-sensed in a plain simulation
+    peek = np.zeros((B, N_INFO + N_LOOP))
+    for b in range(B):
+        acc[b, M_T_DIVERGED] = -1.0
+        n_log[b] = 0
+    for k in range(n_steps):
+        if lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
+                        zprev, work, lwork, pre, peek) == 0:
+            break
+        log_now = k % log_every == 0
+        for b in range(B):
+            if not active[b]:
+                continue
+            if log_now:
+                write_log(log[b, n_log[b]], zprev[b], info[b])
+                n_log[b] += 1
+            else:  # between samples: the current's envelope over the log interval (no aliasing of the switching)
+                widen_envelope(log[b, n_log[b] - 1], info[b, I_UAPP])
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def run_batch(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, events, filt, log, acc, n_log, chunk):
+    """Simulate a batch: chunks of ``chunk`` scenarios in parallel, lanes within a chunk."""
+    B = z.shape[0]
+    n_chunks = (B + chunk - 1) // chunk
+    for i in nb.prange(n_chunks):
+        s = i * chunk
+        e = min(B, s + chunk)
+        run_lanes(z[s:e], h, substeps, n_steps, log_every, plant[s:e], model[s:e], ctrl[s:e], ref[s:e],
+                  events[s:e], filt[s:e], log[s:e], acc[s:e], n_log[s:e])
+
+
+__all__ = ["lanes_period", "run_lanes", "run_batch", "check_state", "init_filters", "write_log", "widen_envelope",
+           "MAX_LANES"]

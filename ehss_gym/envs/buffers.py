@@ -1,0 +1,46 @@
+"""Every index into the envs' per-lane buffers (:class:`ehss_gym.envs.lanes.Lanes`), named once.
+
+The compiled step (:mod:`ehss_gym.envs.kernels`) reads these module-level integers as compile-time constants. The
+blocks of the float buffer hold the core's arrays (loop state, parameter rows, controller row, reference row, info,
+metrics accumulator), laid out by :mod:`ehss_gym.core.layout` and :mod:`ehss_gym.core.settings`.
+"""
+
+from ehss_gym.core.layout import N_INFO, N_LOOP, N_METRICS, N_PARAM, N_REF
+from ehss_gym.core.settings import N_CTRL
+
+# Per-agent-step statistics and reward-weight slots of the kernel.
+S_SUM_E2, S_N, S_SAT, S_TV0 = 0, 1, 2, 3  # S_TV0: the lane's accumulated control TV when the step began
+S_UMIN, S_UMAX = 4, 5  # smallest and largest applied current [mA] over the step's control periods
+S_SATF = 6  # share of the step's control periods at the current limit (0 if none ran)
+N_STATS = 7
+W_TRACK, W_EFFORT, W_RATE, W_TV, W_TVU, W_DIV, W_INV_E2, W_INV_SCALE = range(8)
+N_WEIGHTS = 8
+
+# Per-lane float64 buffer F (B, N_F): column blocks, so one kernel argument carries them all (numba's
+# dispatch costs ~0.1 us per array argument, a large share of a 15 us step).
+F_Z = 0  # loop state (N_LOOP)
+F_PLANT = F_Z + N_LOOP  # true plant parameters
+F_MODEL = F_PLANT + N_PARAM  # controller's model parameters
+F_CTRL = F_MODEL + N_PARAM  # controller row (N_CTRL)
+F_REF = F_CTRL + N_CTRL  # reference spec (N_REF)
+F_INFO = F_REF + N_REF  # control-step info (N_INFO), scratch alternating with F_INFO_OK
+F_INFO_OK = F_INFO + N_INFO  # last finite control-step info
+F_PEEK = F_INFO_OK + N_INFO  # the controller's view at the next sample
+F_PEEKZ = F_PEEK + N_INFO  # loop state after that sample's filter advance (N_LOOP; must follow F_PEEK)
+F_ACC = F_PEEKZ + N_LOOP  # metrics accumulator (N_METRICS)
+F_ZPREV = F_ACC + N_METRICS  # loop state at the last sample (scratch of lanes_period)
+F_STATS = F_ZPREV + N_LOOP  # per-agent-step statistics (N_STATS)
+F_URES = F_STATS + N_STATS  # residual current [mA]
+F_REW = F_URES + 1  # reward of the last step
+F_APREV = F_REW + 1  # previous normalised action
+N_F = F_APREV + 1
+# Per-lane int64 buffer: step index k, agent steps taken, group id (scratch).
+IB_K, IB_NSTEP, IB_GID = 0, 1, 2
+N_IB = 3
+# Per-lane bool buffer: running (not diverged, not held), group member (scratch), F_PEEK/F_PEEKZ hold
+# the controller's view at the lane's next period (set by the look-ahead, cleared when used or reloaded).
+BB_RUN, BB_ACT, BB_PRE = 0, 1, 2
+N_BB = 3
+# Observation layout rows (3, D): info index, scale, flags (1 = symlog squash, 2 = from the last period).
+LAY_SRC, LAY_SCALE, LAY_FLAGS = 0, 1, 2
+FLAG_SQUASH, FLAG_LAST = 1, 2
