@@ -93,6 +93,7 @@ from .layout import (
     I_URES,
     I_V,
     I_W,
+    I_WIN,
     I_XM,
     I_YD,
     I_YE,
@@ -104,6 +105,9 @@ from .layout import (
     N_REF,
     QUIET_GUARD,
     QUIET_STARTUP,
+    WIN_DISTURBANCE,
+    WIN_STARTUP,
+    WIN_TRACKING,
     X_OMEGA,
     X_PL,
     X_THETA,
@@ -390,13 +394,18 @@ def controller_sense(z, k, h, plant_p, model_p, ctrl, ref, events, filt, info, w
     info[I_TF] = tf
     on = 0.0
     quiet = 1.0 if t >= QUIET_STARTUP else 0.0
+    win = WIN_TRACKING if t >= QUIET_STARTUP else WIN_STARTUP
     for i in range(events.shape[0]):
-        if events[i, 0] != 0.0 and events[i, 1] <= t < events[i, 2] + QUIET_GUARD:
-            quiet = 0.0
-            if t < events[i, 2]:
-                on = 1.0
+        if events[i, 1] <= t < events[i, 2] + QUIET_GUARD:
+            if win == WIN_TRACKING:  # an event's window counts whatever its amplitude (layout WIN_*)
+                win = WIN_DISTURBANCE
+            if events[i, 0] != 0.0:
+                quiet = 0.0
+                if t < events[i, 2]:
+                    on = 1.0
     info[I_FRIC_ON] = on
     info[I_QUIET] = quiet
+    info[I_WIN] = win
     return u_base
 
 

@@ -25,6 +25,14 @@ control period, T the simulated time):
   output against the raw reference r instead of the reference model's y_d (independent of the reference
   model: of its start, its lag and a shaper).
 - ``iae``: sum |e| h;  ``itae``: sum t |e| h.
+- The metric classes, on the true error e_t over windows that partition the control samples (layout WIN_*):
+  the *start-up* t < 0.2 s; past it, a *disturbance* window from each friction event's start to 0.2 s after its
+  end (whatever the event's amplitude: an event of amplitude 0 keeps its window); *tracking* the rest.
+  ``trk_rmse`` = sqrt(mean e_t^2) and ``trk_iae`` = sum |e_t| h over the tracking window; ``dst_peak`` = max
+  |e_t| and ``dst_iae`` = sum |e_t| h over the disturbance windows; ``su_rmse``, ``su_iae``, ``su_peak`` over the
+  start-up. NaN for a window with no sample (IAE included: an episode without friction has no disturbance
+  class). ``steps_startup``, ``steps_disturbance``, ``steps_tracking``: the samples in each (they add up to
+  ``steps``). ``iae_r``: sum |y - r| h, the true output against the raw reference.
 - ``max_abs_e``: max |e|; ``max_abs_e_friction``: max |e| while friction is on.
 - ``recovery_on`` / ``recovery_off``: settling time after the first friction
   edge (on / off): the time until |e| enters, and then stays in, a band of
@@ -142,11 +150,30 @@ def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray 
         "saturation": float(a[L.M_N_SAT] / steps),
         "v_decrease": float(a[L.M_N_VDEC] / max(steps - 1.0, 1.0)),
         "steps": int(steps),
+        "iae_r": float(a[L.M_SUM_ABS_ER]),
     }
+    out.update(window_metrics(a))
     on, off = (math.nan, math.nan) if t is None or e is None else recovery_times(t, e, sc.friction)
     out["recovery_on"] = on
     out["recovery_off"] = off
     return out
+
+
+def window_metrics(a: np.ndarray) -> dict:
+    """The metric classes of an accumulator row (layout M_SU_*, M_DST_*, M_TRK_*; module docstring); NaN for a window
+    with no sample."""
+    n_su, n_dst, n_trk = (float(a[i]) for i in (L.M_SU_STEPS, L.M_DST_STEPS, L.M_TRK_STEPS))
+    nan = math.nan
+    return {
+        "trk_rmse": math.sqrt(a[L.M_TRK_SUM_E2] / n_trk) if n_trk else nan,
+        "trk_iae": float(a[L.M_TRK_SUM_ABS]) if n_trk else nan,
+        "dst_peak": float(a[L.M_DST_MAX]) if n_dst else nan,
+        "dst_iae": float(a[L.M_DST_SUM_ABS]) if n_dst else nan,
+        "su_rmse": math.sqrt(a[L.M_SU_SUM_E2] / n_su) if n_su else nan,
+        "su_iae": float(a[L.M_SU_SUM_ABS]) if n_su else nan,
+        "su_peak": float(a[L.M_SU_MAX]) if n_su else nan,
+        "steps_startup": int(n_su), "steps_disturbance": int(n_dst), "steps_tracking": int(n_trk),
+    }
 
 
 def format_summary(m: dict, unit: str) -> str:

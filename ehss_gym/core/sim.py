@@ -344,6 +344,28 @@ class LoopArrays:
 
 
 @jit
+def accumulate_window(acc, win, et, h):
+    """Fold the true error ``et`` [output unit] of one sample into its metric window's class (layout WIN_*, M_SU_*,
+    M_DST_*, M_TRK_*): steps, sum e^2, sum |e| h [output unit * s] and max |e|."""
+    ae = abs(et)
+    if win == L.WIN_TRACKING:
+        acc[L.M_TRK_STEPS] += 1.0
+        acc[L.M_TRK_SUM_E2] += et * et
+        acc[L.M_TRK_SUM_ABS] += ae * h
+    elif win == L.WIN_DISTURBANCE:
+        acc[L.M_DST_STEPS] += 1.0
+        acc[L.M_DST_SUM_ABS] += ae * h
+        if ae > acc[L.M_DST_MAX]:
+            acc[L.M_DST_MAX] = ae
+    else:
+        acc[L.M_SU_STEPS] += 1.0
+        acc[L.M_SU_SUM_E2] += et * et
+        acc[L.M_SU_SUM_ABS] += ae * h
+        if ae > acc[L.M_SU_MAX]:
+            acc[L.M_SU_MAX] = ae
+
+
+@jit
 def accumulate(acc, info, h, k):
     """Fold one control step's info into the metrics accumulator (layout M_*)."""
     e = info[L.I_E]
@@ -352,6 +374,8 @@ def accumulate(acc, info, h, k):
     t = info[L.I_T]
     acc[L.M_SUM_E2_TRUE] += et * et
     acc[L.M_SUM_ER2] += info[L.I_E_R] * info[L.I_E_R]
+    acc[L.M_SUM_ABS_ER] += abs(info[L.I_E_R]) * h
+    accumulate_window(acc, info[L.I_WIN], et, h)
     acc[L.M_STEPS] += 1.0
     acc[L.M_SUM_E2] += e * e
     acc[L.M_SUM_ABS_E] += ae * h
