@@ -9,7 +9,8 @@ Modules, bottom to top:
 - :mod:`~ehss_gym.evaluation.specs`: :class:`PolicySpec` and its sources (:func:`parse_policy`,
   :func:`scripted_spec`, :func:`learned_spec`, :func:`object_spec`, :func:`shipped_specs`), :func:`check_fit`.
 - :mod:`~ehss_gym.evaluation.stats`: bootstrap CIs, IQM, probability of improvement.
-- :mod:`~ehss_gym.evaluation.scoring`: :func:`primary_score`, per-episode scores, summaries and comparisons.
+- :mod:`~ehss_gym.evaluation.scoring`: the ruler: per-episode ratios by metric class, figures, gates, ranking,
+  summaries and comparisons.
 - :mod:`~ehss_gym.evaluation.harness`: jobs, the worker pool, :func:`evaluate` and its :class:`Results`.
 - :mod:`~ehss_gym.evaluation.heldout`: the held-out validation used during training.
 
@@ -22,7 +23,6 @@ from __future__ import annotations
 from .harness import (
     METRICS,
     REFERENCE_POLICY,
-    SCORE_CAP,
     SCRIPTED_DEFAULT,
     SUITES,
     SWEEP_WINDOW,
@@ -40,7 +40,6 @@ from .harness import (
     learned_spec,
     object_spec,
     parse_policy,
-    primary_score,
     rollout,
     scripted_spec,
     shipped_specs,
@@ -50,5 +49,5 @@ from .specs import PolicyWarning, parse_policies, saved_env_kwargs, valid_forms
 __all__ = ["EvalConfig", "PolicySpec", "PolicyError", "PolicyWarning", "saved_env_kwargs",
            "Episode", "Results", "evaluate", "parse_policy",
            "parse_policies", "valid_forms", "scripted_spec", "learned_spec", "object_spec", "shipped_specs",
-           "default_specs", "primary_score", "build_episodes", "rollout", "check_fit", "REFERENCE_POLICY",
-           "SCRIPTED_DEFAULT", "SCORE_CAP", "METRICS", "TASKS", "SUITES", "UNITS", "SWEEP_WINDOW"]
+           "default_specs", "build_episodes", "rollout", "check_fit", "REFERENCE_POLICY",
+           "SCRIPTED_DEFAULT", "METRICS", "TASKS", "SUITES", "UNITS", "SWEEP_WINDOW"]
