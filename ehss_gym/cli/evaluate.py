@@ -28,13 +28,15 @@ def _tasks(text: str) -> tuple:
 def register(sub) -> None:
     """Add ``evaluate`` to the ``ehss`` sub-commands."""
     p = sub.add_parser("evaluate", help="compare CLF n=2/4/6, PID and learned policies on the same scenarios",
-                       description="Score scripted and learned policies on the paper scenario, a held-out randomised "
-                                   "suite and robustness sweeps; write REPORT.md, CSVs and figures.")
+                       description="Measure scripted and learned policies against the reference law (clf-n2) by "
+                                   "metric class (tracking, disturbance, effort, chatter) on the paper scenario, a "
+                                   "held-out randomised suite, robustness sweeps and a step suite; write REPORT.md, "
+                                   "CSVs and figures.")
     p.add_argument("--policies", nargs="+", default=None, metavar="SPEC",
                    help="comma- or space-separated: clf-n2, clf-n4, clf-n6, pid, residual-ppo:PATH, ppo-direct:PATH, "
                         "sb3:PATH (any SB3 algorithm, its mode from the env spec saved with it), or a shipped model "
                         "name (default: every shipped policy)")
-    p.add_argument("--suite", choices=("paper", "heldout", "robustness", "all"), default="all")
+    p.add_argument("--suite", choices=(*SUITES, "all"), default="all")
     p.add_argument("--tasks", type=_tasks, default=TASKS, help="comma-separated subset of velocity,position")
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
                    help="held-out episodes per task (default 48; --quick 8)")
@@ -48,7 +50,8 @@ def register(sub) -> None:
                    help=f"output folder (default {DEFAULT_OUT}; with --quick runs/quick/comparison, so a quick run "
                         "never overwrites the shipped report unless --out says so)")
     p.add_argument("--quick", action="store_true",
-                   help="small CI form: 8 held-out episodes, 3+2 sweep levels of 1 episode, paper run cut at 12 s")
+                   help="small CI form: 8 held-out episodes, 3+2 sweep levels of 1 episode, paper run cut at 12 s, "
+                        "3 steps")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_backend_arguments(p)
     p.set_defaults(func=cmd_evaluate)
@@ -123,7 +126,8 @@ def cmd_evaluate(args) -> int:
         for task in TASKS:
             block = [d for d in res.summary if d["suite"] == suite and d["task"] == task]
             if block:
-                ranking = ", ".join(f"{d['policy']} {d['score_mean']:.3g}" for d in block)
+                ranking = ", ".join(f"{d['policy']} {d['figure']:.3g}" + (" FAILED" if d["failed"] else "")
+                                    + (" (earlier loop)" if d["earlier_loop"] else "") for d in block)
                 print(f"  {suite}/{task}: {ranking}")
     return 0
 
