@@ -12,10 +12,10 @@ import sys
 
 from ehss_gym._version import __version__
 
-from . import bench, evaluate, fidelity, noise, reproduce, simulate, train, training_report, tune
+from . import bench, evaluate, factors, fidelity, noise, reproduce, simulate, train, training_report, tune
 
 # each exposes register(subparsers)
-COMMANDS = (simulate, reproduce, noise, evaluate, train, training_report, tune, bench, fidelity)
+COMMANDS = (simulate, reproduce, noise, evaluate, factors, train, training_report, tune, bench, fidelity)
 
 
 def build_parser() -> argparse.ArgumentParser:
