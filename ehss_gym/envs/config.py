@@ -19,7 +19,6 @@ from ehss_gym.core.scenarios import PHYSICAL_FIELDS, controller_mismatch, paper_
 from ehss_gym.core.sim import LAYER_GAIN_MAX, TASKS, Scenario
 from ehss_gym.core.validate import check_bool, check_choice, check_even_n, check_finite, check_int, check_positive
 
-
 # The bumpless start (the reference model starts at the measured output and its estimated derivatives, as servo
 # drives do) is the default of both tasks because of the evaluation's ruler, not the noise study: with the paper's
 # start (the reference model at its steady state for r(0), the plant at rest) e(0) = -r(0), and the first 0.2 s held
