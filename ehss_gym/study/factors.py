@@ -96,19 +96,22 @@ def task_factors(task: str, episodes: int, episode_seconds: float = 2.0) -> dict
     Returns:
         {"task", "episodes", "used" (episodes no variant diverged on), "class_episodes" (per class), "rows" (one per
         factor: "factor", "<class>" level, "<class>_ratio"), "startup_share", "checks" (per check: factor, class,
-        ratio, met), "wall_s"}.
+        ratio, met), "others" (every other single cause that moves a class by MOVE or more: factor, class, ratio),
+        "wall_s"}.
     """
     t0 = time.perf_counter()
     base = heldout_scenarios(episodes, EnvConfig.from_kwargs({"task": task}).template(), episode_seconds)
     runs = {name: simulate_batch(scs) for name, scs in variants(base).items()}
     ok = [i for i in range(len(base)) if not any(runs[f][i].diverged for f in FACTORS)]
-    member = {c: [i for i in ok if c in episode_classes(any(v > 0 for v in base[i].noise_std))] for c in CLASSES}
+    ms = {name: [t.metrics() for t in runs[name]] for name in FACTORS}
+    # an episode's classes are the suite's as it is (its noise; a disturbance window it has)
+    member = {c: [i for i in ok if c in episode_classes(any(v > 0 for v in base[i].noise_std))
+                  and math.isfinite(class_level([ms["as is"][i]], c))] for c in CLASSES}
     rows = []
     for name in FACTORS:
-        ms = [t.metrics() for t in runs[name]]
         row = {"factor": name}
         for c in CLASSES:
-            row[c] = class_level([ms[i] for i in member[c]], c)
+            row[c] = class_level([ms[name][i] for i in member[c]], c)
         rows.append(row)
     for row in rows:
         for c in CLASSES:
@@ -117,11 +120,19 @@ def task_factors(task: str, episodes: int, episode_seconds: float = 2.0) -> dict
     checks = []
     for factor, cls in CHECKS:
         r = by[factor][f"{cls}_ratio"]
-        moved = max(r, 1.0 / r) if r > 0 else math.nan
+        moved = _moved(r)
         checks.append({"factor": factor, "class": cls, "ratio": r, "moved": moved, "met": moved >= MOVE})
+    others = [{"factor": f, "class": c, "ratio": by[f][f"{c}_ratio"]} for f in FACTORS[1:-1] for c in CLASSES
+              if (f, c) not in CHECKS and _moved(by[f][f"{c}_ratio"]) >= MOVE]
     return {"task": task, "episodes": len(base), "used": len(ok),
             "class_episodes": {c: len(member[c]) for c in CLASSES}, "rows": rows,
-            "startup_share": startup_share(runs["as is"]), "checks": checks, "wall_s": time.perf_counter() - t0}
+            "startup_share": startup_share(runs["as is"]), "checks": checks, "others": others,
+            "wall_s": time.perf_counter() - t0}
+
+
+def _moved(ratio: float) -> float:
+    """How far a ratio moved from 1, either way (>= 1; NaN for an undefined ratio)."""
+    return max(ratio, 1.0 / ratio) if ratio > 0 else math.nan
 
 
 def run(tasks: Sequence[str] = TASKS, episodes: int = 48, episode_seconds: float = 2.0) -> list[dict]:
