@@ -41,6 +41,7 @@ from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
+from ehss_gym.core.fmt import fmt_num
 from ehss_gym.core.util import atomic_write, atomic_write_text
 from ehss_gym.envs import ENV_ID
 from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
@@ -225,11 +226,12 @@ def describe(summary: dict) -> str:
     """Two lines on a finished run: the kept policy's validation scores against the base law, the run folder."""
     b = summary["best_validation"]
     gate = f", FAILED the gate on {b['n_failed']} scenario(s)" if b["failed"] else ""
+    classes = ", ".join(f"{c} x{fmt_num(b[f'rel_{c}'], '.3f')}"
+                        for c in ("tracking", "disturbance", "effort", "chatter"))
     return (f"{summary['run_name']}: {summary['timesteps']} steps in {summary['wall_s']:.0f} s; best at step "
-            f"{summary['best_step']}: validation figure {b['figure']:.4f} (base law "
-            f"{summary['base_validation']['figure']:.4f}; lower is better{gate}), tracking x"
-            f"{b['rel_tracking']:.3f}, disturbance x{b['rel_disturbance']:.3f}, effort x{b['rel_effort']:.3f}, "
-            f"chatter x{b['rel_chatter']:.3f} of the base law\n"
+            f"{summary['best_step']}: validation figure {fmt_num(b['figure'], '.4f')} (base law "
+            f"{fmt_num(summary['base_validation']['figure'], '.4f')}; lower is better{gate}), {classes} of the base "
+            "law\n"
             f"run folder: {summary['run_dir']} (best/policy.json + .safetensors: safe weights)")
 
 

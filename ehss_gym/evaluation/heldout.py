@@ -17,6 +17,8 @@ Figures (lower is better; :mod:`ehss_gym.evaluation.scoring`'s ruler), over the 
   checkpoint with the least key is kept.
 - ``rel_tracking``, ``rel_disturbance``, ``rel_effort``, ``rel_chatter``: the class figures against the
   agent's own base law (the CLF law with the agent's n, zero residual) instead of the reference.
+
+An undefined value (a class with no scenario, a mean over none) is None.
 """
 
 from __future__ import annotations
@@ -99,19 +101,27 @@ def relative_scores(results: list[dict], base: list[dict], reference: list[dict]
     for key in ("trk_rmse", "dst_peak", "tv_u_rate", "return"):
         v = [m[key] for m in results if not m["diverged"] and math.isfinite(m[key])]
         out[key] = float(np.mean(v)) if v else math.nan
-    return out
+    # undefined values (a class without an episode, a figure without a class) as None: the row goes into JSON files
+    # that refuse NaN (the safe weights' metadata)
+    return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in out.items()}
+
+
+def _figure(row: dict) -> float:
+    return math.nan if row["figure"] is None else float(row["figure"])
 
 
 def selection_key(row: dict) -> tuple:
     """The order of validation rows (least = best): no failure first, then fewer failed scenarios, then the
     overall figure (an undefined figure last)."""
-    return rank_key(row["failed"], row["n_failed"], row["figure"])
+    return rank_key(row["failed"], row["n_failed"], _figure(row))
 
 
 def tune_objective(row: dict) -> float:
     """One number for a hyperparameter search (lower is better): the overall figure of a validation row that
-    passed the gate, inf for one that failed it (every passing row ranks ahead, as :func:`selection_key` has it)."""
-    return math.inf if row["failed"] or math.isnan(row["figure"]) else float(row["figure"])
+    passed the gate, inf for one that failed it or has no figure (every passing row ranks ahead, as
+    :func:`selection_key` has it)."""
+    g = _figure(row)
+    return math.inf if row["failed"] or math.isnan(g) else g
 
 
 def sb3_act_fn(model, vecnormalize=None):

@@ -14,6 +14,7 @@ import os
 import time
 
 import matplotlib
+import numpy as np
 
 from ehss_gym.agents.specs import AGENTS
 from ehss_gym.core.fmt import fmt_cell
@@ -56,7 +57,8 @@ def plot_curves(groups: dict, path: str, made_by: str = COMMAND) -> None:
             ax = axes[i][j]
             for r in groups[k]:
                 h = r["history"]
-                ax.plot([x["step"] / 1e3 for x in h], [x[field] for x in h], lw=1, marker=".",
+                ax.plot([x["step"] / 1e3 for x in h], [np.nan if x[field] is None else x[field] for x in h], lw=1,
+                        marker=".",
                         label=f"seed {r['config']['seed']}")
             ax.axhline(1.0, color="k", lw=0.8, ls="--")
             ax.set_ylabel(ylabel, fontsize=8)
