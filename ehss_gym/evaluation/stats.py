@@ -189,7 +189,7 @@ def probability_of_improvement(x, y, lower_is_better: bool = True) -> float:
     Args:
         x: (n_runs, n_tasks) or (n_tasks,) scores of X.
         y: the same of Y, on the *same* tasks (same column order).
-        lower_is_better: direction of the score (True for the primary score of the harness).
+        lower_is_better: direction of the score (True for the harness's ratios to the reference law).
     """
     a = _as_matrix(x, "x")
     b = _as_matrix(y, "y")
