@@ -63,3 +63,19 @@ def test_the_ratio_to_the_bound_is_shown_only_with_the_bound(step_results, tmp_p
         assert float(r["bound_ratio"]) == pytest.approx(float(r["iae_r"]) / (0.001 * abs(float(r["amplitude"]))))
     text = (out / "REPORT.md").read_text()
     assert "IAE / bound" in text and "x the bound" in text and not math.isnan(float(rows[0]["bound_ratio"]))
+
+
+def test_a_step_the_bound_refuses_gets_no_ratio_and_a_note(step_results, tmp_path, monkeypatch):
+    def refusing(task, amplitude, **kw):
+        if amplitude < 0:
+            raise ValueError("amplitude must be one the current limit can hold")
+        return SimpleNamespace(iae_bound=0.01)
+
+    monkeypatch.setattr(comparison, "bound_function", lambda: refusing)
+    out = tmp_path / "refused"
+    comparison.write_report(step_results, str(out))
+    rows = list(csv.DictReader(open(out / "steps.csv")))
+    assert all(r["bound_ratio"] == "nan" for r in rows if float(r["amplitude"]) < 0)
+    assert all(float(r["bound_ratio"]) > 0 for r in rows if float(r["amplitude"]) > 0)
+    assert "velocity, step -1: no physical bound (amplitude must be one the current limit can hold)" in \
+        (out / "REPORT.md").read_text()

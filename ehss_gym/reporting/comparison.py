@@ -201,10 +201,11 @@ def bound_function():
     return step_bound
 
 
-def step_rows(res: Results, bound=None) -> list[dict]:
+def step_rows(res: Results, bound=None, notes: list | None = None) -> list[dict]:
     """One row per step-suite episode and run: its step metrics, ``iae_r`` [output unit * s] and, with ``bound``
     (:func:`bound_function`), the least IAE of y - r any policy can reach under the current limit
-    (``iae_bound``) and ``bound_ratio`` = iae_r / iae_bound."""
+    (``iae_bound``) and ``bound_ratio`` = iae_r / iae_bound. A step the bound refuses (its ValueError, e.g. a
+    velocity the current limit cannot hold) gets NaN and its reason appended to ``notes``."""
     cache: dict = {}
     out = []
     for r in res.rows:
@@ -215,13 +216,23 @@ def step_rows(res: Results, bound=None) -> list[dict]:
         if bound is not None:
             key = (r["task"], r["level"])
             if key not in cache:
-                limit = EnvConfig.from_kwargs({"task": r["task"]}).current_limit
-                cache[key] = float(bound(r["task"], r["level"], t_step=STEP_TIME, t_end=STEP_SECONDS[r["task"]],
-                                         plant=PlantParams(), current_limit=limit).iae_bound)
+                cache[key] = _bound_of(bound, r["task"], r["level"], notes)
             d["iae_bound"] = cache[key]
             d["bound_ratio"] = r["iae_r"] / cache[key] if cache[key] > 0 else math.nan
         out.append(d)
     return out
+
+
+def _bound_of(bound, task: str, amplitude: float, notes: list | None) -> float:
+    """The bound's IAE [output unit * s] of one step of the suite, NaN (and a note) where the bound refuses it."""
+    limit = EnvConfig.from_kwargs({"task": task}).current_limit
+    try:
+        return float(bound(task, amplitude, t_step=STEP_TIME, t_end=STEP_SECONDS[task], plant=PlantParams(),
+                           current_limit=limit).iae_bound)
+    except ValueError as exc:
+        if notes is not None:
+            notes.append(f"{task}, step {amplitude:+g}: no physical bound ({exc})")
+        return math.nan
 
 
 def step_table(rows: list[dict], with_bound: bool) -> list[list]:
@@ -329,9 +340,10 @@ def report_context(res: Results, figs: dict, steps: list[dict], with_bound: bool
     }
 
 
-def report_text(res: Results, figs: dict, steps: list[dict] | None = None, with_bound: bool = False) -> str:
+def report_text(res: Results, figs: dict, steps: list[dict] | None = None, with_bound: bool = False,
+                bound_notes: Sequence[str] = ()) -> str:
     """The markdown report (templates/comparison.md.j2 filled with :func:`report_context`)."""
-    return render(TEMPLATE, **report_context(res, figs, steps or [], with_bound))
+    return render(TEMPLATE, **report_context(res, figs, steps or [], with_bound), bound_notes=list(bound_notes))
 
 
 def write_report(res: Results, out: str) -> str:
@@ -347,13 +359,14 @@ def write_report(res: Results, out: str) -> str:
     if res.comparisons:
         atomic_write_text(os.path.join(out, "comparisons.csv"), csv_text(res.comparisons, _columns(res.comparisons)))
     bound = bound_function() if any(r["suite"] == "step" for r in res.rows) else None
-    steps = step_rows(res, bound)
+    bound_notes: list = []
+    steps = step_rows(res, bound, bound_notes)
     if steps:
         atomic_write_text(os.path.join(out, "steps.csv"), csv_text(steps, STEP_COLUMNS))
     t0 = time.perf_counter()
     figs = make_figures(res, os.path.join(out, "figures"))
     res.timings["figures"] = time.perf_counter() - t0
-    text = report_text(res, figs, steps, bound is not None)
+    text = report_text(res, figs, steps, bound is not None, bound_notes)
     path = os.path.join(out, "REPORT.md")
     atomic_write_text(path, text)
     return path
