@@ -1,5 +1,5 @@
 """``ehss tune``: hyperparameter search for the residual agent (Ray Tune + Optuna TPE + ASHA on the held-out
-validation score); a results table and the best config as JSON that ``ehss train --config`` reads.
+validation figure); a results table and the best config as JSON that ``ehss train --config`` reads.
 
     ehss tune [--task velocity --n 2] [--trials 16 --timesteps 100000 --eval-freq 25000 --grace 25000]
               [--compare-seeds 3] [--out runs/tune] [--report DIR] [--address HOST:PORT]
@@ -62,15 +62,15 @@ def cmd_tune(args) -> int:
     command = "ehss " + " ".join(shlex.quote(a) for a in getattr(args, "argv", ["tune"]))
     path = write_report(result, settings, args.report or args.out, command, time.perf_counter() - t0)
     best = result["trials"][0]
-    print(f"{len(result['trials'])} trials; best {best['trial']}: validation score {best['best_score']:.4f} after "
-          f"{best['steps']} steps; wrote {os.path.join(args.out, 'best_config.json')} and {path}")
+    print(f"{len(result['trials'])} trials; best {best['trial']}: validation objective {best['best_objective']:.4f} "
+          f"after {best['steps']} steps; wrote {os.path.join(args.out, 'best_config.json')} and {path}")
     return 0
 
 
 def register(sub) -> None:
     """Add ``ehss tune`` to the sub-command parsers ``sub``."""
     p = sub.add_parser("tune", help="hyperparameter search for the residual agent (Ray Tune, Optuna TPE, ASHA)",
-                       description="Search residual PPO's hyperparameters on the held-out validation score with Ray "
+                       description="Search residual PPO's hyperparameters on the held-out validation figure with Ray "
                                    "Tune, Optuna's TPE sampler and ASHA early stopping; resumable.")
     p.add_argument("--task", choices=("velocity", "position"), default="velocity")
     p.add_argument("--n", type=int_at_least("--n", 2), default=2, help="power factor of the base law (even)")

@@ -195,7 +195,7 @@ def _comparison_rows(res: Results) -> list[list]:
 def bound_function():
     """:func:`ehss_gym.study.bound.step_bound` if this build has it, else None (the ratio column is then left out)."""
     try:
-        from ehss_gym.study.bound import step_bound
+        from ehss_gym.study.bound import step_bound  # optional: the bound is built apart; no ratio without it
     except ImportError:
         return None
     return step_bound
