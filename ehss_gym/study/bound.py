@@ -46,15 +46,20 @@ could open the valve early and do better; none of the env's policies can.
 
 from __future__ import annotations
 
+import argparse
+import csv
 import functools
 import math
+import pathlib
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from matplotlib.figure import Figure
 from scipy.optimize import brentq, linprog
 
+from ehss_gym.core.fmt import fmt_cell, md_table
 from ehss_gym.core.layout import X_AV, X_OMEGA, X_PL, X_THETA
 from ehss_gym.core.params import P_K, PlantParams
 from ehss_gym.core.physics import active_amplitude
@@ -85,7 +90,7 @@ OUTPUT = {"velocity": X_OMEGA, "position": X_THETA}
 LP_METHODS = ("highs-ds", "highs-ipm")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Model:
     """A model for the optimiser core.
 
@@ -116,7 +121,7 @@ def lag_model(gain: float, time_constant: float) -> Model:
     return Model(K.MODEL_LAG, np.array([gain, time_constant], dtype=np.float64), 1, 0)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Problem:
     """min IAE of y - target over piecewise-constant u, |u| <= limit, from x0.
 
@@ -202,7 +207,7 @@ def make_problem(model: Model, *, target: float, limit: float, u_hold: float, dt
                    float(target), float(limit), float(u_hold), int(spc), rows, int(row_every))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Solution:
     """One optimiser run: the profile, its exact IAE, the iterations taken and the final trust radius."""
 
@@ -359,7 +364,7 @@ class BoundDiagnostics:
                 "bang-bang": self.switching_share >= SWITCHING_MIN, "tail": self.tail_share <= TAIL_TOL}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class StepBound:
     """The least IAE of a step from rest under the current limit, with the profile that reaches it.
 
@@ -553,7 +558,7 @@ def start_profile(name: str, problem: Problem, t_open: float, seed: int) -> np.n
     return np.full(nc, {"zero": 0.0, "plus": lim, "minus": -lim}[name])
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class _Window:
     """One optimised window: every start's result, the refined profile and its full-horizon trajectory."""
 
@@ -689,12 +694,8 @@ def bound_figure(bounds, laws=None, path=None, *, made_by: str | None = None):
     """One column per bound: y(t) of the optimal profile (and of each run in ``laws``, Trajectories on the same
     steps) against the reference, and the currents [mA], over the time from the step [ms]. Saves to ``path``
     and returns it, or returns the figure if ``path`` is None."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(2, len(bounds), figsize=(3.2 * len(bounds) + 0.8, 5.2), sharex="col", squeeze=False)
+    fig = Figure(figsize=(3.2 * len(bounds) + 0.8, 5.2))  # no pyplot: no backend chosen, no global state
+    axes = fig.subplots(2, len(bounds), sharex="col", squeeze=False)
     for k, b in enumerate(bounds):
         law = laws[k] if laws else None
         span = 3.0 * b.diagnostics.window
@@ -723,7 +724,6 @@ def bound_figure(bounds, laws=None, path=None, *, made_by: str | None = None):
     if path is None:
         return fig
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return str(path)
 
 
@@ -749,12 +749,6 @@ def bound_row(b: StepBound, law) -> dict:
 def main(argv=None) -> int:
     """``python -m ehss_gym.study.bound --out DIR``: the bound and the default law's IAE on steps from rest, both
     tasks; prints the table and writes ``bound.csv`` and ``bound_<task>.png`` into DIR."""
-    import argparse
-    import csv
-    import pathlib
-
-    from ehss_gym.core.fmt import fmt_cell, md_table
-
     ap = argparse.ArgumentParser(prog="python -m ehss_gym.study.bound", description=main.__doc__)
     ap.add_argument("--out", required=True, help="folder for bound.csv and the figures")
     ap.add_argument("--tasks", nargs="+", default=list(TASKS), choices=list(TASKS))
