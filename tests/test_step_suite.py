@@ -79,3 +79,18 @@ def test_a_step_the_bound_refuses_gets_no_ratio_and_a_note(step_results, tmp_pat
     assert all(float(r["bound_ratio"]) > 0 for r in rows if float(r["amplitude"]) > 0)
     assert "velocity, step -1: no physical bound (amplitude must be one the current limit can hold)" in \
         (out / "REPORT.md").read_text()
+
+
+def test_a_policy_of_an_earlier_loop_is_marked_in_the_step_table():
+    """Its row is listed (its own settings), marked, not mixed in with today's laws unmarked."""
+    old = ev.object_spec("old-loop", object.__new__(type("P", (), {"predict": lambda *a, **k: None})),
+                         env_kwargs={"task": "velocity", "ref_accel": 0.0, "sigma": 1e4})
+    row = {"suite": "step", "task": "velocity", "run": 0, "iae_r": 0.01, "diverged": False, "lost_track": False,
+           "level": 0.5, "step_rise_time": 0.02, "step_overshoot": 1.0, "step_settling_time": 0.05}
+    res = SimpleNamespace(specs=[ev.parse_policy("clf-n2"), old],
+                          rows=[{**row, "policy": "clf-n2"}, {**row, "policy": "old-loop"}])
+    rows = comparison.step_rows(res)
+    assert [r["earlier_loop"] for r in rows] == [False, True]
+    table = comparison.step_table(rows, False)
+    assert [t[1] for t in table] == ["clf-n2", "old-loop (earlier loop)"]
+    assert "old-loop (earlier loop) IAE" in comparison.step_lines(rows, False)[0]["line"]

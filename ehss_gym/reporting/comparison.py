@@ -31,6 +31,7 @@ from ehss_gym.evaluation.scoring import (
     RATIO_KEYS,
     SATURATION_GATE,
     STEP_KEYS,
+    is_earlier_loop,
 )
 from ehss_gym.evaluation.specs import REFERENCE_POLICY
 from ehss_gym.evaluation.suites import (
@@ -53,7 +54,7 @@ EPISODE_COLUMNS = (("suite", "task", "policy", "run", "episode", "sweep", "level
                    + RATIO_KEYS + METRIC_KEYS + ("su_iae",) + STEP_KEYS
                    + ("peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped"))
 STEP_COLUMNS = ("task", "policy", "run", "amplitude", "step_rise_time", "step_overshoot", "step_settling_time",
-                "iae_r", "iae_bound", "bound_ratio", "diverged", "lost_track")
+                "iae_r", "iae_bound", "bound_ratio", "diverged", "lost_track", "earlier_loop")
 
 
 def fmt(x, digits: int = 3) -> str:
@@ -208,11 +209,13 @@ def step_rows(res: Results, bound=None, notes: list | None = None) -> list[dict]
     velocity the current limit cannot hold) gets NaN and its reason appended to ``notes``."""
     cache: dict = {}
     out = []
+    specs = {sp.name: sp for sp in res.specs}
     for r in res.rows:
         if r["suite"] != "step":
             continue
         d = {k: r[k] for k in ("task", "policy", "run", "iae_r", "diverged", "lost_track") + STEP_KEYS}
         d["amplitude"] = r["level"]
+        d["earlier_loop"] = is_earlier_loop(specs[r["policy"]], r["task"]) if r["policy"] in specs else False
         if bound is not None:
             key = (r["task"], r["level"])
             if key not in cache:
@@ -242,9 +245,10 @@ def step_table(rows: list[dict], with_bound: bool) -> list[list]:
         groups.setdefault((d["task"], d["policy"], d["amplitude"]), []).append(d)
     out = []
     for (task, pol, amp), ds in groups.items():
-        mean = {k: sum(x[k] for x in ds) / len(ds) for k in STEP_KEYS + ("iae_r",) + (("bound_ratio",) if with_bound
-                                                                                     else ())}
-        row = [task, pol, f"{amp:+g}", fmt(mean["step_rise_time"]), fmt(mean["step_overshoot"]),
+        keys = STEP_KEYS + ("iae_r",) + (("bound_ratio",) if with_bound else ())
+        mean = {k: sum(x[k] for x in ds) / len(ds) for k in keys}
+        label = pol + (" (earlier loop)" if ds[0].get("earlier_loop") else "")
+        row = [task, label, f"{amp:+g}", fmt(mean["step_rise_time"]), fmt(mean["step_overshoot"]),
                fmt(mean["step_settling_time"]), fmt(mean["iae_r"])]
         if with_bound:
             row += [fmt(ds[0]["iae_bound"]), fmt(mean["bound_ratio"])]
@@ -262,12 +266,13 @@ def step_lines(rows: list[dict], with_bound: bool) -> list[dict]:
         parts = []
         for pol in dict.fromkeys(d["policy"] for d in sel):
             ds = [d for d in sel if d["policy"] == pol]
+            tag = " (earlier loop)" if ds[0].get("earlier_loop") else ""
             if with_bound:
                 v = [d["bound_ratio"] for d in ds if d["bound_ratio"] > 0 and math.isfinite(d["bound_ratio"])]
                 g = math.exp(sum(math.log(x) for x in v) / len(v)) if v else math.nan
-                parts.append(f"{pol} {fmt(g)}x the bound")
+                parts.append(f"{pol}{tag} {fmt(g)}x the bound")
             else:
-                parts.append(f"{pol} IAE {fmt(sum(d['iae_r'] for d in ds) / len(ds))} {UNITS[task]}*s")
+                parts.append(f"{pol}{tag} IAE {fmt(sum(d['iae_r'] for d in ds) / len(ds))} {UNITS[task]}*s")
         out.append({"task": task, "line": "; ".join(parts)})
     return out
 
