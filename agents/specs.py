@@ -127,9 +127,9 @@ class AgentSpec:
 #   the control TV 1.9-3.2x the base law's (the smoothed law chatters so little that the residual's own steps
 #   dominate the TV), and at 20 us training drove the loop into the base law's lost-track oscillation.
 # - act every 20 control periods (1 ms) and pay a rate weight of 1.0 on ((a - a_prev)/2)^2 instead of the
-#   env's default 0.05: the evaluation's primary score weighs the control total variation as much as the
-#   RMSE, and in pilot runs (one seed, 300k steps, 16 validation episodes) this pair lowered the residual's
-#   added TV fastest (see reports/training/TRAINING.md).
+#   env's default 0.05: the evaluation's score of that release (0.5 RMSE + 0.5 TV ratios) weighed the control
+#   total variation as much as the RMSE, and in pilot runs (one seed, 300k steps, 16 validation episodes) this
+#   pair lowered the residual's added TV fastest (see reports/training/TRAINING.md).
 COMMON_ENV = {"control_period": 5e-5, "smoothing": 0.0, "agent_period": 20, "reward_weights": {"rate": 1.0}}
 # Settings pinned when a policy is exported (its JSON records them all), so that later changes of the env's
 # defaults cannot silently change the loop a shipped policy acts in: every setting a policy acts in.

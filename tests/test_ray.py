@@ -29,7 +29,7 @@ from ehss_gym.train.config import Config, build_parser, config_from_args
 ray = pytest.importorskip("ray")
 pytestmark = pytest.mark.xdist_group("ray")
 
-TINY = ["--n-envs", "2", "--eval-episodes", "1", "--eval-seconds", "0.1", "--hp", "n_steps=64", "--hp",
+TINY = ["--n-envs", "2", "--eval-episodes", "1", "--eval-seconds", "0.6", "--hp", "n_steps=64", "--hp",
         "batch_size=64", "--hp", "n_epochs=1"]
 
 
@@ -84,7 +84,8 @@ def test_quick_evaluation_csvs_are_byte_identical_on_both_backends(ray_instance,
     assert cli_main([*argv, "--out", str(tmp_path / "local"), "--workers", "2"]) == 0
     assert cli_main([*argv, "--out", str(tmp_path / "ray"), "--backend", "ray"]) == 0
     local, remote = _csvs(tmp_path / "local"), _csvs(tmp_path / "ray")
-    assert set(local) == {"comparisons.csv", "episodes.csv", "summary.csv"} and local == remote
+    # comparisons.csv only with a learned policy in today's loop (the shipped models act in an earlier one)
+    assert {"episodes.csv", "summary.csv"} <= set(local) and local == remote
     assert b"residual-ppo-velocity-n2" in local["episodes.csv"]
 
 
@@ -159,14 +160,14 @@ def test_two_seeds_train_on_ray_and_a_rerun_skips_them(ray_instance, tmp_path, c
 def test_tune_smoke_search_writes_the_table_and_a_best_config_train_accepts(ray_instance, tmp_path, capsys):
     out = tmp_path / "tune"
     argv = ["tune", "--trials", "4", "--timesteps", "256", "--eval-freq", "128", "--grace", "128", "--n-envs", "2",
-            "--eval-episodes", "1", "--eval-seconds", "0.1", "--hp", "n_steps=64", "--hp", "batch_size=64",
+            "--eval-episodes", "1", "--eval-seconds", "0.6", "--hp", "n_steps=64", "--hp", "batch_size=64",
             "--out", str(out)]
     assert cli_main(argv) == 0
     rows = (out / "trials.csv").read_text().strip().splitlines()
     header = rows[0].split(",")
-    assert len(rows) == 5 and {"best_score", "steps", "learning_rate", "gamma", "n_epochs"} <= set(header)
+    assert len(rows) == 5 and {"best_objective", "steps", "learning_rate", "gamma", "n_epochs"} <= set(header)
     trials = json.loads((out / "trials.json").read_text())
-    scores = [t["best_score"] for t in trials]
+    scores = [t["best_objective"] for t in trials]
     assert all(np.isfinite(scores)) and scores == sorted(scores)
     assert all(128 <= t["steps"] <= 256 for t in trials) and len({t["learning_rate"] for t in trials}) == 4
     best = json.loads((out / "best_config.json").read_text())

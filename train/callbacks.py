@@ -24,7 +24,7 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from tqdm.auto import tqdm
 
-from ehss_gym.evaluation.heldout import relative_scores, run_episodes, sb3_act_fn
+from ehss_gym.evaluation.heldout import relative_scores, run_episodes, sb3_act_fn, selection_key, tune_objective
 from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 from . import runs
@@ -129,7 +129,8 @@ class HeldoutEval(BaseCallback):
     def __init__(self, run_dir: str, env_kwargs: dict, scenarios: list, base: list[dict], reference: list[dict],
                  eval_freq: int, wall: WallClock, on_eval: Callable[[dict], None] | None = None):
         """Evaluate every ``eval_freq`` steps on ``scenarios``; ``on_eval(row)`` is told each history row (with
-        ``best_score``, the best so far: ``ehss tune`` reports it to Ray Tune)."""
+        ``best_objective``, :func:`~ehss_gym.evaluation.heldout.tune_objective` of the best so far: ``ehss tune``
+        reports it to Ray Tune)."""
         super().__init__()
         self.on_eval = on_eval
         self.run_dir = run_dir
@@ -140,7 +141,7 @@ class HeldoutEval(BaseCallback):
         self.eval_freq = int(eval_freq)
         self.wall = wall
         self.history: list[dict] = []
-        self.best_score = float("inf")
+        self.best_row: dict | None = None
         self.best_step: int | None = None
         self.last_eval = -1
 
@@ -170,15 +171,16 @@ class HeldoutEval(BaseCallback):
                    eval_s=round(time.perf_counter() - t0, 3))
         self.last_eval = self.num_timesteps
         self.history.append(row)
-        for k in ("score", "rel_rmse", "rel_fric", "rel_tv", "rmse", "max_abs_e_friction", "return", "diverged"):
+        for k in ("figure", "n_failed", "tracking", "disturbance", "effort", "chatter", "rel_tracking",
+                  "rel_disturbance", "trk_rmse", "dst_peak", "return", "diverged"):
             self.logger.record(f"heldout/{k}", row[k])
-        if row["score"] < self.best_score:
-            self.best_score = row["score"]
+        if self.best_row is None or selection_key(row) < selection_key(self.best_row):
+            self.best_row = row
             self.best_step = row["step"]
             self._save_best(row["step"])
         self.write_history()
         if self.on_eval is not None:
-            self.on_eval({**row, "best_score": self.best_score})
+            self.on_eval({**row, "best_objective": tune_objective(self.best_row)})
         return row
 
     def _save_best(self, step: int) -> None:
@@ -205,15 +207,14 @@ class HeldoutEval(BaseCallback):
         atomic_write_text(os.path.join(self.run_dir, "evaluations.json"), json.dumps(self.history, indent=1))
 
     def state_dict(self) -> dict:
-        """What a checkpoint stores: the history, the best score and step, the step of the last evaluation."""
-        return {"history": self.history, "best_score": self.best_score, "best_step": self.best_step,
-                "last_eval": self.last_eval}
+        """What a checkpoint stores: the history, the best step, the step of the last evaluation."""
+        return {"history": self.history, "best_step": self.best_step, "last_eval": self.last_eval}
 
     def load_state_dict(self, d: dict, checkpoint_step: int) -> None:
         """Restore the state saved at ``checkpoint_step``; best candidates saved after it are dropped."""
         self.history = list(d["history"])
-        self.best_score = float(d["best_score"])
         self.best_step = d["best_step"]
+        self.best_row = next((r for r in self.history if r["step"] == self.best_step), None)
         self.last_eval = int(d["last_eval"])
         evals = os.path.join(self.run_dir, "evals")
         if os.path.isdir(evals):

@@ -44,6 +44,7 @@ from ehss_gym.agents.specs import resolved_env_kwargs
 from ehss_gym.envs import ENV_ID
 from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
 from ehss_gym.infra.execution import pin_blas
+from ehss_gym.infra.fmt import fmt_num
 from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 from . import runs
@@ -122,7 +123,7 @@ def export_model(model, vecnormalize, folder: str, cfg: Config, extra: dict) -> 
 
 
 def validation(cfg: Config, env_kwargs: dict) -> tuple[list, list[dict], list[dict]]:
-    """The validation scenarios, the agent's base law on them and the score's reference (the n = 2 law)."""
+    """The validation scenarios, the agent's base law on them and the figures' reference (the n = 2 law)."""
     base_kwargs = {k: v for k, v in env_kwargs.items() if k not in ("mode", "residual_scale")}
     scenarios = heldout_suite(env_kwargs, cfg.eval_episodes, VALIDATION_START, cfg.eval_seconds)
     base = run_episodes({**base_kwargs, "mode": "residual"}, scenarios)  # the agent's own base law
@@ -226,10 +227,13 @@ def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wa
 def describe(summary: dict) -> str:
     """Two lines on a finished run: the kept policy's validation scores against the base law, the run folder."""
     b = summary["best_validation"]
+    gate = f", FAILED the gate on {b['n_failed']} scenario(s)" if b["failed"] else ""
+    classes = ", ".join(f"{c} x{fmt_num(b[f'rel_{c}'], '.3f')}"
+                        for c in ("tracking", "disturbance", "effort", "chatter"))
     return (f"{summary['run_name']}: {summary['timesteps']} steps in {summary['wall_s']:.0f} s; best at step "
-            f"{summary['best_step']}: validation score {b['score']:.4f} (base law "
-            f"{summary['base_validation']['score']:.4f}; lower is better), RMSE x{b['rel_rmse']:.3f}, friction peak "
-            f"x{b['rel_fric']:.3f}, control TV x{b['rel_tv']:.3f} of the base law\n"
+            f"{summary['best_step']}: validation figure {fmt_num(b['figure'], '.4f')} (base law "
+            f"{fmt_num(summary['base_validation']['figure'], '.4f')}; lower is better{gate}), {classes} of the base "
+            "law\n"
             f"run folder: {summary['run_dir']} (best/policy.json + .safetensors: safe weights)")
 
 

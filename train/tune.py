@@ -2,8 +2,10 @@
 
 Each trial trains residual PPO (:func:`ehss_gym.train.loop.train`) with hyperparameters drawn from
 :data:`SEARCH_SPACE` and reports every held-out validation evaluation (the validation block of scenario seeds,
-disjoint from training and from the harness's test block) to Tune: ``score`` (the policy now) and
-``best_score`` (the best so far: the policy a run keeps). The search minimises ``best_score``; ASHA stops the
+disjoint from training and from the harness's test block) to Tune: ``figure`` and ``failed`` (the policy now;
+:mod:`ehss_gym.evaluation.heldout`) and ``best_objective`` (the best so far, the policy a run keeps, as one number:
+its overall figure if it passed the failure gate, inf if it failed). The search minimises ``best_objective``; ASHA
+stops the
 trials that trail at its rungs (measured in agent steps). A trial trains into ``<out>/trials/<run name>`` with
 checkpoints, so a search restarted after an interruption (the same command) resumes from Tune's experiment
 state in ``<out>/search`` and each unfinished trial from its last checkpoint.
@@ -35,7 +37,7 @@ from .jobs import materialize, seed_job
 from .loop import train
 
 AGENT = "residual-ppo"
-METRIC = "best_score"  # the best validation score so far (lower is better; the base law scores 1)
+METRIC = "best_objective"  # the best validation so far as one number (lower is better; heldout.tune_objective)
 # (kind, low, high) or ("choice", values): the residual agent's hyperparameters (ehss_gym.agents.specs.AgentSpec)
 SEARCH_SPACE = {
     "learning_rate": ("loguniform", 3e-5, 1e-3),
@@ -106,8 +108,9 @@ def trainable(params: dict, settings: TuneSettings) -> None:
     cfg = dataclasses.replace(cfg, resume=runs.latest_checkpoint(cfg.out) is not None)
 
     def report(row: dict) -> None:
-        tune.report({"score": row["score"], METRIC: row["best_score"], "step": row["step"],
-                     "rel_rmse": row["rel_rmse"], "rel_tv": row["rel_tv"], "run": cfg.run_name()})
+        tune.report({"figure": row["figure"], "failed": row["failed"], METRIC: row["best_objective"],
+                     "step": row["step"], "rel_tracking": row["rel_tracking"], "rel_effort": row["rel_effort"],
+                     "run": cfg.run_name()})
 
     train(cfg, on_eval=report)
 
@@ -131,7 +134,8 @@ def make_tuner(settings: TuneSettings) -> tune.Tuner:
 
 
 def trial_rows(results) -> list[dict]:
-    """One row per trial (its hyperparameters, steps trained, best and last validation score), best first."""
+    """One row per trial (its hyperparameters, steps trained, best objective and last validation figure), best
+    first."""
     rows = []
     for r in results:
         m = r.metrics or {}
@@ -139,7 +143,7 @@ def trial_rows(results) -> list[dict]:
         name = "_".join(os.path.basename(r.path).split("_")[:3]) if r.path else ""
         row = {"trial": name, "status": "error" if r.error else "ok",
                "steps": int(m.get("step", 0)), METRIC: float(m.get(METRIC, math.nan)),
-               "score": float(m.get("score", math.nan)), "train_s": float(m.get("time_total_s", math.nan))}
+               "figure": float(m.get("figure", math.nan)), "train_s": float(m.get("time_total_s", math.nan))}
         row.update({k: r.config.get(k) for k in SEARCH_SPACE})
         rows.append(row)
     # ties (a budget too short to leave the base law scores 1.0 for every trial) go to the earlier trial: Tune lists
@@ -166,7 +170,7 @@ def best_config(settings: TuneSettings, rows: list[dict]) -> dict:
 def compare(settings: TuneSettings, hp: dict, executor: Executor) -> list[dict]:
     """Train the best config and the shipped recipe on :attr:`TuneSettings.compare_seeds` fresh seeds (after
     the search's own) at the search's budget, as executor jobs; one row per run with its kept policy's
-    validation score."""
+    validation figure."""
     seeds = [settings.seed + 1 + i for i in range(settings.compare_seeds)]
     parent = os.path.join(settings.out, "compare")
     plans = [(name, settings.base_config(over, s, parent)) for name, over in (("tuned", hp), ("shipped", {}))
@@ -177,8 +181,8 @@ def compare(settings: TuneSettings, hp: dict, executor: Executor) -> list[dict]:
         materialize(res)
         s = res["summary"]
         rows.append({"recipe": name, "seed": cfg.seed, "steps": s["timesteps"], "best_step": s["best_step"],
-                     "validation_score": s["best_validation"]["score"],
-                     "final_score": s["final_validation"]["score"], "wall_s": s["wall_s"], "run": s["run_name"]})
+                     "validation_figure": s["best_validation"]["figure"],
+                     "final_figure": s["final_validation"]["figure"], "wall_s": s["wall_s"], "run": s["run_name"]})
     return rows
 
 
@@ -192,7 +196,7 @@ def run_search(settings: TuneSettings, executor: Executor) -> dict:
     results = make_tuner(settings).fit()
     rows = trial_rows(results)
     if not rows or math.isnan(rows[0][METRIC]):
-        raise RuntimeError(f"no trial reported a validation score; see the trial logs in {settings.out}/search")
+        raise RuntimeError(f"no trial reported a validation figure; see the trial logs in {settings.out}/search")
     best = best_config(settings, rows)
     out = {"trials": rows, "best_config": best, "compare": [],
            "shipped": {k: getattr(get_spec(AGENT), k) for k in SEARCH_SPACE}}

@@ -85,7 +85,8 @@ def run(args) -> int:
         for task in TASKS:
             block = [d for d in res.summary if d["suite"] == suite and d["task"] == task]
             if block:
-                ranking = ", ".join(f"{d['policy']} {d['score_mean']:.3g}" for d in block)
+                ranking = ", ".join(f"{d['policy']} {d['figure']:.3g}" + (" FAILED" if d["failed"] else "")
+                                    + (" (earlier loop)" if d["earlier_loop"] else "") for d in block)
                 print(f"  {suite}/{task}: {ranking}")
     return 0
 

@@ -443,9 +443,18 @@ def add_evaluate(p) -> None:
     add_out(p, "output folder", os.path.join("reports", "comparison"))
     add_quick(p, f"small CI form: {quick.heldout_episodes} held-out episodes, {len(quick.friction_levels)}+"
                  f"{len(quick.mismatch_levels)} sweep levels of {quick.sweep_episodes} episode, paper run cut at "
-                 f"{quick.paper_seconds:g} s")
+                 f"{quick.paper_seconds:g} s, {len(quick.step_amplitudes)} steps")
     add_progress(p)
     add_backend_arguments(p)
+
+
+def add_factors(p) -> None:
+    p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
+                   help="held-out episodes per task (default 48; --quick 6)")
+    p.add_argument("--task", type=task_list, default=tuple(TASKS),
+                   help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
+    add_out(p, "output folder", os.path.join("reports", "factors"))
+    add_quick(p, "6 held-out episodes per task")
 
 
 def add_train(p) -> None:
@@ -527,8 +536,13 @@ COMMANDS = (
             "that choose the env's default estimator and law; writes REPORT.md, figures, CSVs, recommended.json.",
             add_noise, "noise"),
     Command("evaluate", "compare CLF n=2/4/6, PID and learned policies on the same scenarios",
-            "Score scripted and learned policies on the paper scenario, a held-out randomised suite and robustness "
-            "sweeps; write REPORT.md, CSVs and figures.", add_evaluate, "evaluate"),
+            "Measure scripted and learned policies against the reference law (clf-n2) by metric class (tracking, "
+            "disturbance, effort, chatter) on the paper scenario, a held-out randomised suite, robustness sweeps and a "
+            "step suite; write REPORT.md, CSVs and figures.", add_evaluate, "evaluate"),
+    Command("factors", "the ruler's factor table: each metric class with friction, mismatch and noise removed",
+            "The default law on the held-out suite with friction, model mismatch and sensor noise removed one at a "
+            "time and all together: each metric class's level; writes FACTORS.md and factors.csv.", add_factors,
+            "factors"),
     Command("train", "train residual PPO or pure PPO (checkpoints, resume, held-out evaluation)",
             "Train residual PPO (or pure PPO) on EHSSTracking-v0: one seed, or several (--seeds) in parallel "
             "processes or on Ray.", add_train, "train"),
@@ -536,7 +550,7 @@ COMMANDS = (
             "Training cost, learning curves and held-out results of the runs that ehss train wrote; optionally "
             "ship the chosen residual policies.", add_training_report, "training_report"),
     Command("tune", "hyperparameter search for the residual agent (Ray Tune, Optuna TPE, ASHA)",
-            "Search residual PPO's hyperparameters on the held-out validation score with Ray Tune, Optuna's TPE "
+            "Search residual PPO's hyperparameters on the held-out validation figure with Ray Tune, Optuna's TPE "
             "sampler and ASHA early stopping; resumable.", add_tune, "tune"),
     Command("bench", "run the performance benchmarks (source checkout) and write PERF.md + CSV",
             "Speed and memory against the tools a user would otherwise pick (solve_ivp, Pendulum-v1, ...); needs "

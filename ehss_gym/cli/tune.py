@@ -1,5 +1,5 @@
 """``ehss tune``: hyperparameter search for the residual agent (Ray Tune + Optuna TPE + ASHA on the held-out
-validation score); a results table and the best config as JSON that ``ehss train --config`` reads.
+validation figure); a results table and the best config as JSON that ``ehss train --config`` reads.
 
     ehss tune [--task velocity --n 2] [--trials 16 --timesteps 100000 --eval-freq 25000 --grace 25000]
               [--compare-seeds 3] [--out runs/tune] [--report DIR] [--address HOST:PORT]
@@ -60,8 +60,8 @@ def run(args) -> int:
     command = "ehss " + " ".join(shlex.quote(a) for a in getattr(args, "argv", ["tune"]))
     path = write_report(result, settings, args.report or args.out, command, time.perf_counter() - t0)
     best = result["trials"][0]
-    print(f"{len(result['trials'])} trials; best {best['trial']}: validation score {best['best_score']:.4f} after "
-          f"{best['steps']} steps; wrote {os.path.join(args.out, 'best_config.json')} and {path}")
+    print(f"{len(result['trials'])} trials; best {best['trial']}: validation objective {best['best_objective']:.4f} "
+          f"after {best['steps']} steps; wrote {os.path.join(args.out, 'best_config.json')} and {path}")
     return 0
 
 

@@ -88,9 +88,16 @@ I_RM = 32  # the reference model's input: r, or the shaped reference p (C_REF_AC
 I_E_R = 33  # true output minus the raw reference r (no reference model): what the metric rmse_r uses
 N_INFO = 34
 # A sample is quiet (it counts for the quiet RMSE) past the start-up and neither in a friction event nor within
-# QUIET_GUARD after one ends (ehss_gym.core.metrics.accumulate classifies it).
-QUIET_STARTUP = 0.2  # [s] the start-up transient excluded from the quiet RMSE
-QUIET_GUARD = 0.2  # [s] settling time excluded after each friction event ends
+# QUIET_GUARD after one ends (ehss_gym.core.metrics.accumulate classifies it, and its metric window below).
+QUIET_STARTUP = 0.2  # [s] the start-up window (t < this), excluded from the quiet RMSE and the tracking class
+QUIET_GUARD = 0.2  # [s] settling time after each friction event ends, counted with the event's window
+# Metric windows (ehss_gym.core.metrics): the start-up t < QUIET_STARTUP; past it, a disturbance window is
+# [start, end + QUIET_GUARD) of any friction event of the scenario, whatever its amplitude (an event of amplitude 0
+# keeps its window, so a scenario with its friction removed is measured on the same samples); tracking is the rest.
+# Every sample is in exactly one.
+WIN_STARTUP = 0
+WIN_DISTURBANCE = 1
+WIN_TRACKING = 2
 
 # --- Online metrics accumulator -------------------------------------------
 M_STEPS = 0  # control steps taken
@@ -125,7 +132,20 @@ M_SUM_E2_TRUE = 27  # sum of the true error's squares (I_E_TRUE): the sensor noi
 M_SUM_E2_QUIET_TRUE = 28  # the same over the quiet samples
 M_MAX_E_FRIC_TRUE = 29  # max |true error| while a friction event is active
 M_SUM_ER2 = 30  # sum of (y - r)^2, the true output against the raw reference (I_E_R)
-N_METRICS = 31
+M_SUM_ABS_ER = 31  # sum |y - r| h (I_E_R): the IAE against the raw reference
+# The metric classes over the windows (I_WIN), on the true error e_t (I_E_TRUE):
+# steps, sum e_t^2, sum |e_t| h, max |e_t|
+M_SU_STEPS = 32  # start-up window
+M_SU_SUM_E2 = 33
+M_SU_SUM_ABS = 34
+M_SU_MAX = 35
+M_DST_STEPS = 36  # disturbance windows
+M_DST_SUM_ABS = 37
+M_DST_MAX = 38
+M_TRK_STEPS = 39  # tracking window
+M_TRK_SUM_E2 = 40
+M_TRK_SUM_ABS = 41
+N_METRICS = 42
 LOST_TRACK_WINDOW = 0.1  # [s] time constant of the windowed (exponential moving) RMS of e
 
 DIV_NONE = 0

@@ -25,6 +25,14 @@ control period, T the simulated time):
   output against the raw reference r instead of the reference model's y_d (independent of the reference
   model: of its start, its lag and a shaper).
 - ``iae``: sum |e| h;  ``itae``: sum t |e| h.
+- The metric classes, on the true error e_t over windows that partition the control samples (layout WIN_*):
+  the *start-up* t < 0.2 s; past it, a *disturbance* window from each friction event's start to 0.2 s after its
+  end (whatever the event's amplitude: an event of amplitude 0 keeps its window); *tracking* the rest.
+  ``trk_rmse`` = sqrt(mean e_t^2) and ``trk_iae`` = sum |e_t| h over the tracking window; ``dst_peak`` = max
+  |e_t| and ``dst_iae`` = sum |e_t| h over the disturbance windows; ``su_rmse``, ``su_iae``, ``su_peak`` over the
+  start-up. NaN for a window with no sample (IAE included: an episode without friction has no disturbance
+  class). ``steps_startup``, ``steps_disturbance``, ``steps_tracking``: the samples in each (they add up to
+  ``steps``). ``iae_r``: sum |y - r| h, the true output against the raw reference.
 - ``max_abs_e``: max |e|; ``max_abs_e_friction``: max |e| while friction is on.
 - ``recovery_on`` / ``recovery_off``: settling time after the first friction
   edge (on / off): the time until |e| enters, and then stays in, a band of
@@ -66,6 +74,9 @@ from .layout import (
     I_V,
     LOST_TRACK_WINDOW,
     M_DIVERGED,
+    M_DST_MAX,
+    M_DST_STEPS,
+    M_DST_SUM_ABS,
     M_LAST_U,
     M_LAST_V,
     M_LOST,
@@ -83,7 +94,12 @@ from .layout import (
     M_STEPS_NOFRIC,
     M_STEPS_QUIET,
     M_STEPS_SETTLED,
+    M_SU_MAX,
+    M_SU_STEPS,
+    M_SU_SUM_ABS,
+    M_SU_SUM_E2,
     M_SUM_ABS_E,
+    M_SUM_ABS_ER,
     M_SUM_E2,
     M_SUM_E2_NOFRIC,
     M_SUM_E2_QUIET,
@@ -95,11 +111,17 @@ from .layout import (
     M_SUM_U2,
     M_T_DIVERGED,
     M_T_LOST,
+    M_TRK_STEPS,
+    M_TRK_SUM_ABS,
+    M_TRK_SUM_E2,
     M_TV_U,
     QUIET_GUARD,
     QUIET_STARTUP,
     R_A1,
     R_T0,
+    WIN_DISTURBANCE,
+    WIN_STARTUP,
+    WIN_TRACKING,
 )
 from .response import step_metrics
 
@@ -117,6 +139,28 @@ def init_accumulator(acc: np.ndarray, lost_track_bound: float) -> None:
 
 
 @jit_inline
+def accumulate_window(acc, win, et, h):
+    """Fold the true error ``et`` [output unit] of one sample into its metric window's class (layout WIN_*, M_SU_*,
+    M_DST_*, M_TRK_*): steps, sum e^2, sum |e| h [output unit * s] and max |e|."""
+    ae = abs(et)
+    if win == WIN_TRACKING:
+        acc[M_TRK_STEPS] += 1.0
+        acc[M_TRK_SUM_E2] += et * et
+        acc[M_TRK_SUM_ABS] += ae * h
+    elif win == WIN_DISTURBANCE:
+        acc[M_DST_STEPS] += 1.0
+        acc[M_DST_SUM_ABS] += ae * h
+        if ae > acc[M_DST_MAX]:
+            acc[M_DST_MAX] = ae
+    else:
+        acc[M_SU_STEPS] += 1.0
+        acc[M_SU_SUM_E2] += et * et
+        acc[M_SU_SUM_ABS] += ae * h
+        if ae > acc[M_SU_MAX]:
+            acc[M_SU_MAX] = ae
+
+
+@jit_inline
 def accumulate(acc, info, h, k, events):
     """Fold one control step's info into the metrics accumulator (layout M_*): what :func:`summarize_acc` reads.
 
@@ -128,16 +172,22 @@ def accumulate(acc, info, h, k, events):
     t = info[I_T]
     fric_on = False
     quiet = t >= QUIET_STARTUP
+    win = WIN_TRACKING if quiet else WIN_STARTUP
     for i in range(events.shape[0]):
-        if events[i, EV_AMP] != 0.0 and events[i, EV_START] <= t < events[i, EV_END] + QUIET_GUARD:
-            quiet = False
-            if t < events[i, EV_END]:
-                fric_on = True
+        if events[i, EV_START] <= t < events[i, EV_END] + QUIET_GUARD:
+            if win == WIN_TRACKING:  # an event's window counts whatever its amplitude (layout WIN_*)
+                win = WIN_DISTURBANCE
+            if events[i, EV_AMP] != 0.0:
+                quiet = False
+                if t < events[i, EV_END]:
+                    fric_on = True
     e = info[I_E]
     ae = abs(e)
     et = info[I_E_TRUE]
     acc[M_SUM_E2_TRUE] += et * et
     acc[M_SUM_ER2] += info[I_E_R] * info[I_E_R]
+    acc[M_SUM_ABS_ER] += abs(info[I_E_R]) * h
+    accumulate_window(acc, win, et, h)
     acc[M_STEPS] += 1.0
     acc[M_SUM_E2] += e * e
     acc[M_SUM_ABS_E] += ae * h
@@ -272,11 +322,30 @@ def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray 
         "saturation": float(a[M_N_SAT] / steps),
         "v_decrease": float(a[M_N_VDEC] / max(steps - 1.0, 1.0)),
         "steps": int(steps),
+        "iae_r": float(a[M_SUM_ABS_ER]),
     }
+    out.update(window_metrics(a))
     on, off = (math.nan, math.nan) if t is None or e is None else recovery_times(t, e, sc.friction)
     out["recovery_on"] = on
     out["recovery_off"] = off
     return out
+
+
+def window_metrics(a: np.ndarray) -> dict:
+    """The metric classes of an accumulator row (layout M_SU_*, M_DST_*, M_TRK_*; module docstring); NaN for a window
+    with no sample."""
+    n_su, n_dst, n_trk = (float(a[i]) for i in (M_SU_STEPS, M_DST_STEPS, M_TRK_STEPS))
+    nan = math.nan
+    return {
+        "trk_rmse": math.sqrt(a[M_TRK_SUM_E2] / n_trk) if n_trk else nan,
+        "trk_iae": float(a[M_TRK_SUM_ABS]) if n_trk else nan,
+        "dst_peak": float(a[M_DST_MAX]) if n_dst else nan,
+        "dst_iae": float(a[M_DST_SUM_ABS]) if n_dst else nan,
+        "su_rmse": math.sqrt(a[M_SU_SUM_E2] / n_su) if n_su else nan,
+        "su_iae": float(a[M_SU_SUM_ABS]) if n_su else nan,
+        "su_peak": float(a[M_SU_MAX]) if n_su else nan,
+        "steps_startup": int(n_su), "steps_disturbance": int(n_dst), "steps_tracking": int(n_trk),
+    }
 
 
 def format_summary(m: dict, unit: str) -> str:

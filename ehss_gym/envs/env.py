@@ -158,7 +158,8 @@ class EHSSTrackingEnv(gym.Env):
             (:attr:`TaskDefaults.sigma_by_law`; else the task's). See docs/MODEL.md, "Laws".
         layer_gain: adaptive boundary layer: width max(smoothing, layer_gain * running noise std of s), in
             [0, 100] (default 3 both tasks; 0: the fixed width ``smoothing``).
-        bumpless: the reference model starts at the measured output instead of at r(0) (default False).
+        bumpless: the reference model starts at the measured output (and the estimated derivatives) instead of at
+            its steady state for r(0) (default True, both tasks).
         ref_accel: position task: the reference shaper's acceleration bound [rad/s^2], 0 = none (default 100
             position, 0 velocity). See docs/MODEL.md, "Reference shaper".
         pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (default 0.95;

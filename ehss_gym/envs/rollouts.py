@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from gymnasium.vector import AutoresetMode
 
-from .observation import decode_observation
+from ehss_gym.core import layout
+
 from .vector import EHSSTrackingVectorEnv
 
 
@@ -26,8 +27,9 @@ class EpisodeResult:
     Attributes:
         metrics: the env's core metrics summary of the episode (``info["metrics"]``), plus ``n_clipped``
             (out-of-range actions) and ``agent_steps``.
-        trace: per agent step (if asked for): t [s], e, y_ref, y [output unit], u (applied) [mA] and
-            friction [N*m]; None otherwise.
+        trace: per agent step (if asked for), at the step's last control sample: t [s], e (as measured), y_ref
+            (the reference model's output), y (the plant's true output), r (the raw reference) [output unit],
+            u (applied) [mA] and friction [N*m]; None otherwise.
         ret: the episode's return (sum of the env's rewards) [-].
     """
 
@@ -80,7 +82,8 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
     obs, _ = env.reset(options={"scenario": list(scenarios)})
     done = np.zeros(N, dtype=bool)
     results: list = [None] * N
-    traces = [{"t": [], "e": [], "u": [], "friction": [], "obs": []} for _ in range(N)] if trace else None
+    traces = [{k: [] for k in TRACE_KEYS} for _ in range(N)] if trace else None
+    info_ok = env._lanes.info_ok  # the lanes' last finite sample of the step (what the step's info shows)
     episode_start = np.ones(N, dtype=bool)
     returns = np.zeros(N)
     state = None
@@ -97,10 +100,7 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
         returns[live] += reward[live]
         if trace:
             for i in live:
-                tr = traces[i]
-                for key, src in (("t", "t"), ("e", "e"), ("u", "u_applied"), ("friction", "friction_torque")):
-                    tr[key].append(float(info[src][i]))
-                tr["obs"].append(obs[i].copy())
+                _record(traces[i], info_ok[i])
         for i in live[(term | trunc)[live]]:
             done[i] = True
             m = _lane_dict(info["metrics"], i)
@@ -109,12 +109,20 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
             results[i] = m
     out = []
     for i in range(N):
-        tr = None
-        if trace:
-            tr = traces[i]
-            o = np.asarray(tr.pop("obs"))
-            tr = {k: np.asarray(v, dtype=np.float64) for k, v in tr.items()}
-            tr["y_ref"] = np.asarray(decode_observation(o, env.observation_layout)["y_ref"], dtype=np.float64)
-            tr["y"] = tr["y_ref"] + tr["e"]
+        tr = {k: np.asarray(v, dtype=np.float64) for k, v in traces[i].items()} if trace else None
         out.append(EpisodeResult(results[i], tr, float(returns[i])))
     return out
+
+
+TRACE_KEYS = ("t", "e", "y_ref", "y", "r", "u", "friction")
+
+
+def _record(tr: dict, i: np.ndarray) -> None:
+    """Append one agent step's sample (a lane's info row, layout I_*) to a trace."""
+    tr["t"].append(float(i[layout.I_T]))
+    tr["e"].append(float(i[layout.I_E]))
+    tr["y_ref"].append(float(i[layout.I_YD]))
+    tr["y"].append(float(i[layout.I_YD] + i[layout.I_E_TRUE]))  # the true output: y_d + (y - y_d)
+    tr["r"].append(float(i[layout.I_R]))
+    tr["u"].append(float(i[layout.I_UAPP]))
+    tr["friction"].append(float(i[layout.I_TF]))

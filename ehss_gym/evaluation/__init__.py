@@ -3,13 +3,14 @@
 Modules, bottom to top:
 
 - :mod:`~ehss_gym.evaluation.suites`: :class:`EvalConfig`, :class:`Episode`, :func:`build_episodes` (the paper
-  run, the held-out suite, the robustness sweeps).
+  run, the held-out suite, the robustness sweeps, the step suite).
 - :mod:`~ehss_gym.evaluation.loading`: a spec's run (model file, scripted-law description, object) as an object
   with ``predict``; each model loaded once per process.
 - :mod:`~ehss_gym.evaluation.specs`: :class:`PolicySpec` and its sources (:func:`parse_policy`,
   :func:`scripted_spec`, :func:`learned_spec`, :func:`object_spec`, :func:`shipped_specs`), :func:`check_fit`.
 - :mod:`~ehss_gym.evaluation.stats`: bootstrap CIs, IQM, probability of improvement.
-- :mod:`~ehss_gym.evaluation.scoring`: :func:`primary_score`, per-episode scores, summaries and comparisons.
+- :mod:`~ehss_gym.evaluation.scoring`: the ruler: per-episode ratios by metric class, figures, gates, ranking,
+  summaries and comparisons.
 - :mod:`~ehss_gym.evaluation.harness`: jobs, the worker pool, :func:`evaluate` and its :class:`Results`.
 - :mod:`~ehss_gym.evaluation.heldout`: the held-out validation used during training.
 
@@ -28,7 +29,7 @@ _EXPORTS = {
                      "valid_forms", "scripted_spec", "learned_spec", "object_spec", "shipped_specs", "default_specs",
                      "check_fit", "REFERENCE_POLICY", "SCRIPTED_DEFAULT"), ".specs"),
     "PolicyError": ".loading",
-    **dict.fromkeys(("primary_score", "SCORE_CAP", "METRICS"), ".scoring"),
+    **dict.fromkeys(("METRICS", "CLASSES", "summarize"), ".scoring"),
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 __all__ = list(_EXPORTS)

@@ -7,12 +7,14 @@ events, plants and sensor noise. The episodes run as jobs of the execution layer
 in this process, in ``spawn`` worker processes across the cores, or as Ray tasks (``--backend ray``); the split
 of episodes into jobs depends neither on the number of workers nor on the backend, so results are identical
 for any ``--workers`` and on both backends.
+The paper suite keeps the paper's start (``bumpless=False``: the reference model at its steady state for r(0),
+:data:`~ehss_gym.evaluation.suites.SUITE_ENV`); every other suite runs at the policy's own settings.
 
 The pieces: the suites and their episodes (:mod:`~ehss_gym.evaluation.suites`), the policy specs
-(:mod:`~ehss_gym.evaluation.specs`), loading a spec's runs (:mod:`~ehss_gym.evaluation.loading`), the primary
-score and the summaries (:mod:`~ehss_gym.evaluation.scoring`, :mod:`~ehss_gym.evaluation.stats`). This module
-cuts the work into jobs, runs them and gathers the :class:`Results`; the report is
-:mod:`ehss_gym.reporting.comparison`'s.
+(:mod:`~ehss_gym.evaluation.specs`), loading a spec's runs (:mod:`~ehss_gym.evaluation.loading`), the ratios to
+the reference law, the figures and the summaries (:mod:`~ehss_gym.evaluation.scoring`,
+:mod:`~ehss_gym.evaluation.stats`). This module cuts the work into jobs, runs them and gathers the
+:class:`Results`; the report is :mod:`ehss_gym.reporting.comparison`'s.
 
 **Loading**: every run is loaded once, in this process, to check that it fits the env
 (:func:`~ehss_gym.evaluation.specs.check_fit`); the workers get each policy once, as the jobs' shared context
@@ -31,11 +33,12 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ehss_gym.core.response import step_metrics
 from ehss_gym.envs.rollouts import rollout as run_rollout
 from ehss_gym.infra.execution import Backend, Executor, Job, canonical, pin_blas, usable_cores
 
 from .loading import PolicyError, load_run, portable, restore
-from .scoring import METRIC_KEYS, METRICS, SCORE_CAP, primary_score, score_rows, summarize
+from .scoring import METRIC_KEYS, METRICS, STEP_KEYS, ratio_rows, summarize
 from .specs import (
     REFERENCE_POLICY,
     SCRIPTED_DEFAULT,
@@ -44,16 +47,16 @@ from .specs import (
     check_unique_names,
     default_specs,
     learned_spec,
-    matched_clf_specs,
     object_spec,
     parse_policy,
     scripted_spec,
     shipped_specs,
 )
-from .suites import SUITES, SWEEP_WINDOW, TASKS, UNITS, Episode, EvalConfig, build_episodes
+from .suites import SUITE_ENV, SUITES, SWEEP_WINDOW, TASKS, UNITS, Episode, EvalConfig, build_episodes, step_of
 
 # beyond METRICS
-ROW_EXTRAS = ("rmse_nominal", "peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped")
+ROW_EXTRAS = ("su_iae", "peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped")
+TRACED_SUITES = ("paper", "step")  # suites whose episodes are traced at the agent rate (figures, step metrics)
 
 
 @dataclass
@@ -67,7 +70,8 @@ class EpisodeBatch:
         task: the task of its episodes.
         env_kwargs: the env settings the policy acts in on that task.
         episodes: the episodes (all of one suite).
-        trace: record the agent-rate traces (the paper suite).
+        trace: record the agent-rate traces (the paper suite's, kept for the figures; the step suite's, for its
+            step-response metrics).
     """
 
     job_id: int
@@ -120,13 +124,28 @@ def _eval_job(config: dict, seed: int, items: dict) -> dict:
     """An executor job (:mod:`ehss_gym.infra.execution`): one :class:`EpisodeBatch` with its policy, made once per
     process from its item in ``items``; plain data back (per-episode metrics, traces or None)."""
     batch: EpisodeBatch = config["batch"]
-    # one object per item *and* (policy, run, task): a scripted law's item is the same for both tasks, its object
-    # is built for one
-    made = (config["item"], batch.key)
+    # one object per item *and* (policy, run, task) and env settings: a scripted law's item is the same for both
+    # tasks and every suite, its object is built for one task and loop
+    made = (config["item"], batch.key, json.dumps(canonical(batch.env_kwargs)))
     if made not in _MADE:
         _MADE[made] = restore(items[batch.key], batch.task, batch.env_kwargs)
     res, traces = rollout(_MADE[made], batch.env_kwargs, batch.episodes, batch.trace, batch.policy)
+    if traces is not None:
+        for ep, m, tr in zip(batch.episodes, res, traces):
+            if ep.suite == "step":
+                m.update(step_response(tr, ep))
+        if batch.episodes[0].suite != "paper":
+            traces = None
     return {"metrics": res, "traces": traces}
+
+
+def step_response(trace: dict, ep: Episode) -> dict:
+    """The step-response metrics of a step-suite episode from its agent-rate trace of the true output
+    (:func:`ehss_gym.core.response.step_metrics`: the response r -> y, from rest at 0 to the step's amplitude):
+    ``step_rise_time`` [s] (10-90 %), ``step_overshoot`` [%], ``step_settling_time`` [s] (2 % band)."""
+    t_step, amplitude = step_of(ep)
+    m = step_metrics(trace["t"], trace["y"], t_step, 0.0, amplitude)
+    return {f"step_{k}": m[k] for k in ("rise_time", "overshoot", "settling_time")}
 
 
 def rollout(policy, env_kwargs: dict, episodes: Sequence[Episode], trace: bool = False, name: str = "policy"):
@@ -161,9 +180,10 @@ def make_batches(specs: Sequence[PolicySpec], episodes: Sequence[Episode], chunk
                     if not eps:
                         continue
                     n_parts = -(-len(eps) // chunk)
+                    kw = {**spec.env_kwargs_for(task), **SUITE_ENV.get(suite, {})}
                     for part in np.array_split(np.arange(len(eps)), n_parts):
-                        batches.append(EpisodeBatch(len(batches), spec.name, r, task, spec.env_kwargs_for(task),
-                                                    [eps[i] for i in part], trace=suite == "paper"))
+                        batches.append(EpisodeBatch(len(batches), spec.name, r, task, kw, [eps[i] for i in part],
+                                                    trace=suite in TRACED_SUITES))
     return batches
 
 
@@ -200,17 +220,12 @@ def run_batches(batches: Sequence[EpisodeBatch], items: dict, executor: Executor
 
 
 def _complete_specs(specs: list, cfg: EvalConfig, notes: list) -> list:
-    """The specs with the reference law and the CLF laws at the learned policies' settings added."""
+    """The specs with the reference law added."""
     check_unique_names(specs)
     names = [s.name for s in specs]
     if REFERENCE_POLICY not in names:
         specs.insert(0, scripted_spec(REFERENCE_POLICY))
-        notes.append(f"{REFERENCE_POLICY} was added: the primary score is normalised by it.")
-    matched = matched_clf_specs(specs, cfg.tasks)
-    if matched:
-        specs += matched
-        notes.append("CLF laws at the controller settings of the learned policies were added (" +
-                     ", ".join(s.name for s in matched) + ") so that each is compared with the laws at its settings.")
+        notes.append(f"{REFERENCE_POLICY} was added: every ratio is taken to it.")
     return specs
 
 
@@ -276,8 +291,10 @@ def _gather(batches: Sequence[EpisodeBatch], done: dict) -> tuple[list, dict]:
             row = {"suite": ep.suite, "task": ep.task, "policy": batch.policy, "run": batch.run_index,
                    "episode": ep.episode_id, "sweep": ep.sweep, "level": ep.level, "scenario_seed": ep.scenario_seed,
                    "t_end": ep.t_end}
+            row["noisy"] = any(v > 0.0 for v in ep.physical["noise_std"])
             row.update({k: m[k] for k in METRIC_KEYS})
             row.update({k: m[k] for k in ROW_EXTRAS})
+            row.update({k: m.get(k, math.nan) for k in STEP_KEYS})
             rows.append(row)
         if tr is not None:
             for ep, trace in zip(batch.episodes, tr):
@@ -291,7 +308,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
 
     Args:
         specs: policies (default: :func:`~ehss_gym.evaluation.specs.default_specs`). The reference law
-            :data:`~ehss_gym.evaluation.specs.REFERENCE_POLICY` is added when missing (the score needs it).
+            :data:`~ehss_gym.evaluation.specs.REFERENCE_POLICY` is added when missing (every ratio is taken to it).
         cfg: sizes and seeds (default :class:`~ehss_gym.evaluation.suites.EvalConfig`).
         workers: processes (default: the cores available); 1 runs in this process.
         progress: show a tqdm progress bar on stderr.
@@ -325,7 +342,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
     done = run_batches(batches, items, executor, in_process=travel == 1)
     rows, traces = _gather(batches, done)
     t1 = time.perf_counter()
-    score_rows(rows)
+    ratio_rows(rows)
     summary, comparisons = summarize(rows, specs, cfg)
     t2 = time.perf_counter()
     timings = {"setup": t0 - t_start, "episodes": t1 - t0, "statistics": t2 - t1}
@@ -337,7 +354,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
 # the names callers use as ``harness.<name>`` (the training report and validation: ``from ehss_gym.evaluation
 # import harness as ev``); each is defined in the module named in the package docstring
 __all__ = ["EvalConfig", "PolicySpec", "PolicyError", "Episode", "EpisodeBatch", "Results", "evaluate", "parse_policy",
-           "scripted_spec", "learned_spec", "object_spec", "shipped_specs", "default_specs", "primary_score",
+           "scripted_spec", "learned_spec", "object_spec", "shipped_specs", "default_specs",
            "build_episodes", "rollout", "check_fit", "make_batches", "run_batches", "default_workers",
-           "REFERENCE_POLICY", "SCRIPTED_DEFAULT", "SCORE_CAP", "METRICS", "METRIC_KEYS", "TASKS", "SUITES", "UNITS",
+           "REFERENCE_POLICY", "SCRIPTED_DEFAULT", "METRICS", "METRIC_KEYS", "TASKS", "SUITES", "UNITS",
            "SWEEP_WINDOW"]

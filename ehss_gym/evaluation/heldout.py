@@ -5,15 +5,20 @@ training seed. Model selection during training uses the *validation* block (held
 :data:`VALIDATION_START` on), so the scenarios a run is selected on are not the ones it is finally
 reported on (:data:`TEST_START`, the block the evaluation harness draws from as well).
 
-Scores (lower is better), per scenario i:
+Figures (lower is better; :mod:`ehss_gym.evaluation.scoring`'s ruler), over the scenarios:
 
-- ``score``: the evaluation harness's primary score (:func:`ehss_gym.evaluation.scoring.primary_score`),
-  ``0.5 RMSE_i / RMSE_ref,i + 0.5 TV_i / TV_ref,i`` against the reference law (the CLF law with n = 2,
-  zero residual, same scenario; 1 for the reference itself, 10 for a diverged episode); the mean over
-  the scenarios picks the checkpoint to keep.
-- ``rel_rmse``, ``rel_fric``, ``rel_tv``: RMSE, max |e| in the friction windows (scenarios with
-  friction only) and control TV rate over those of the agent's own base law (the CLF law with the
-  agent's n, zero residual), averaged over the scenarios.
+- ``figure``: the overall figure G against the reference law (the CLF law with n = 2, zero residual, same
+  scenarios; exactly 1 for the reference itself): per class (tracking, disturbance, effort on the noise-free
+  scenarios, chatter on the noisy ones) G_c = exp(mean log q_c), G = exp(mean over the classes of log G_c).
+  ``tracking``, ``disturbance``, ``effort``, ``chatter``: the class figures.
+- ``failed`` and ``n_failed``: the failure gate (any diverged or lost-track scenario, or a mean saturation
+  share above :data:`~ehss_gym.evaluation.scoring.SATURATION_GATE`) and the number of failed scenarios.
+  :func:`selection_key` orders validations: no failure first, then fewer failed scenarios, then G; the
+  checkpoint with the least key is kept.
+- ``rel_tracking``, ``rel_disturbance``, ``rel_effort``, ``rel_chatter``: the class figures against the
+  agent's own base law (the CLF law with the agent's n, zero residual) instead of the reference.
+
+An undefined value (a class with no scenario, a mean over none) is None.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import numpy as np
 from ehss_gym.core.scenarios import heldout_scenarios
 from ehss_gym.envs import EnvConfig, rollout
 
-from .scoring import RMSE_FLOOR, SCORE_CAP, TV_FLOOR, primary_score
+from .scoring import CLASSES, episode_log_ratios, failure, figure_of, rank_key
 
 VALIDATION_START = 5_000_000  # offset of the validation block among held-out seeds (the harness uses 0.. and 1e6..)
 TEST_START = 0  # offset of the test block (the evaluation harness's held-out suite)
@@ -68,35 +73,55 @@ def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
         m = dict(r.metrics)
         m["return"] = r.ret
         m["has_friction"] = any(ev[0] > 0 for ev in sc.friction)
+        m["noisy"] = any(v > 0.0 for v in sc.noise_std)
         out.append(m)
     return out
 
 
+def _class_logs(results: list[dict], reference: list[dict]) -> dict:
+    """Per class the episodes' log ratios to ``reference`` (episodes where neither diverged)."""
+    logs: dict = {c: [] for c in CLASSES}
+    for m, ref in zip(results, reference):
+        for c, v in episode_log_ratios(m, ref, m["noisy"]).items():
+            logs[c].append(v)
+    return logs
+
+
 def relative_scores(results: list[dict], base: list[dict], reference: list[dict] | None = None) -> dict:
-    """Mean primary score against ``reference`` (default ``base``) and ratios to ``base`` (module docstring)."""
+    """The validation figures of ``results`` against ``reference`` (default ``base``) and its class figures
+    against ``base`` (module docstring), with the failure gate and mean raw metrics."""
     reference = base if reference is None else reference
-    sc, rr, rf, rt, div = [], [], [], [], 0
-    for m, b, ref in zip(results, base, reference):
-        sc.append(primary_score(m["rmse"], m["tv_u_rate"], ref["rmse"], ref["tv_u_rate"], m["diverged"]))
-        if m["diverged"]:
-            div += 1
-            rr.append(SCORE_CAP)
-            rt.append(SCORE_CAP)
-            if b["has_friction"]:
-                rf.append(SCORE_CAP)
-            continue
-        rr.append(m["rmse"] / max(b["rmse"], RMSE_FLOOR))
-        rt.append(m["tv_u_rate"] / max(b["tv_u_rate"], TV_FLOOR))
-        if b["has_friction"] and math.isfinite(b["max_abs_e_friction"]) and math.isfinite(m["max_abs_e_friction"]):
-            rf.append(m["max_abs_e_friction"] / max(b["max_abs_e_friction"], RMSE_FLOOR))
-    out = {"score": float(np.mean(sc)), "rel_rmse": float(np.mean(rr)), "rel_fric": float(np.mean(rf)) if rf else 1.0,
-           "rel_tv": float(np.mean(rt)), "diverged": div, "episodes": len(results)}
-    out["rmse"] = float(np.mean([m["rmse"] for m in results]))
-    fr = [m["max_abs_e_friction"] for m in results if m["has_friction"]]
-    out["max_abs_e_friction"] = float(np.nanmean(fr)) if fr else math.nan
-    out["tv_u_rate"] = float(np.mean([m["tv_u_rate"] for m in results]))
-    out["return"] = float(np.mean([m["return"] for m in results]))
-    return out
+    g, gc = figure_of(_class_logs(results, reference))
+    failed, n_failed = failure(results)
+    out = {"figure": g, "failed": failed, "n_failed": n_failed, "episodes": len(results),
+           "diverged": sum(1 for m in results if m["diverged"])}
+    out.update({c: gc.get(c, math.nan) for c in CLASSES})
+    _, gb = figure_of(_class_logs(results, base))
+    out.update({f"rel_{c}": gb.get(c, math.nan) for c in CLASSES})
+    for key in ("trk_rmse", "dst_peak", "tv_u_rate", "return"):
+        v = [m[key] for m in results if not m["diverged"] and math.isfinite(m[key])]
+        out[key] = float(np.mean(v)) if v else math.nan
+    # undefined values (a class without an episode, a figure without a class) as None: the row goes into JSON files
+    # that refuse NaN (the safe weights' metadata)
+    return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in out.items()}
+
+
+def _figure(row: dict) -> float:
+    return math.nan if row["figure"] is None else float(row["figure"])
+
+
+def selection_key(row: dict) -> tuple:
+    """The order of validation rows (least = best): no failure first, then fewer failed scenarios, then the
+    overall figure (an undefined figure last)."""
+    return rank_key(row["failed"], row["n_failed"], _figure(row))
+
+
+def tune_objective(row: dict) -> float:
+    """One number for a hyperparameter search (lower is better): the overall figure of a validation row that
+    passed the gate, inf for one that failed it or has no figure (every passing row ranks ahead, as
+    :func:`selection_key` has it)."""
+    g = _figure(row)
+    return math.inf if row["failed"] or math.isnan(g) else g
 
 
 def sb3_act_fn(model, vecnormalize=None):
@@ -115,5 +140,6 @@ def policy_act_fn(policy):
     return lambda obs: policy.predict(obs, deterministic=True)[0]
 
 
-__all__ = ["VALIDATION_START", "TEST_START", "heldout_suite", "run_episodes", "relative_scores", "sb3_act_fn",
+__all__ = ["VALIDATION_START", "TEST_START", "heldout_suite", "run_episodes", "relative_scores", "selection_key",
+           "tune_objective", "sb3_act_fn",
            "policy_act_fn"]

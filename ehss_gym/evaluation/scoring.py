@@ -1,17 +1,30 @@
-"""Scoring: the primary score of an episode, per-episode scores of an evaluation, and its summaries.
+"""Scoring: per-episode ratios to the reference law by metric class, the summary figures, gates and ranking.
 
-**Primary score** (lower is better; the score residual PPO must beat), per episode::
+**The ruler** (lower is better; the reference law scores exactly 1). Per episode, against the reference law R
+(:data:`~ehss_gym.evaluation.specs.REFERENCE_POLICY`: the CLF law with n = 2 at the env's defaults) on the same
+episode, both not diverged, each metric floored (x -> max(x, floor), :data:`FLOORS`)::
 
-    score = 0.5 * RMSE / RMSE_ref + 0.5 * TV / TV_ref        (capped at SCORE_CAP; divergence = SCORE_CAP)
+    q_trk = sqrt((trk_rmse / trk_rmse_R) * (trk_iae / trk_iae_R))        tracking window
+    q_dst = sqrt((dst_peak / dst_peak_R) * (dst_iae / dst_iae_R))        episodes with a disturbance window
+    q_eff = sqrt((tv_u_rate / tv_u_rate_R) * (rms_u / rms_u_R))          effort: noise-free episodes;
+                                                                         chatter: episodes with sensor noise
 
-with TV the control total variation per second (chattering index) and ``_ref`` the reference law
-:data:`~ehss_gym.evaluation.specs.REFERENCE_POLICY` (the CLF law with n = 2 at the env's defaults) on the same
-scenario. The reference scores exactly 1 on every episode; 0.8 means 20 % better on the equal-weight mix of
-tracking and chattering. See :func:`primary_score`.
+(the windows and metrics: :mod:`ehss_gym.core.metrics`). A class figure is G_c = exp(mean over the class's
+episodes and runs of log q_c); the overall figure is G = exp(mean over the classes present on the suite of
+log G_c). Halving a metric pair gives 1/2, doubling it 2: the figure is symmetric in log ratio and has no cap.
+The per-episode overall log ratio (for the IQM and the probability of improvement) is the mean of that episode's
+class log ratios. An episode counts in a policy's figures only if the reference and every run of the policy
+finished it without diverging.
 
-:func:`summarize` gives, per (suite, task, policy), the score statistics of :mod:`ehss_gym.evaluation.stats`
-(mean and IQM with bootstrap CIs, probability of improvement over the best CLF) and the mean metrics, and, per
-learned policy, its comparison with the CLF laws at its own controller settings.
+**Failure gates**: a policy fails on a (suite, task) if any episode of any run diverged or lost track, or its mean
+saturation share exceeds :data:`SATURATION_GATE`. **Ranking**: policies without a failure first, by G; then the
+failed ones, by the number of failed episodes, then G. Learned policies whose controller settings differ from
+today's env defaults (recorded in an earlier loop) are summarised but not ranked against today's laws.
+
+:func:`summarize` gives, per (suite, task, policy) of the figure suites, the class and overall figures with
+bootstrap CIs (:mod:`ehss_gym.evaluation.stats`, on the log ratios, reported exponentiated), the IQM and the
+probability of improvement over the best CLF, the gates, the mean metrics; and, per learned policy in today's
+loop, its comparison with the best CLF and its base law. The step suite is summarised apart (its own table).
 """
 
 from __future__ import annotations
@@ -25,18 +38,39 @@ from . import stats
 from .specs import CLF_RE, REFERENCE_POLICY, PolicySpec, controller_settings
 from .suites import SUITES, TASKS, EvalConfig
 
-SCORE_CAP = 10.0  # [-] score of a diverged episode, and the most any episode can score
-W_TRACK = 0.5  # weight of the RMSE ratio in the primary score
-W_CHATTER = 0.5  # weight of the control-TV ratio
-RMSE_FLOOR = 1e-12  # [output unit] guards a division by an exactly zero reference RMSE
-TV_FLOOR = 1e-9  # [mA/s]
+ERROR_FLOOR = 1e-12  # [output unit] (output unit * s for an IAE): floor of the error metrics in a ratio
+TV_FLOOR = 1e-9  # [mA/s] floor of the control TV rate
+CURRENT_FLOOR = 1e-9  # [mA] floor of the RMS current
+SATURATION_GATE = 0.10  # [-] a mean saturation share above this fails the gate
+CLASSES = ("tracking", "disturbance", "effort", "chatter")
+# class -> its two metrics (key of metrics.summarize_acc, floor)
+CLASS_METRICS = {
+    "tracking": (("trk_rmse", ERROR_FLOOR), ("trk_iae", ERROR_FLOOR)),
+    "disturbance": (("dst_peak", ERROR_FLOOR), ("dst_iae", ERROR_FLOOR)),
+    "effort": (("tv_u_rate", TV_FLOOR), ("rms_u", CURRENT_FLOOR)),
+    "chatter": (("tv_u_rate", TV_FLOOR), ("rms_u", CURRENT_FLOOR)),
+}
+FLOORS = (("errors and IAEs", ERROR_FLOOR, "output unit (* s)"), ("control TV", TV_FLOOR, "mA/s"),
+          ("RMS current", CURRENT_FLOOR, "mA"))
+FIGURE_SUITES = ("paper", "heldout", "robustness")  # the suites with the summary figure (step: its own table)
+STEP_KEYS = ("step_rise_time", "step_overshoot", "step_settling_time")  # step-suite extras, with iae_r
 
 # (key, label, unit ("U" = output unit), definition) of every reported metric; keys of metrics.summarize_acc
 METRICS = (
-    ("rmse", "RMSE", "U", "sqrt(mean e^2) over all control steps, e = y - y_d"),
+    ("trk_rmse", "tracking RMSE", "U",
+     "sqrt(mean e_t^2) over the tracking window (t >= 0.2 s, outside every friction window and its 0.2 s guard); "
+     "e_t = y - y_d, the true error (no sensor noise)"),
+    ("trk_iae", "tracking IAE", "U*s", "sum |e_t| h over the tracking window (h the control period)"),
+    ("dst_peak", "disturbance peak", "U",
+     "max |e_t| over the disturbance windows (t >= 0.2 s, from a friction event's start to 0.2 s after its end)"),
+    ("dst_iae", "disturbance IAE", "U*s", "sum |e_t| h over the disturbance windows"),
+    ("su_rmse", "start-up RMSE", "U", "sqrt(mean e_t^2) over the start-up, t < 0.2 s (diagnostic, not a class)"),
+    ("su_peak", "start-up peak", "U", "max |e_t| over the start-up"),
+    ("rmse", "RMSE", "U", "sqrt(mean e^2) over all control steps, e = y - y_d as measured"),
     ("rmse_nominal", "RMSE outside friction", "U", "the same over the steps with no friction event active"),
-    ("iae", "IAE", "U*s", "sum |e| h over the control steps (h the control period)"),
+    ("iae", "IAE", "U*s", "sum |e| h over the control steps"),
     ("itae", "ITAE", "U*s^2", "sum t |e| h"),
+    ("iae_r", "IAE to r", "U*s", "sum |y - r| h: the true output against the raw reference (no reference model)"),
     ("max_abs_e", "max |e|", "U", "largest |e| of the episode"),
     ("max_abs_e_friction", "max |e| in friction", "U", "largest |e| while a friction event is active"),
     ("recovery_on", "recovery on", "s",
@@ -57,59 +91,79 @@ METRICS = (
 )
 METRIC_KEYS = tuple(m[0] for m in METRICS)
 RATE_KEYS = {"diverged": "divergence_rate", "lost_track": "lost_track_rate"}  # per-episode flag -> summary rate
-RATIOS = (("rmse", "rmse_ratio"), ("tv_u_rate", "tv_ratio"), ("max_abs_e_friction", "friction_peak_ratio"))
+RATIO_KEYS = tuple(f"q_{c}" for c in CLASSES) + ("q_overall",)  # per-episode ratio columns of a row
 
 
-def primary_score(rmse: float, tv_rate: float, rmse_ref: float, tv_ref: float, diverged: bool) -> float:
-    """The primary score of one episode (lower is better; the reference law scores 1).
-
-    ``0.5 * RMSE / RMSE_ref + 0.5 * TV / TV_ref``, capped at :data:`SCORE_CAP`; a diverged episode
-    scores :data:`SCORE_CAP`.
-
-    Args:
-        rmse: the episode's tracking RMSE [output unit].
-        tv_rate: its control total variation per second [mA/s].
-        rmse_ref: the reference law's RMSE on the same scenario [output unit].
-        tv_ref: the reference law's control TV per second on it [mA/s].
-        diverged: the episode diverged.
-    """
-    if diverged or not (math.isfinite(rmse) and math.isfinite(tv_rate)):
-        return SCORE_CAP
-    s = W_TRACK * rmse / max(rmse_ref, RMSE_FLOOR) + W_CHATTER * tv_rate / max(tv_ref, TV_FLOOR)
-    return float(min(s, SCORE_CAP))
+def episode_classes(noisy: bool) -> tuple[str, ...]:
+    """The classes an episode can belong to: tracking, disturbance (if it has a window) and effort (noise-free)
+    or chatter (with sensor noise)."""
+    return ("tracking", "disturbance", "chatter" if noisy else "effort")
 
 
-def score_rows(rows: list) -> None:
-    """Add ``score`` and ``score_normaliser`` to every per-episode row, normalised by the reference law on the same
-    episode (by its suite median where the reference itself diverged).
+def class_log_ratio(m: dict, ref: dict, cls: str) -> float:
+    """log q_c of one episode (module docstring): half the sum of the log ratios of the class's two floored
+    metrics; NaN if a metric is undefined (no sample in the class's window)."""
+    out = 0.0
+    for key, floor in CLASS_METRICS[cls]:
+        a, b = m[key], ref[key]
+        if not (math.isfinite(a) and math.isfinite(b)):
+            return math.nan
+        out += 0.5 * (math.log(max(a, floor)) - math.log(max(b, floor)))
+    return out
+
+
+def episode_log_ratios(m: dict, ref: dict, noisy: bool) -> dict:
+    """The episode's class log ratios against the reference law's metrics ``ref`` on it (only its classes with a
+    defined ratio); empty if either diverged."""
+    if m["diverged"] or ref["diverged"]:
+        return {}
+    out = {}
+    for cls in episode_classes(noisy):
+        v = class_log_ratio(m, ref, cls)
+        if math.isfinite(v):
+            out[cls] = v
+    return out
+
+
+def failure(rows: Sequence[dict]) -> tuple[bool, int]:
+    """(failed, number of failed episodes) of a policy's rows on one (suite, task): an episode fails if it diverged
+    or lost track; the policy fails on any failed episode or a mean saturation share above SATURATION_GATE."""
+    n = sum(1 for r in rows if r["diverged"] or r["lost_track"])
+    sat = float(np.mean([r["saturation"] for r in rows])) if rows else 0.0
+    return n > 0 or sat > SATURATION_GATE, n
+
+
+def figure_of(logs: dict) -> tuple[float, dict]:
+    """(G, {class: G_c}) from per-class lists of episode log ratios (classes with no entry are left out)."""
+    g = {c: math.exp(float(np.mean(v))) for c, v in logs.items() if len(v)}
+    return (math.exp(float(np.mean([math.log(x) for x in g.values()]))) if g else math.nan), g
+
+
+def rank_key(failed: bool, n_failed: int, g: float, name: str = "") -> tuple:
+    """The ranking order: no failure first (by G), then by failed episodes, then G (an undefined G last)."""
+    return (bool(failed), int(n_failed) if failed else 0, math.isnan(g), g if not math.isnan(g) else 0.0, name)
+
+
+def ratio_rows(rows: list) -> None:
+    """Add the per-episode ratios ``q_<class>`` and ``q_overall`` (NaN outside the episode's classes or where it or
+    the reference law diverged) to every row, against the reference law on the same episode.
 
     Raises:
         RuntimeError: an episode the reference law was not run on.
     """
-    ref = {}
-    for r in rows:
-        if r["policy"] == REFERENCE_POLICY:
-            ref[(r["suite"], r["task"], r["episode"])] = r
-    valid = {}
-    for (suite, task, _), r in ref.items():
-        if not r["diverged"]:
-            valid.setdefault((suite, task), []).append((r["rmse"], r["tv_u_rate"]))
+    ref = {(r["suite"], r["task"], r["episode"]): r for r in rows if r["policy"] == REFERENCE_POLICY}
     for r in rows:
         k = (r["suite"], r["task"], r["episode"])
         rr = ref.get(k)
         if rr is None:
             raise RuntimeError(f"no {REFERENCE_POLICY} result for {k}; the reference law must be evaluated")
-        if rr["diverged"]:  # fall back on the suite median of the reference
-            pool = valid.get((r["suite"], r["task"]))
-            rm, tv = (np.median([p[0] for p in pool]), np.median([p[1] for p in pool])) if pool else (1.0, 1.0)
-            r["score_normaliser"] = "suite median (reference diverged)"
-        else:
-            rm, tv = rr["rmse"], rr["tv_u_rate"]
-            r["score_normaliser"] = "same episode"
-        r["score"] = primary_score(r["rmse"], r["tv_u_rate"], rm, tv, r["diverged"])
+        logs = episode_log_ratios(r, rr, r["noisy"])
+        for c in CLASSES:
+            r[f"q_{c}"] = math.exp(logs[c]) if c in logs else math.nan
+        r["q_overall"] = math.exp(float(np.mean(list(logs.values())))) if logs else math.nan
 
 
-def matrix(rows: list, policy: str, suite: str, task: str, key: str = "score", episodes: list | None = None):
+def matrix(rows: list, policy: str, suite: str, task: str, key: str = "q_overall", episodes: list | None = None):
     """The (runs, episodes) matrix of ``key`` for one policy, suite and task.
 
     Args:
@@ -126,29 +180,11 @@ def matrix(rows: list, policy: str, suite: str, task: str, key: str = "score", e
     sel = [r for r in rows if r["policy"] == policy and r["suite"] == suite and r["task"] == task]
     if not sel:
         return None, []
-    eps = episodes or sorted({r["episode"] for r in sel}, key=lambda e: next(
-        i for i, r in enumerate(sel) if r["episode"] == e))
+    eps = episodes or list(dict.fromkeys(r["episode"] for r in sel))
     runs = sorted({r["run"] for r in sel})
     idx = {(r["run"], r["episode"]): r for r in sel}
     m = np.array([[float(idx[(ru, e)][key]) for e in eps] for ru in runs])
     return m, eps
-
-
-def _scores_against(rows: list, policy: str, suite: str, task: str, episodes: list, ref: str) -> np.ndarray:
-    """(runs, episodes) primary scores of ``policy`` normalised by the law ``ref`` on the same episodes (the
-    suite median of ``ref`` where ``ref`` diverged), instead of by :data:`REFERENCE_POLICY`."""
-    ref_rm = matrix(rows, ref, suite, task, "rmse", episodes)[0][0]
-    ref_tv = matrix(rows, ref, suite, task, "tv_u_rate", episodes)[0][0]
-    ref_div = matrix(rows, ref, suite, task, "diverged", episodes)[0][0].astype(bool)
-    if ref_div.any():
-        ok = ~ref_div
-        ref_rm = np.where(ref_div, np.median(ref_rm[ok]) if ok.any() else 1.0, ref_rm)
-        ref_tv = np.where(ref_div, np.median(ref_tv[ok]) if ok.any() else 1.0, ref_tv)
-    rm = matrix(rows, policy, suite, task, "rmse", episodes)[0]
-    tv = matrix(rows, policy, suite, task, "tv_u_rate", episodes)[0]
-    div = matrix(rows, policy, suite, task, "diverged", episodes)[0].astype(bool)
-    return np.array([[primary_score(rm[i, j], tv[i, j], ref_rm[j], ref_tv[j], div[i, j]) for j in range(rm.shape[1])]
-                     for i in range(rm.shape[0])])
 
 
 def _finite_mean(v) -> float:
@@ -175,108 +211,188 @@ def _mean_metrics(sel: list) -> dict:
     return d
 
 
-def _score_statistics(m: np.ndarray, k: int, cfg: EvalConfig) -> dict:
-    """Mean, IQM and median of one policy's (runs, episodes) score matrix ``m`` with bootstrap CIs (over episodes;
-    with several runs also over seeds and both); ``k`` = its place in the block (the bootstrap seeds differ)."""
-    s = stats.summarize_scores(m, n_boot=cfg.n_boot, seed=cfg.seed + 101 * k)
-    d = {"n_runs": s["n_runs"], "n_episodes": s["n_episodes"],
-         "score_mean": s["mean"], "score_mean_lo": s["mean_ci"][0], "score_mean_hi": s["mean_ci"][1],
-         "score_iqm": s["iqm"], "score_iqm_lo": s["iqm_ci"][0], "score_iqm_hi": s["iqm_ci"][1],
-         "score_median": s["median"]}
-    if s["n_runs"] > 1:
-        d["score_mean_lo_seeds"], d["score_mean_hi_seeds"] = s["mean_ci_seeds"]
-        d["score_mean_lo_both"], d["score_mean_hi_both"] = s["mean_ci_both"]
+class Block:
+    """The log-ratio matrices of one (suite, task): per policy and class a (runs, episodes) array over the
+    episodes every run of the policy and the reference finished (``kept``; NaN outside the class), and the
+    per-episode overall log ratios on them."""
+
+    def __init__(self, rows: list, names: Sequence[str], suite: str, task: str):
+        _, self.episodes = matrix(rows, REFERENCE_POLICY, suite, task)
+        q = {n: {k: matrix(rows, n, suite, task, k, self.episodes)[0] for k in RATIO_KEYS} for n in names}
+        self.classes = [c for c in CLASSES if any(np.isfinite(q[n][f"q_{c}"]).any() for n in names)]
+        self.kept, self.overall, self.logs = {}, {}, {}
+        for n in names:
+            keep = np.isfinite(q[n]["q_overall"]).all(axis=0)
+            self.kept[n] = [e for e, k in zip(self.episodes, keep) if k]
+            self.overall[n] = np.log(q[n]["q_overall"][:, keep])
+            self.logs[n] = {c: np.log(q[n][f"q_{c}"][:, keep]) for c in self.classes}
+
+    def figure(self, name: str) -> tuple[float, dict]:
+        """(G, {class: G_c}) of a policy (module docstring)."""
+        return figure_of({c: m[np.isfinite(m)] for c, m in self.logs[name].items()})
+
+
+def _log_ci(stat_logs, cfg: EvalConfig, seed: int, over: str) -> tuple[float, float]:
+    """Exponentiated bootstrap CI of the grouped mean of log ratios (NaN, NaN if there are none)."""
+    if not any(np.isfinite(g).any() for g in stat_logs):
+        return math.nan, math.nan
+    lo, hi = stats.grouped_mean_ci(stat_logs, over, cfg.n_boot, seed=seed)
+    return math.exp(lo), math.exp(hi)
+
+
+def _figure_statistics(blk: Block, name: str, k: int, cfg: EvalConfig) -> dict:
+    """A policy's class and overall figures with bootstrap CIs (over episodes; with several runs also over seeds and
+    both), and the IQM of its per-episode overall ratios; ``k`` = its place in the block (the seeds differ)."""
+    g, gc = blk.figure(name)
+    ov = blk.overall[name]
+    d = {"n_runs": ov.shape[0], "n_episodes": len(blk.episodes), "n_used": ov.shape[1], "figure": g}
+    overs = ("episodes",) + (("seeds", "both") if ov.shape[0] > 1 else ())
+    for j, over in enumerate(overs):
+        tag = "" if over == "episodes" else f"_{over}"
+        groups = [blk.logs[name][c] for c in blk.classes if c in gc]
+        d[f"figure_lo{tag}"], d[f"figure_hi{tag}"] = (_log_ci(groups, cfg, cfg.seed + 101 * k + j, over) if groups
+                                                      else (math.nan, math.nan))
+        for i, c in enumerate(blk.classes):
+            m = blk.logs[name][c]
+            d[c] = gc.get(c, math.nan)
+            d[f"{c}_lo{tag}"], d[f"{c}_hi{tag}"] = _log_ci([m], cfg, cfg.seed + 101 * k + 11 * (i + 1) + j, over)
+            d[f"{c}_n"] = int(np.isfinite(m[0]).sum()) if m.size else 0
+    if ov.size:
+        d["figure_iqm"] = math.exp(stats.iqm(ov))
+        lo, hi = stats.bootstrap_ci(ov, "iqm", "episodes", cfg.n_boot, seed=cfg.seed + 101 * k + 7)
+        d["figure_iqm_lo"], d["figure_iqm_hi"] = math.exp(lo), math.exp(hi)
+    else:
+        d["figure_iqm"] = d["figure_iqm_lo"] = d["figure_iqm_hi"] = math.nan
     return d
 
 
-def _block_summary(rows: list, present: list, mats: dict, suite: str, task: str, cfg: EvalConfig) -> list:
-    """The ranked summary rows of one (suite, task) block."""
-    clfs = [n for n in present if CLF_RE.match(n)]
-    best = min(clfs, key=lambda n: (mats[n].mean(), n)) if clfs else None
+def _poi(blk: Block, a: str, b: str, cfg: EvalConfig, seed: int) -> tuple[float, float, float]:
+    """Probability that policy ``a``'s per-episode overall ratio is lower than ``b``'s, on the episodes both
+    finished, with its CI (NaN if none)."""
+    ea = dict(zip(blk.kept[a], blk.overall[a].T))
+    eb = dict(zip(blk.kept[b], blk.overall[b].T))
+    common = [e for e in ea if e in eb]
+    if not common:
+        return math.nan, math.nan, math.nan
+    x = np.stack([ea[e] for e in common], axis=1)
+    y = np.stack([eb[e] for e in common], axis=1)
+    return stats.probability_of_improvement_ci(x, y, n_boot=cfg.n_boot, seed=seed)
+
+
+def is_earlier_loop(spec: PolicySpec, task: str) -> bool:
+    """True for a learned policy whose controller settings differ from today's env defaults on ``task``: it was
+    recorded in an earlier loop and is not ranked against today's laws."""
+    return spec.learned and controller_settings(spec.env_kwargs, task) != controller_settings({}, task)
+
+
+def _block_summary(rows: list, blk: Block, specs: Sequence[PolicySpec], suite: str, task: str,
+                   cfg: EvalConfig) -> list:
+    """The summary rows of one (suite, task) block: today's laws ranked, earlier-loop policies after them
+    unranked."""
     block = []
-    for k, n in enumerate(present):
-        m = mats[n]
-        d = {"suite": suite, "task": task, "policy": n, "rank": 0}
-        d.update(_score_statistics(m, k, cfg))
+    for k, spec in enumerate(specs):
+        n = spec.name
+        sel = [r for r in rows if r["policy"] == n and r["suite"] == suite and r["task"] == task]
+        failed, n_failed = failure(sel)
+        d = {"suite": suite, "task": task, "policy": n, "rank": 0, "failed": failed, "n_failed": n_failed,
+             "earlier_loop": is_earlier_loop(spec, task)}
+        d.update(_figure_statistics(blk, n, k, cfg))
+        d.update(_mean_metrics(sel))
+        block.append(d)
+    ranked = sorted((d for d in block if not d["earlier_loop"]),
+                    key=lambda d: rank_key(d["failed"], d["n_failed"], d["figure"], d["policy"]))
+    for rank, d in enumerate(ranked, 1):
+        d["rank"] = rank
+    best = next((d["policy"] for d in ranked if CLF_RE.match(d["policy"])), None)
+    for k, d in enumerate(block):
         d["best_clf"] = best or ""
-        if best is not None and n != best:
-            p, lo, hi = stats.probability_of_improvement_ci(m, mats[best], n_boot=cfg.n_boot, seed=cfg.seed + 7 + k)
-            d["poi_vs_best_clf"], d["poi_lo"], d["poi_hi"] = p, lo, hi
+        if best is not None and d["policy"] != best:
+            d["poi_vs_best_clf"], d["poi_lo"], d["poi_hi"] = _poi(blk, d["policy"], best, cfg, cfg.seed + 7 + k)
         else:
             d["poi_vs_best_clf"] = d["poi_lo"] = d["poi_hi"] = math.nan
-        d.update(_mean_metrics([r for r in rows if r["policy"] == n and r["suite"] == suite and r["task"] == task]))
-        block.append(d)
-    order = sorted(block, key=lambda d: (d["score_mean"], d["policy"]))
-    for rank, d in enumerate(order, 1):
-        d["rank"] = rank
-    return order
+    earlier = [d for d in block if d["earlier_loop"]]
+    return ranked + earlier
 
 
-def _comparison(rows: list, spec: PolicySpec, specs: Sequence[PolicySpec], mats: dict, eps: list, suite: str,
-                task: str, cfg: EvalConfig) -> dict | None:
-    """A learned policy against the best CLF n = 2/4/6 at its own controller settings and its base law (None if
-    no CLF at those settings was run)."""
-    n = spec.name
-    mine = controller_settings(spec.env_kwargs, task)
-    same = [s for s in specs if s.kind == "clf" and s.name in mats and int(s.env_kwargs["n"]) in (2, 4, 6)
-            and controller_settings(s.env_kwargs, task) == mine]
-    if not same:
+def _paired_logs(blk: Block, a: str, b: str) -> tuple[list, list]:
+    """Per class the log-ratio differences a - b on the episodes both finished (runs of ``b`` averaged, so a
+    scripted law's single run pairs with every training seed), and the class names."""
+    ka, kb = blk.kept[a], blk.kept[b]
+    common = [e for e in ka if e in kb]
+    ia = [ka.index(e) for e in common]
+    ib = [kb.index(e) for e in common]
+    out, names = [], []
+    for c in blk.classes:
+        xa = blk.logs[a][c][:, ia]
+        xb = blk.logs[b][c][:, ib].mean(axis=0, keepdims=True)
+        diff = xa - xb
+        if np.isfinite(diff).any():
+            out.append(diff)
+            names.append(c)
+    return out, names
+
+
+def _comparison(blk: Block, spec: PolicySpec, specs: Sequence[PolicySpec], summary: list, suite: str, task: str,
+                cfg: EvalConfig) -> dict | None:
+    """A learned policy in today's loop against the best CLF of the block and its base law (the CLF with its n at
+    the env defaults): the ratio of their figures with a paired bootstrap CI, the PoI, and its class figures over
+    the base law's. None if no CLF ran."""
+    by = {d["policy"]: d for d in summary}
+    best = by[spec.name]["best_clf"]
+    if not best:
         return None
-    # Scores against the n = 2 law *at these settings* (the reference law itself when the settings are the
-    # defaults): a same-settings comparison must not be weighted by a loop the policy does not act in (a smoothed
-    # law's tiny TV on noise-free episodes, say).
-    ref_same = next((s.name for s in same if int(s.env_kwargs["n"]) == 2), REFERENCE_POLICY)
-    sm = {x: (mats[x] if ref_same == REFERENCE_POLICY else _scores_against(rows, x, suite, task, eps, ref_same))
-          for x in [n] + [s.name for s in same]}
-    best_same = min(same, key=lambda s: (sm[s.name].mean(), s.name))
-    m = sm[n]
-    imp, lo, hi = stats.relative_improvement_ci(m, sm[best_same.name], n_boot=cfg.n_boot, seed=cfg.seed + 3)
-    p, plo, phi = stats.probability_of_improvement_ci(m, sm[best_same.name], n_boot=cfg.n_boot, seed=cfg.seed + 5)
-    c = {"suite": suite, "task": task, "policy": n, "n_runs": m.shape[0], "best_clf": best_same.name,
-         "score_reference": ref_same, "score_mean": float(m.mean()),
-         "best_clf_score_mean": float(sm[best_same.name].mean()),
-         "improvement": imp, "improvement_lo": lo, "improvement_hi": hi, "poi": p, "poi_lo": plo, "poi_hi": phi}
-    base = best_same.name
-    if spec.env_kwargs.get("mode", "residual") == "residual":
-        nn = int(spec.env_kwargs.get("n", 2))
-        base = next((s.name for s in same if int(s.env_kwargs["n"]) == nn), best_same.name)
+    diffs, _ = _paired_logs(blk, spec.name, best)
+    if not diffs:
+        return None
+    ratio = math.exp(stats.grouped_mean(diffs))
+    over = "both" if diffs[0].shape[0] > 1 else "episodes"
+    lo, hi = stats.grouped_mean_ci(diffs, over, cfg.n_boot, seed=cfg.seed + 3)
+    p, plo, phi = _poi(blk, spec.name, best, cfg, cfg.seed + 5)
+    c = {"suite": suite, "task": task, "policy": spec.name, "n_runs": blk.overall[spec.name].shape[0],
+         "best_clf": best, "figure": by[spec.name]["figure"], "best_clf_figure": by[best]["figure"],
+         "ratio_to_best": ratio, "improvement": 1.0 - ratio, "improvement_lo": 1.0 - math.exp(hi),
+         "improvement_hi": 1.0 - math.exp(lo), "poi": p, "poi_lo": plo, "poi_hi": phi}
+    nn = int(spec.env_kwargs.get("n", 2))
+    base = f"clf-n{nn}" if spec.env_kwargs.get("mode", "residual") == "residual" and f"clf-n{nn}" in by else best
     c["base_law"] = base
-    for key, label in RATIOS:
-        a = matrix(rows, n, suite, task, key, eps)[0]
-        b = matrix(rows, base, suite, task, key, eps)[0]
-        good = np.isfinite(a).all(axis=0) & np.isfinite(b).all(axis=0)
-        c[label] = float(a[:, good].mean() / b[:, good].mean()) if good.any() else math.nan
+    diffs, names = _paired_logs(blk, spec.name, base)
+    for cls in CLASSES:
+        c[f"{cls}_ratio"] = (math.exp(float(np.nanmean(diffs[names.index(cls)]))) if cls in names else math.nan)
     return c
 
 
 def summarize(rows: list, specs: Sequence[PolicySpec], cfg: EvalConfig) -> tuple[list, list]:
-    """Per (suite, task, policy): score statistics, PoI against the best CLF and mean metrics; comparisons.
+    """Per (suite, task, policy) of the figure suites: figures with CIs, gates, rank, PoI against the best CLF and
+    mean metrics; comparisons of the learned policies in today's loop.
 
     Args:
-        rows: scored per-episode rows (:func:`score_rows`).
+        rows: per-episode rows with their ratios (:func:`ratio_rows`).
         specs: the evaluated policies (order = order within a block before ranking).
         cfg: bootstrap sizes and seed.
 
     Returns:
-        (summary rows in suite, task, rank order; comparison rows of the learned policies).
+        (summary rows in suite, task, rank order, the earlier-loop policies last; comparison rows).
     """
     summary, comparisons = [], []
-    names = [s.name for s in specs]
     for suite in SUITES:
+        if suite not in FIGURE_SUITES:
+            continue
         for task in TASKS:
-            present = [n for n in names if any(r["policy"] == n and r["suite"] == suite and r["task"] == task
+            present = [s for s in specs if any(r["policy"] == s.name and r["suite"] == suite and r["task"] == task
                                                for r in rows)]
             if not present:
                 continue
-            _, eps = matrix(rows, REFERENCE_POLICY, suite, task)
-            mats = {n: matrix(rows, n, suite, task, episodes=eps)[0] for n in present}
-            summary += _block_summary(rows, present, mats, suite, task, cfg)
-            for spec in specs:
-                if spec.name in present and spec.learned:
-                    c = _comparison(rows, spec, specs, mats, eps, suite, task, cfg)
+            blk = Block(rows, [s.name for s in present], suite, task)
+            block = _block_summary(rows, blk, present, suite, task, cfg)
+            summary += block
+            for spec in present:
+                if spec.learned and not is_earlier_loop(spec, task):
+                    c = _comparison(blk, spec, present, block, suite, task, cfg)
                     if c is not None:
                         comparisons.append(c)
     return summary, comparisons
 
 
-__all__ = ["SCORE_CAP", "METRICS", "METRIC_KEYS", "primary_score", "score_rows", "matrix", "summarize"]
+__all__ = ["CLASSES", "CLASS_METRICS", "FLOORS", "ERROR_FLOOR", "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE",
+           "METRICS", "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios",
+           "failure", "figure_of", "rank_key", "ratio_rows", "matrix", "is_earlier_loop", "summarize"]

@@ -16,9 +16,6 @@ entry (:func:`parse_policy`):
 - the name of a model shipped in ``ehss_gym/models`` (``-seed<k>`` files grouped into one spec);
 - ``LABEL=SPEC``: any of the above under the report name LABEL (two models of one run, which would otherwise share
   the run's name).
-
-Learned policies trained at controller settings other than the env's defaults get the CLF laws at *their*
-settings as extra specs (:func:`matched_clf_specs`), so that each is compared with the laws it builds on.
 """
 
 from __future__ import annotations
@@ -42,7 +39,7 @@ from ehss_gym.envs.config import LOOP_KEYS, in_legacy_loop
 from .loading import ZOO_ARGS, ZOO_CONFIG, PolicyError, load_safe, make_env, read_zoo_record
 from .suites import TASKS
 
-REFERENCE_POLICY = "clf-n2"  # the law the primary score is normalised by
+REFERENCE_POLICY = "clf-n2"  # the law every ratio of the evaluation is taken to (evaluation.scoring)
 SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "pid")
 LEARNED_KINDS = ("residual-ppo", "ppo-direct", "sb3")  # sb3: any algorithm, its mode from the saved env spec
 # The settings that shape the base law's closed loop (the env's loop settings but the task, n and when a run is
@@ -522,47 +519,6 @@ def controller_settings(env_kwargs: dict, task: str) -> dict:
     return {k: getattr(cfg, k) for k in CONTROLLER_KEYS}
 
 
-def _tag_value(v) -> str:
-    """A setting's value in a spec label: numbers as %g, None as "none", strings and booleans as they are."""
-    if v is None:
-        return "none"
-    if isinstance(v, (bool, str)):
-        return str(v)
-    return format(v, "g")
-
-
-def matched_clf_specs(specs: Sequence[PolicySpec], tasks: Sequence[str]) -> list[PolicySpec]:
-    """CLF laws n = 2, 4, 6 at the controller settings of learned policies that differ from the defaults.
-
-    A learned policy must be compared with the scripted laws *at the same settings*; when it was trained
-    with, say, another sigma or current limit, these extra specs (``clf-n2@sigma=...``) provide them.
-    """
-    have = {s.name for s in specs}
-    out = []
-    for spec in specs:
-        if not spec.learned:
-            continue
-        for task in spec.tasks:
-            if task not in tasks:
-                continue
-            mine = controller_settings(spec.env_kwargs, task)
-            default = controller_settings({}, task)
-            diff = {k: v for k, v in mine.items() if v != default[k]}
-            if not diff:
-                continue
-            tag = ",".join(f"{k}={_tag_value(v)}" for k, v in diff.items())
-            for n in (2, 4, 6):
-                label = f"clf-n{n}@{tag}"
-                if label in have:
-                    continue
-                extra = scripted_spec(f"clf-n{n}", label=label, env_overrides=diff)
-                extra.tasks = (task,)
-                extra.source += f" (the settings of {spec.name})"
-                out.append(extra)
-                have.add(label)
-    return out
-
-
 def _fitting_observations(kw: dict) -> list[str]:
     """The observation shape of every task under env settings ``kw`` (what a policy could fit instead)."""
     fits = []
@@ -618,4 +574,4 @@ def check_fit(spec: PolicySpec, policy, task: str) -> None:
 __all__ = ["REFERENCE_POLICY", "SCRIPTED_DEFAULT", "PolicySpec", "PolicyError", "PolicyWarning", "saved_env_kwargs",
            "valid_forms", "scripted_spec", "learned_spec", "shipped_specs", "parse_policy", "parse_policies",
            "check_unique_names", "object_spec", "default_specs",
-           "controller_settings", "matched_clf_specs", "check_fit"]
+           "controller_settings", "check_fit"]

@@ -22,6 +22,7 @@ run over its episodes.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 
 import numpy as np
@@ -188,7 +189,7 @@ def probability_of_improvement(x, y, lower_is_better: bool = True) -> float:
     Args:
         x: (n_runs, n_tasks) or (n_tasks,) scores of X.
         y: the same of Y, on the *same* tasks (same column order).
-        lower_is_better: direction of the score (True for the primary score of the harness).
+        lower_is_better: direction of the score (True for the harness's ratios to the reference law).
     """
     a = _as_matrix(x, "x")
     b = _as_matrix(y, "y")
@@ -255,6 +256,66 @@ def relative_improvement_ci(x, y, n_boot: int = 2000, confidence: float = 0.95,
     return float(1.0 - a.mean() / b.mean()), lo, hi
 
 
+def _grouped_stack(groups) -> np.ndarray:
+    """Groups as one (G, n_runs, n_tasks) float array (NaN = not a member); ValueError for mismatched shapes or no
+    finite value."""
+    mats = [np.asarray(g, dtype=np.float64) for g in groups]
+    mats = [m[None, :] if m.ndim == 1 else m for m in mats]
+    if not mats or any(m.ndim != 2 or m.shape != mats[0].shape or m.size == 0 for m in mats):
+        raise ValueError(f"groups must be non-empty arrays of one shape, got {[m.shape for m in mats]}")
+    a = np.stack(mats)
+    if np.isinf(a).any() or not np.isfinite(a).any():
+        raise ValueError("groups must hold finite values (NaN marks a non-member) and at least one")
+    return a
+
+
+def _group_means(a: np.ndarray) -> np.ndarray:
+    """Mean over the last two axes of the finite entries, per group and replicate (NaN where a group has none)."""
+    fin = np.isfinite(a)
+    cnt = fin.sum(axis=(-2, -1))
+    tot = np.where(fin, a, 0.0).sum(axis=(-2, -1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(cnt > 0, tot / np.maximum(cnt, 1), np.nan)
+
+
+def grouped_mean(groups) -> float:
+    """The mean over groups of each group's mean: ``groups`` are (n_runs, n_tasks) arrays of one shape with NaN
+    where an entry is not a member of the group; a group with no member is left out."""
+    return float(np.nanmean(_group_means(_grouped_stack(groups))))
+
+
+def grouped_mean_ci(groups, over: str = "episodes", n_boot: int = 2000, confidence: float = 0.95,
+                    seed: int = 0, chunk: int = 250) -> tuple[float, float]:
+    """Percentile bootstrap interval of :func:`grouped_mean`.
+
+    Every replicate resamples the episodes (columns), the runs (rows) or both with the *same* indices for all
+    groups (an episode drawn brings all its groups' entries), and takes the mean over the groups present in the
+    replicate of each group's mean.
+
+    Args:
+        groups: (n_runs, n_tasks) or (n_tasks,) arrays of one shape, NaN for a non-member.
+        over: "episodes", "seeds" or "both" (see :func:`bootstrap_distribution`).
+        n_boot: replicates (>= 100); confidence: coverage in [0.5, 1); seed: RNG seed (>= 0).
+        chunk: replicates per vectorised batch (memory only; the result does not depend on it).
+    """
+    if over not in OVER:
+        raise ValueError(f"over must be one of {list(OVER)}, got {over!r}")
+    _check_common(n_boot, confidence, seed)
+    a = _grouped_stack(groups)
+    _, R, T = a.shape
+    rng = np.random.default_rng(int(seed))
+    ri = _resample_indices(rng, n_boot, R, over in ("seeds", "both"))
+    ci = _resample_indices(rng, n_boot, T, over in ("episodes", "both"))
+    reps = np.empty(n_boot)
+    for s in range(0, n_boot, chunk):
+        e = min(n_boot, s + chunk)
+        sub = a[:, ri[s:e, :, None], ci[s:e, None, :]]  # (G, b, R, T)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a replicate may miss a small group: left out
+            reps[s:e] = np.nanmean(_group_means(sub), axis=0)
+    return percentile_interval(reps[np.isfinite(reps)], confidence)
+
+
 def summarize_scores(scores, n_boot: int = 2000, confidence: float = 0.95, seed: int = 0) -> dict:
     """Mean, IQM and median with bootstrap CIs over episodes, and over seeds when there are several.
 
@@ -275,4 +336,4 @@ def summarize_scores(scores, n_boot: int = 2000, confidence: float = 0.95, seed:
 
 __all__ = ["iqm", "aggregate", "bootstrap_distribution", "bootstrap_ci", "percentile_interval",
            "probability_of_improvement", "probability_of_improvement_ci", "relative_improvement_ci",
-           "summarize_scores", "STATS", "OVER"]
+           "summarize_scores", "grouped_mean", "grouped_mean_ci", "STATS", "OVER"]

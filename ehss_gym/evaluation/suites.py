@@ -7,8 +7,15 @@ Per task (the physical episodes come from :mod:`ehss_gym.core.scenarios`):
   ``HELDOUT_SEED_BASE + i`` and above, disjoint from every training seed).
 - ``robustness``: two sweeps on episodes drawn from further held-out seeds (offset
   :data:`ROBUST_SEED_START`) with their noise removed and one friction event from
-  :data:`SWEEP_WINDOW`: friction amplitude (plant = model) and model mismatch (beta, J, B, c_sm, P_s
+  :data:`SWEEP_WINDOW`: friction amplitude (plant = model; level 0 is an event of amplitude 0, so its
+  disturbance window is measured as at every other level) and model mismatch (beta, J, B, c_sm, P_s
   of the true plant each scaled by 1 +- level, signs drawn per episode; friction 1.8 N*m).
+- ``step``: the start-up/step suite: from rest (plant, reference model and estimator at rest, r = 0 before
+  the step) a step of each amplitude of ``EvalConfig.step_amplitudes`` at :data:`STEP_TIME`, lasting
+  :data:`STEP_SECONDS` of the task; no friction, no noise, plant = model.
+
+The paper suite keeps the paper's start (:data:`SUITE_ENV`: the reference model at its steady state for r(0));
+the others run at the env's default, the bumpless start.
 """
 
 from __future__ import annotations
@@ -21,10 +28,15 @@ import numpy as np
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.scenarios import HELDOUT_SEED_BASE, PHYSICAL_FIELDS, heldout_scenarios, paper_scenario
 from ehss_gym.core.settings import UNITS  # task -> unit of its output y (re-exported: the report's tables use it)
+from ehss_gym.core.signals import step
 from ehss_gym.envs import EnvConfig
 
 TASKS = ("velocity", "position")
-SUITES = ("paper", "heldout", "robustness")
+SUITES = ("paper", "heldout", "robustness", "step")
+SUITE_ENV = {"paper": {"bumpless": False}}  # env settings a suite fixes for every policy (the paper's start)
+STEP_TIME = 0.1  # [s] when the step-suite reference steps from 0
+STEP_AMPLITUDES = (0.2, -0.2, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5)  # [output unit] the step suite's steps
+STEP_SECONDS = {"velocity": 1.0, "position": 1.5}  # [s] duration of a step-suite episode per task
 ROBUST_SEED_START = 1_000_000  # held-out seed offset of the robustness episodes (the heldout suite uses 0..K-1)
 SWEEP_WINDOW = (0.8, 1.4)  # [s] friction event of the robustness sweeps (in 2 s episodes)
 SWEEP_MISMATCH_FRICTION = 1.8  # [N*m] friction amplitude during the mismatch sweep (the paper's)
@@ -42,9 +54,10 @@ class EvalConfig:
         heldout_episodes: randomised held-out episodes per task (K).
         episode_seconds: duration of held-out and robustness episodes [s].
         paper_seconds: duration of the paper run [s] (the paper: 20).
-        friction_levels: friction amplitudes of the sweep [N*m].
+        friction_levels: friction amplitudes of the sweep [N*m] (0: an event of amplitude 0).
         mismatch_levels: relative plant-parameter deviations of the mismatch sweep (0.2 = +-20 %).
         sweep_episodes: episodes per sweep level (M).
+        step_amplitudes: the step suite's step amplitudes [output unit], each non-zero.
         n_boot: bootstrap replicates.
         seed: bootstrap seed.
         chunk: episodes per job (one job = one policy run on up to ``chunk`` episodes of one suite/task).
@@ -58,6 +71,7 @@ class EvalConfig:
     friction_levels: tuple = (0.0, 0.9, 1.8, 2.7, 3.6)
     mismatch_levels: tuple = (0.0, 0.05, 0.1, 0.15, 0.2)
     sweep_episodes: int = 5
+    step_amplitudes: tuple = STEP_AMPLITUDES
     n_boot: int = 2000
     seed: int = 0
     chunk: int = 24
@@ -65,13 +79,13 @@ class EvalConfig:
     @classmethod
     def quick(cls, **changes) -> EvalConfig:
         """The CI form: 8 held-out episodes, one episode per sweep level, the paper run cut at 12 s (friction
-        8-10 s and 2 s after it), fewer bootstrap replicates.
+        8-10 s and 2 s after it), three steps, fewer bootstrap replicates.
 
         Args:
             **changes: fields to set on top of the quick form.
         """
         base = cls(heldout_episodes=8, paper_seconds=12.0, friction_levels=(0.0, 1.8, 3.6), mismatch_levels=(0.0, 0.2),
-                   sweep_episodes=1, n_boot=1000)
+                   sweep_episodes=1, step_amplitudes=(0.5, -1.0, 1.5), n_boot=1000)
         return replace(base, **changes)
 
     def __post_init__(self):
@@ -92,6 +106,10 @@ class EvalConfig:
                 raise ValueError(f"{name} must be a finite number > 0 (s), got {v!r}")
         if any(not math.isfinite(a) or a < 0 for a in self.friction_levels) or not self.friction_levels:
             raise ValueError(f"friction_levels must be finite amplitudes >= 0 (N*m), got {self.friction_levels}")
+        if (not self.step_amplitudes or any(not isinstance(a, (int, float)) or not math.isfinite(a) or a == 0
+                                            for a in self.step_amplitudes)):
+            raise ValueError(f"step_amplitudes must be finite non-zero numbers (output unit), got "
+                             f"{self.step_amplitudes}")
         if any(not math.isfinite(m) or not 0 <= m < 1 for m in self.mismatch_levels) or not self.mismatch_levels:
             raise ValueError(f"mismatch_levels must be in [0, 1), got {self.mismatch_levels}")
         if self.episode_seconds <= SWEEP_WINDOW[1] and "robustness" in self.suites:
@@ -104,12 +122,13 @@ class Episode:
     """One pinned episode: its physical fields (:data:`ehss_gym.core.settings.PHYSICAL_FIELDS`) and labels.
 
     Attributes:
-        suite: "paper", "heldout" or "robustness".
+        suite: "paper", "heldout", "robustness" or "step".
         task: "velocity" or "position".
         episode_id: unique within the suite and task (e.g. "heldout-3", "friction=1.8#0").
         physical: the scenario's physical fields (reference, friction, plant, model, noise, seed, t_end, ...).
         sweep: robustness episodes: "friction" or "mismatch"; "" otherwise.
-        level: robustness episodes: the sweep level (friction amplitude [N*m] or relative mismatch [-]).
+        level: robustness episodes: the sweep level (friction amplitude [N*m] or relative mismatch [-]); step
+            episodes: the step's amplitude [output unit].
         scenario_seed: the held-out scenario seed (-1 for the paper run).
     """
 
@@ -141,8 +160,7 @@ def _robustness_episodes(cfg: EvalConfig, task: str, tmpl) -> list[Episode]:
     seed0 = HELDOUT_SEED_BASE + ROBUST_SEED_START
     for amp in cfg.friction_levels:
         for i, sc in enumerate(base):
-            sc2 = sc.replace(friction=((float(amp), t0, t1),) if amp > 0 else (), plant=nominal, model=nominal,
-                             noise_std=NO_NOISE)
+            sc2 = sc.replace(friction=((float(amp), t0, t1),), plant=nominal, model=nominal, noise_std=NO_NOISE)
             out.append(Episode("robustness", task, f"friction={amp:g}#{i}", _physical(sc2), "friction", float(amp),
                                seed0 + i))
     for lvl in cfg.mismatch_levels:
@@ -154,6 +172,21 @@ def _robustness_episodes(cfg: EvalConfig, task: str, tmpl) -> list[Episode]:
             out.append(Episode("robustness", task, f"mismatch={lvl:g}#{i}", _physical(sc2), "mismatch", float(lvl),
                                seed0 + i))
     return out
+
+
+def _step_episodes(cfg: EvalConfig, task: str, tmpl) -> list[Episode]:
+    """The step suite of one task: one episode per amplitude, from rest."""
+    out = []
+    for a in cfg.step_amplitudes:
+        sc = tmpl.replace(reference=step(float(a), STEP_TIME), friction=(), plant=PlantParams(), model=None,
+                          noise_std=NO_NOISE, seed=0, t_end=STEP_SECONDS[task])
+        out.append(Episode("step", task, f"step={a:+g}", _physical(sc), level=float(a)))
+    return out
+
+
+def step_of(ep: Episode) -> tuple[float, float]:
+    """(step time [s], amplitude [output unit]) of a step-suite episode."""
+    return STEP_TIME, float(ep.level)
 
 
 def build_episodes(cfg: EvalConfig) -> list[Episode]:
@@ -172,8 +205,11 @@ def build_episodes(cfg: EvalConfig) -> list[Episode]:
                 out.append(Episode("heldout", task, f"heldout-{i}", _physical(sc), scenario_seed=HELDOUT_SEED_BASE + i))
         if "robustness" in cfg.suites:
             out += _robustness_episodes(cfg, task, tmpl)
+        if "step" in cfg.suites:
+            out += _step_episodes(cfg, task, tmpl)
     return out
 
 
-__all__ = ["TASKS", "SUITES", "UNITS", "ROBUST_SEED_START", "SWEEP_WINDOW", "SWEEP_MISMATCH_FRICTION",
-           "MISMATCH_PARAMS", "EvalConfig", "Episode", "build_episodes"]
+__all__ = ["TASKS", "SUITES", "SUITE_ENV", "STEP_TIME", "STEP_AMPLITUDES", "STEP_SECONDS", "step_of", "UNITS",
+           "ROBUST_SEED_START", "SWEEP_WINDOW", "SWEEP_MISMATCH_FRICTION", "MISMATCH_PARAMS", "EvalConfig", "Episode",
+           "build_episodes"]

@@ -1,7 +1,8 @@
 """The policy comparison report of ``ehss evaluate``: numbers, tables and CSVs computed here, prose in
 templates/comparison.md.j2, figures in :mod:`ehss_gym.reporting.comparison_figures`.
 
-:func:`write_report` writes ``REPORT.md``, ``episodes.csv``, ``summary.csv``, ``comparisons.csv`` and ``figures/``
+:func:`write_report` writes ``REPORT.md``, ``episodes.csv``, ``summary.csv``, ``comparisons.csv`` (learned policies
+in today's loop), ``steps.csv`` (the step suite, with each episode's ratio to the physical bound) and ``figures/``
 for the :class:`~ehss_gym.evaluation.harness.Results` of :func:`ehss_gym.evaluation.evaluate`.
 """
 
@@ -15,12 +16,26 @@ import time
 from collections.abc import Sequence
 
 from ehss_gym._version import __version__
+from ehss_gym.core.params import PlantParams
 from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.harness import Results
-from ehss_gym.evaluation.scoring import METRIC_KEYS, METRICS, RATE_KEYS, SCORE_CAP
+from ehss_gym.evaluation.scoring import (
+    CLASSES,
+    FIGURE_SUITES,
+    FLOORS,
+    METRIC_KEYS,
+    METRICS,
+    RATE_KEYS,
+    RATIO_KEYS,
+    SATURATION_GATE,
+    STEP_KEYS,
+    is_earlier_loop,
+)
 from ehss_gym.evaluation.specs import REFERENCE_POLICY
 from ehss_gym.evaluation.suites import (
     ROBUST_SEED_START,
+    STEP_SECONDS,
+    STEP_TIME,
     SUITES,
     SWEEP_MISMATCH_FRICTION,
     SWEEP_WINDOW,
@@ -35,14 +50,17 @@ from .render import render
 
 DEFAULT_OUT = os.path.join("reports", "comparison")
 TEMPLATE = "comparison.md.j2"
-EPISODE_COLUMNS = ("suite", "task", "policy", "run", "episode", "sweep", "level", "scenario_seed", "t_end", "score",
-                   "score_normaliser") + METRIC_KEYS + ("peak_u", "tv_u", "divergence_reason", "t_diverged",
-                                                        "t_lost_track", "n_clipped")
+EPISODE_COLUMNS = (("suite", "task", "policy", "run", "episode", "sweep", "level", "scenario_seed", "t_end", "noisy")
+                   + RATIO_KEYS + METRIC_KEYS + ("su_iae",) + STEP_KEYS
+                   + ("peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped"))
+STEP_COLUMNS = ("task", "policy", "run", "amplitude", "step_rise_time", "step_overshoot", "step_settling_time",
+                "iae_r", "iae_bound", "bound_ratio", "diverged", "lost_track", "earlier_loop")
 
 
 def fmt(x, digits: int = 3) -> str:
     """A table cell (:func:`ehss_gym.infra.fmt.fmt_cell`: scientific below 1e-3 and from 1e4)."""
     return fmt_cell(x, digits)
+
 
 def _md(text: str) -> str:
     """Escape the pipes of |e| inside a markdown table cell."""
@@ -73,12 +91,202 @@ def _columns(dicts: list) -> list[str]:
     return list(dict.fromkeys(k for d in dicts for k in d))
 
 
+# ---------------------------------------------------------------------------------------------------
+# Figures with their CIs, gates
+
+
+def ci_cell(d: dict, key: str) -> str:
+    """A figure with its 95 % CI over episodes (and over seeds and episodes, "both", with several runs): "G [lo, hi]";
+    "-" where the class is absent."""
+    v = d.get(key, math.nan)
+    if not math.isfinite(v):
+        return "-"
+    lo, hi = (d.get(f"{key}_lo_both"), d.get(f"{key}_hi_both")) if f"{key}_lo_both" in d else \
+        (d.get(f"{key}_lo"), d.get(f"{key}_hi"))
+    return f"{fmt(v)} [{fmt(lo)}, {fmt(hi)}]"
+
+
+def gate_cell(d: dict) -> str:
+    """The failure gate of a summary row: "pass", or what failed."""
+    if not d["failed"]:
+        return "pass"
+    parts = []
+    if d["n_failed"]:
+        parts.append(f"{d['n_failed']} failed episode(s)")
+    if d["saturation"] > SATURATION_GATE:
+        parts.append(f"saturation {d['saturation']:.0%}")
+    return "FAILED: " + ", ".join(parts)
+
+
+def _block(res: Results, suite: str, task: str) -> list[dict]:
+    return [d for d in res.summary if d["suite"] == suite and d["task"] == task]
+
+
+def headline_rows(block: list[dict]) -> list[list]:
+    """The first screen's table of one (suite, task): rank, policy, overall and class figures with CIs, gate
+    (today's laws only, in rank order)."""
+    return [[d["rank"], d["policy"], ci_cell(d, "figure")] + [ci_cell(d, c) for c in CLASSES] + [gate_cell(d)]
+            for d in block if not d["earlier_loop"]]
+
+
+def suite_line(block: list[dict]) -> str:
+    """One line on a suite and task: the ranking with overall figures, failures marked."""
+    parts = []
+    for d in block:
+        if d["earlier_loop"]:
+            continue
+        tag = " (FAILED)" if d["failed"] else ""
+        parts.append(f"{d['rank']}. {d['policy']} {fmt(d['figure'])}{tag}")
+    return "; ".join(parts)
+
+
+def detail_rows(block: list[dict]) -> list[list]:
+    """The detail table of one (suite, task): IQM, PoI and the raw class metrics of every policy (ranked first)."""
+    rows = []
+    for d in block:
+        poi = "-" if math.isnan(d["poi_vs_best_clf"]) else \
+            f"{d['poi_vs_best_clf']:.2f} [{d['poi_lo']:.2f}, {d['poi_hi']:.2f}]"
+        iqm = f"{fmt(d['figure_iqm'])} [{fmt(d['figure_iqm_lo'])}, {fmt(d['figure_iqm_hi'])}]"
+        rows.append([d["rank"] or "earlier loop", d["policy"], iqm, poi, fmt(d["trk_rmse"]), fmt(d["dst_peak"]),
+                     fmt(d["tv_u_rate"]), fmt(d["rms_u"]), fmt(d["su_rmse"]), fmt(d["saturation"]),
+                     f"{d['divergence_rate']:.0%}", f"{d['lost_track_rate']:.0%}", f"{d['n_used']}/{d['n_episodes']}"])
+    return rows
+
+
+def _detail_blocks(res: Results) -> list[dict]:
+    """One detail block per (suite, task) that ran (figure suites)."""
+    out = []
+    for suite in FIGURE_SUITES:
+        for task in TASKS:
+            block = _block(res, suite, task)
+            if block:
+                out.append({"suite": suite, "task": task, "unit": UNITS[task], "n_episodes": block[0]["n_episodes"],
+                            "best_clf": block[0]["best_clf"], "headline": headline_rows(block),
+                            "rows": detail_rows(block)})
+    return out
+
+
+def _first_screen(res: Results) -> dict:
+    """The first screen: per task the held-out table, then one line per other suite and task."""
+    main = [{"task": t, "rows": headline_rows(b), "n": b[0]["n_episodes"]}
+            for t in TASKS if (b := _block(res, "heldout", t))]
+    lines = [{"suite": s, "task": t, "line": suite_line(_block(res, s, t))}
+             for s in FIGURE_SUITES if s != "heldout" for t in TASKS if _block(res, s, t)]
+    return {"main": main, "lines": lines}
+
+
+def earlier_rows(res: Results) -> list[list]:
+    """The learned policies recorded in an earlier loop: their figures, not ranked against today's laws."""
+    return [[d["suite"], d["task"], d["policy"], ci_cell(d, "figure")] + [ci_cell(d, c) for c in CLASSES]
+            + [gate_cell(d)] for d in res.summary if d["earlier_loop"]]
+
+
+def _comparison_rows(res: Results) -> list[list]:
+    """Rows of the learned-against-scripted table (today's loop; ratios [-])."""
+    return [[c["suite"], c["task"], c["policy"], c["n_runs"], c["best_clf"],
+             f"{c['improvement']:+.1%} [{c['improvement_lo']:+.1%}, {c['improvement_hi']:+.1%}]",
+             f"{c['poi']:.2f} [{c['poi_lo']:.2f}, {c['poi_hi']:.2f}]", c["base_law"]]
+            + [fmt(c[f"{cls}_ratio"]) for cls in CLASSES] for c in res.comparisons]
+
+
+# ---------------------------------------------------------------------------------------------------
+# The step suite and its physical bound
+
+
+def bound_function():
+    """:func:`ehss_gym.study.bound.step_bound` if this build has it, else None (the ratio column is then left out)."""
+    try:
+        from ehss_gym.study.bound import step_bound  # optional: the bound is built apart; no ratio without it
+    except ImportError:
+        return None
+    return step_bound
+
+
+def step_rows(res: Results, bound=None, notes: list | None = None) -> list[dict]:
+    """One row per step-suite episode and run: its step metrics, ``iae_r`` [output unit * s] and, with ``bound``
+    (:func:`bound_function`), the least IAE of y - r any policy can reach under the current limit
+    (``iae_bound``) and ``bound_ratio`` = iae_r / iae_bound. A step the bound refuses (its ValueError, e.g. a
+    velocity the current limit cannot hold) gets NaN and its reason appended to ``notes``."""
+    cache: dict = {}
+    out = []
+    specs = {sp.name: sp for sp in res.specs}
+    for r in res.rows:
+        if r["suite"] != "step":
+            continue
+        d = {k: r[k] for k in ("task", "policy", "run", "iae_r", "diverged", "lost_track") + STEP_KEYS}
+        d["amplitude"] = r["level"]
+        d["earlier_loop"] = is_earlier_loop(specs[r["policy"]], r["task"]) if r["policy"] in specs else False
+        if bound is not None:
+            key = (r["task"], r["level"])
+            if key not in cache:
+                cache[key] = _bound_of(bound, r["task"], r["level"], notes)
+            d["iae_bound"] = cache[key]
+            d["bound_ratio"] = r["iae_r"] / cache[key] if cache[key] > 0 else math.nan
+        out.append(d)
+    return out
+
+
+def _bound_of(bound, task: str, amplitude: float, notes: list | None) -> float:
+    """The bound's IAE [output unit * s] of one step of the suite, NaN (and a note) where the bound refuses it."""
+    limit = EnvConfig.from_kwargs({"task": task}).current_limit
+    try:
+        return float(bound(task, amplitude, t_step=STEP_TIME, t_end=STEP_SECONDS[task], plant=PlantParams(),
+                           current_limit=limit).iae_bound)
+    except ValueError as exc:
+        if notes is not None:
+            notes.append(f"{task}, step {amplitude:+g}: no physical bound ({exc})")
+        return math.nan
+
+
+def step_table(rows: list[dict], with_bound: bool) -> list[list]:
+    """The step suite's table: per task, policy and amplitude the metrics (means over runs)."""
+    groups: dict = {}
+    for d in rows:
+        groups.setdefault((d["task"], d["policy"], d["amplitude"]), []).append(d)
+    out = []
+    for (task, pol, amp), ds in groups.items():
+        keys = STEP_KEYS + ("iae_r",) + (("bound_ratio",) if with_bound else ())
+        mean = {k: sum(x[k] for x in ds) / len(ds) for k in keys}
+        label = pol + (" (earlier loop)" if ds[0].get("earlier_loop") else "")
+        row = [task, label, f"{amp:+g}", fmt(mean["step_rise_time"]), fmt(mean["step_overshoot"]),
+               fmt(mean["step_settling_time"]), fmt(mean["iae_r"])]
+        if with_bound:
+            row += [fmt(ds[0]["iae_bound"]), fmt(mean["bound_ratio"])]
+        out.append(row + ["yes" if any(x["diverged"] or x["lost_track"] for x in ds) else "no"])
+    return out
+
+
+def step_lines(rows: list[dict], with_bound: bool) -> list[dict]:
+    """The first screen's line per task: each policy's geometric-mean ratio to the bound (or its mean IAE)."""
+    out = []
+    for task in TASKS:
+        sel = [d for d in rows if d["task"] == task]
+        if not sel:
+            continue
+        parts = []
+        for pol in dict.fromkeys(d["policy"] for d in sel):
+            ds = [d for d in sel if d["policy"] == pol]
+            tag = " (earlier loop)" if ds[0].get("earlier_loop") else ""
+            if with_bound:
+                v = [d["bound_ratio"] for d in ds if d["bound_ratio"] > 0 and math.isfinite(d["bound_ratio"])]
+                g = math.exp(sum(math.log(x) for x in v) / len(v)) if v else math.nan
+                parts.append(f"{pol}{tag} {fmt(g)}x the bound")
+            else:
+                parts.append(f"{pol}{tag} IAE {fmt(sum(d['iae_r'] for d in ds) / len(ds))} {UNITS[task]}*s")
+        out.append({"task": task, "line": "; ".join(parts)})
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------
+# Settings (at the end of the report)
+
+
 def _policy_rows(res: Results) -> list[list]:
     """Rows of the policies table: name, kind, runs, tasks, env settings, source."""
     out = []
     for s in res.specs:
         kw = ", ".join(f"{k}={v!r}" for k, v in sorted(s.env_kwargs.items())) or "defaults"
-        out.append([s.name, s.kind, len(s.runs), ", ".join(s.tasks), kw, s.source])
+        out.append([s.name, s.kind, len(s.runs), ", ".join(s.tasks), _md(kw), _md(s.source)])
     return out
 
 
@@ -88,31 +296,7 @@ def _env_rows(res: Results) -> list[list]:
     for task in res.cfg.tasks:
         c = EnvConfig.from_kwargs({"task": task})
         out.append([task, f"{c.fr:g}", f"{c.sigma:g}", f"{c.smoothing:g}", c.current_limit, f"{c.control_period:g}",
-                    c.substeps, c.agent_period, f"{c.estimator_hz:g}", f"{c.residual_scale:g}"])
-    return out
-
-
-def _ranking_row(d: dict) -> list:
-    """One row of a ranking table from a summary row (scores [-], errors [output unit], TV [mA/s])."""
-    ci = f"{fmt(d['score_mean'])} [{fmt(d['score_mean_lo'])}, {fmt(d['score_mean_hi'])}]"
-    if "score_mean_lo_seeds" in d:
-        ci += f"; seeds [{fmt(d['score_mean_lo_seeds'])}, {fmt(d['score_mean_hi_seeds'])}]"
-    iq = f"{fmt(d['score_iqm'])} [{fmt(d['score_iqm_lo'])}, {fmt(d['score_iqm_hi'])}]"
-    poi = "-" if math.isnan(d["poi_vs_best_clf"]) else \
-        f"{d['poi_vs_best_clf']:.2f} [{d['poi_lo']:.2f}, {d['poi_hi']:.2f}]"
-    return [d["rank"], d["policy"], ci, iq, poi, fmt(d["rmse"]), fmt(d["max_abs_e_friction"]), fmt(d["tv_u_rate"]),
-            fmt(d["saturation"]), f"{d['divergence_rate']:.0%}", f"{d['lost_track_rate']:.0%}"]
-
-
-def _ranking_blocks(res: Results) -> list[dict]:
-    """One ranking table per (suite, task) that ran: its labels and rows."""
-    out = []
-    for suite in SUITES:
-        for task in TASKS:
-            block = [d for d in res.summary if d["suite"] == suite and d["task"] == task]
-            if block:
-                out.append({"suite": suite, "task": task, "unit": UNITS[task], "n_episodes": block[0]["n_episodes"],
-                            "best_clf": block[0]["best_clf"], "rows": [_ranking_row(d) for d in block]})
+                    c.substeps, c.agent_period, c.estimator, f"{c.layer_gain:g}", c.bumpless, f"{c.ref_accel:g}"])
     return out
 
 
@@ -133,44 +317,43 @@ def _metric_table(res: Results) -> tuple[list, list]:
     return hdr, rows
 
 
-def _comparison_rows(res: Results) -> list[list]:
-    """Rows of the learned-against-scripted table (improvements and ratios [-])."""
-    return [[c["suite"], c["task"], c["policy"], c["n_runs"], c["score_reference"], c["best_clf"],
-             f"{c['improvement']:+.1%} [{c['improvement_lo']:+.1%}, {c['improvement_hi']:+.1%}]",
-             f"{c['poi']:.2f} [{c['poi_lo']:.2f}, {c['poi_hi']:.2f}]",
-             c["base_law"], fmt(c.get("rmse_ratio")), fmt(c.get("tv_ratio")), fmt(c.get("friction_peak_ratio"))]
-            for c in res.comparisons]
-
-
-def report_context(res: Results, figs: dict) -> dict:
+def report_context(res: Results, figs: dict, steps: list[dict], with_bound: bool) -> dict:
     """Everything templates/comparison.md.j2 shows: settings, numbers and table rows (as cell strings).
 
     Args:
         res: the evaluation's results.
         figs: what :func:`~ehss_gym.reporting.comparison_figures.make_figures` returned (kind -> (path, suite or
             task) pairs; the template words the captions).
+        steps: :func:`step_rows`.
+        with_bound: the step rows carry the physical bound.
     """
     metric_header, metric_rows = _metric_table(res)
     return {
         "command": res.command, "version": __version__, "n_episodes": len(res.rows), "workers": res.workers,
         "wall_time": res.wall_time, "timings": ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()),
         "learned": any(s.learned for s in res.specs), "notes": list(res.notes), "cfg": res.cfg,
-        "policy_rows": _policy_rows(res), "env_rows": _env_rows(res),
-        "reference": REFERENCE_POLICY, "score_cap": SCORE_CAP, "robust_seed_start": ROBUST_SEED_START,
-        "sweep_window": SWEEP_WINDOW, "mismatch_friction": SWEEP_MISMATCH_FRICTION,
+        "policy_rows": _policy_rows(res), "env_rows": _env_rows(res), "classes": CLASSES,
+        "reference": REFERENCE_POLICY, "floors": FLOORS, "saturation_gate": SATURATION_GATE,
+        "robust_seed_start": ROBUST_SEED_START, "sweep_window": SWEEP_WINDOW,
+        "mismatch_friction": SWEEP_MISMATCH_FRICTION, "step_time": STEP_TIME, "step_seconds": STEP_SECONDS,
         "metric_rows": [[f"{_md(label)} (`{key}`)", unit, _md(text)] for key, label, unit, text in METRICS],
-        "blocks": _ranking_blocks(res), "metric_header": metric_header, "all_metric_rows": metric_rows,
+        "first": _first_screen(res), "blocks": _detail_blocks(res), "earlier_rows": earlier_rows(res),
+        "metric_header": metric_header, "all_metric_rows": metric_rows,
         "figs": {k: list(figs.get(k, [])) for k in FIGURE_KINDS}, "comparison_rows": _comparison_rows(res),
+        "step_rows": step_table(steps, with_bound), "step_lines": step_lines(steps, with_bound),
+        "with_bound": with_bound, "suites": SUITES,
     }
 
 
-def report_text(res: Results, figs: dict) -> str:
+def report_text(res: Results, figs: dict, steps: list[dict] | None = None, with_bound: bool = False,
+                bound_notes: Sequence[str] = ()) -> str:
     """The markdown report (templates/comparison.md.j2 filled with :func:`report_context`)."""
-    return render(TEMPLATE, **report_context(res, figs))
+    return render(TEMPLATE, **report_context(res, figs, steps or [], with_bound), bound_notes=list(bound_notes))
 
 
 def write_report(res: Results, out: str) -> str:
-    """Write REPORT.md, episodes.csv, summary.csv, comparisons.csv and figures/ under ``out``; returns REPORT.md.
+    """Write REPORT.md, episodes.csv, summary.csv, comparisons.csv, steps.csv and figures/ under ``out``; returns
+    REPORT.md.
 
     Every file is written atomically; REPORT.md last, so an interrupted run leaves the previous report. The
     figures' wall time [s] is added to ``res.timings["figures"]``.
@@ -180,13 +363,19 @@ def write_report(res: Results, out: str) -> str:
     atomic_write_text(os.path.join(out, "summary.csv"), csv_text(res.summary, _columns(res.summary)))
     if res.comparisons:
         atomic_write_text(os.path.join(out, "comparisons.csv"), csv_text(res.comparisons, _columns(res.comparisons)))
+    bound = bound_function() if any(r["suite"] == "step" for r in res.rows) else None
+    bound_notes: list = []
+    steps = step_rows(res, bound, bound_notes)
+    if steps:
+        atomic_write_text(os.path.join(out, "steps.csv"), csv_text(steps, STEP_COLUMNS))
     t0 = time.perf_counter()
     figs = make_figures(res, os.path.join(out, "figures"))
     res.timings["figures"] = time.perf_counter() - t0
-    text = report_text(res, figs)
+    text = report_text(res, figs, steps, bound is not None, bound_notes)
     path = os.path.join(out, "REPORT.md")
     atomic_write_text(path, text)
     return path
 
 
-__all__ = ["DEFAULT_OUT", "EPISODE_COLUMNS", "fmt", "csv_text", "report_context", "report_text", "write_report"]
+__all__ = ["DEFAULT_OUT", "EPISODE_COLUMNS", "STEP_COLUMNS", "fmt", "csv_text", "ci_cell", "gate_cell",
+           "step_rows", "report_context", "report_text", "write_report"]

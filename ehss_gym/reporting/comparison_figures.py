@@ -1,6 +1,6 @@
-"""Figures of the policy comparison (``ehss evaluate``): score bars, held-out metric bars, paper-run traces and
-robustness curves, each PNG written atomically with the command that made it in its footer (their captions are
-in templates/comparison.md.j2)."""
+"""Figures of the policy comparison (``ehss evaluate``): Pareto figures of the class figures, held-out metric bars,
+paper-run traces and robustness curves, each PNG written atomically with the command that made it in its footer
+(their captions are in templates/comparison.md.j2)."""
 
 from __future__ import annotations
 
@@ -14,15 +14,15 @@ import numpy as np
 from ehss_gym._version import __version__
 from ehss_gym.evaluation import stats
 from ehss_gym.evaluation.harness import Results
-from ehss_gym.evaluation.scoring import matrix
+from ehss_gym.evaluation.scoring import FIGURE_SUITES, matrix
 from ehss_gym.evaluation.specs import REFERENCE_POLICY
-from ehss_gym.evaluation.suites import SUITES, TASKS, UNITS
+from ehss_gym.evaluation.suites import TASKS, UNITS
 from ehss_gym.infra.util import atomic_write
 
 from .trajectory_figures import plt
 
 DPI = 90
-FIGURE_KINDS = ("bars", "traces", "robustness", "metrics")
+FIGURE_KINDS = ("pareto", "traces", "robustness", "metrics")
 ZOOM_BEFORE, ZOOM_AFTER = 0.3, 2.6  # [s] the trace zoom around the first friction switch-on
 
 
@@ -92,36 +92,49 @@ def _legend_outside(fig, ax, ncol: int = 1) -> None:
                   borderaxespad=0.0, frameon=False)
 
 
-def _score_bars(res: Results, folder: str, col: dict, suite: str):
-    """Mean primary score with its 95 % CI and the IQM per policy, one panel per task: (path, suite), or None if
-    the suite did not run."""
-    names = [s.name for s in res.specs]
+def _xy_err(d: dict, key: str) -> tuple[float, float, float]:
+    """(figure, distance to its CI's low end, to its high end) of a summary row (CI over seeds and episodes with
+    several runs); NaNs where the class is absent."""
+    v = d.get(key, math.nan)
+    tag = "_both" if f"{key}_lo_both" in d else ""
+    lo, hi = d.get(f"{key}_lo{tag}", math.nan), d.get(f"{key}_hi{tag}", math.nan)
+    return v, max(v - lo, 0.0), max(hi - v, 0.0)
+
+
+PARETO = (("effort", "tracking"), ("effort", "disturbance"))  # (x, y) classes of the Pareto panels
+
+
+def _pareto(res: Results, folder: str, col: dict, suite: str):
+    """Per task, the tracking and the disturbance figure against the effort figure, one point per policy with its
+    95 % CIs (hollow: recorded in an earlier loop, not ranked): (path, suite), or None if the suite did not run."""
     tasks = [t for t in TASKS if any(d["suite"] == suite and d["task"] == t for d in res.summary)]
     if not tasks:
         return None
-    label_w, lines = _label_size(names)  # the panels keep their width beside the policy names
-    row = max(0.45, LINE_HEIGHT * lines + 0.15)
-    fig, axes = plt.subplots(1, len(tasks), figsize=((5.2 + label_w) * len(tasks), row * len(names) + 2.2),
-                             squeeze=False)
-    for ax, task in zip(axes[0], tasks):
+    names = [s.name for s in res.specs]
+    sty = _styles(names)
+    fig, axes = plt.subplots(len(tasks), len(PARETO), figsize=(11, 4.3 * len(tasks)), squeeze=False)
+    for row, task in zip(axes, tasks):
         block = [d for d in res.summary if d["suite"] == suite and d["task"] == task]
-        block.sort(key=lambda d: -d["rank"])
-        y = np.arange(len(block))
-        means = np.array([d["score_mean"] for d in block])
-        lo = means - np.array([d["score_mean_lo"] for d in block])
-        hi = np.array([d["score_mean_hi"] for d in block]) - means
-        ax.barh(y, means, xerr=[lo, hi], color=[col[d["policy"]] for d in block], alpha=0.8, capsize=3,
-                label="mean, 95 % CI")
-        ax.plot([d["score_iqm"] for d in block], y, "kD", ms=4, label="IQM")
-        ax.axvline(1.0, color="gray", ls="--", lw=1)
-        ax.set_yticks(y, [_wrap(d["policy"]) for d in block], fontsize=8)
-        ax.set_xlabel(f"primary score (lower is better; {REFERENCE_POLICY} = 1)")
-        if means.max() / max(means.min(), 1e-9) > 20:
+        for ax, (xc, yc) in zip(row, PARETO):
+            for d in block:
+                x, xlo, xhi = _xy_err(d, xc)
+                y, ylo, yhi = _xy_err(d, yc)
+                if not (math.isfinite(x) and math.isfinite(y)):
+                    continue
+                c, _, mk = sty[d["policy"]]
+                ax.errorbar([x], [y], xerr=[[xlo], [xhi]], yerr=[[ylo], [yhi]], color=c, marker=mk, ms=6,
+                            mfc="none" if d["earlier_loop"] else c, lw=0, elinewidth=0.9, capsize=2,
+                            label=d["policy"] + (" (earlier loop)" if d["earlier_loop"] else "")
+                            + (" FAILED" if d["failed"] else ""))
+            ax.axvline(1.0, color="gray", ls="--", lw=0.8)
+            ax.axhline(1.0, color="gray", ls="--", lw=0.8)
             ax.set_xscale("log")
-        n_ep = block[0]["n_episodes"]
-        ax.set_title(f"{suite} suite, {task} ({n_ep} episode{'s' if n_ep > 1 else ''})", fontsize=9)
-        ax.legend(fontsize=7, loc="lower right")
-    return _finish(fig, res, folder, f"scores_{suite}.png", 0.03), suite
+            ax.set_yscale("log")
+            ax.set_xlabel(f"{xc} figure ({REFERENCE_POLICY} = 1; lower is better)", fontsize=8)
+            ax.set_ylabel(f"{yc} figure", fontsize=8)
+            ax.set_title(f"{suite} suite, {task}", fontsize=9)
+        _legend_outside(fig, row[-1])
+    return _finish(fig, res, folder, f"pareto_{suite}.png", 0.02), suite
 
 
 def _mean_ci(res: Results, v: np.ndarray) -> tuple[float, float, float]:
@@ -134,18 +147,18 @@ def _mean_ci(res: Results, v: np.ndarray) -> tuple[float, float, float]:
 
 
 def _metric_bars(res: Results, folder: str, col: dict, task: str):
-    """Held-out RMSE, peak error in friction and control TV per policy: (path, task), or None if the
+    """Held-out tracking RMSE, disturbance peak and control TV per policy: (path, task), or None if the
     suite did not run."""
     block = [d for d in res.summary if d["suite"] == "heldout" and d["task"] == task]
     if not block:
         return None
-    keys = (("rmse", f"RMSE [{UNITS[task]}]"), ("max_abs_e_friction", f"max |e| in friction [{UNITS[task]}]"),
+    keys = (("trk_rmse", f"tracking RMSE [{UNITS[task]}]"), ("dst_peak", f"disturbance peak [{UNITS[task]}]"),
             ("tv_u_rate", "control TV [mA/s]"))
     label_w, lines = _label_size([d["policy"] for d in block])
     row = max(0.4, LINE_HEIGHT * lines + 0.15)
     # the policy names once, on the first panel (the three share the rows)
     fig, axes = plt.subplots(1, 3, figsize=(14 + label_w, row * len(block) + 2.2), sharey=True)
-    block.sort(key=lambda d: -d["rank"])
+    block.reverse()  # the first-ranked at the top
     for ax, (key, label) in zip(axes, keys):
         vals, los, his = [], [], []
         for d in block:
@@ -230,9 +243,9 @@ def _robustness(res: Results, folder: str, col: dict, task: str):
     if not rr:
         return None
     u = UNITS[task]
-    panels = (("friction", "max_abs_e_friction", "friction amplitude [N m]", f"max |e| in friction [{u}]"),
-              ("friction", "rmse", "friction amplitude [N m]", f"RMSE [{u}]"),
-              ("mismatch", "rmse", "plant-parameter mismatch [+-]", f"RMSE [{u}]"),
+    panels = (("friction", "dst_peak", "friction amplitude [N m]", f"disturbance peak [{u}]"),
+              ("friction", "trk_rmse", "friction amplitude [N m]", f"tracking RMSE [{u}]"),
+              ("mismatch", "trk_rmse", "plant-parameter mismatch [+-]", f"tracking RMSE [{u}]"),
               ("mismatch", "tv_u_rate", "plant-parameter mismatch [+-]", "control TV [mA/s]"))
     names = [s.name for s in res.specs]
     sty = _styles(names)
@@ -268,11 +281,11 @@ def make_figures(res: Results, folder: str) -> dict:
         folder: the report's figures/ folder.
 
     Returns:
-        kind ("bars", "traces", "robustness", "metrics") -> list of (path relative to the report, what it shows: the
-        suite for "bars", the task otherwise); the captions are the template's.
+        kind ("pareto", "traces", "robustness", "metrics") -> list of (path relative to the report, what it shows:
+        the suite for "pareto", the task otherwise); the captions are the template's.
     """
     col = _colors([s.name for s in res.specs])
-    made = {"bars": [_score_bars(res, folder, col, suite) for suite in SUITES],
+    made = {"pareto": [_pareto(res, folder, col, suite) for suite in FIGURE_SUITES],
             "metrics": [_metric_bars(res, folder, col, task) for task in TASKS],
             "traces": [_paper_traces(res, folder, col, task) for task in TASKS],
             "robustness": [_robustness(res, folder, col, task) for task in TASKS]}

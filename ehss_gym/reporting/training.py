@@ -13,6 +13,7 @@ import json
 import os
 
 import matplotlib
+import numpy as np
 
 from ehss_gym.agents.specs import AGENTS
 from ehss_gym.infra.fmt import fmt_cell
@@ -25,10 +26,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (after choosing the Agg backend: no screen needed)
 
 COMMAND = "ehss training-report"
-EPISODE_COLUMNS = ("task", "suite", "policy", "run", "episode", "score", "rmse", "max_abs_e_friction", "tv_u_rate",
-                   "diverged")
-CURVES = (("score", "validation score (ref. CLF n=2 = 1)"), ("rmse", "RMSE / base law"),
-          ("tv", "control TV / base law"))  # the learning curves' rows: history field (rel_ prefix aside), y label
+EPISODE_COLUMNS = ("task", "suite", "policy", "run", "episode", "q_overall", "q_tracking", "q_disturbance", "q_effort",
+                   "q_chatter", "trk_rmse", "dst_peak", "tv_u_rate", "diverged", "lost_track")
+CURVES = (("figure", "validation figure (ref. CLF n=2 = 1)"), ("rel_tracking", "tracking / base law"),
+          ("rel_disturbance", "disturbance / base law"))  # the learning curves' rows: history field, y label
 
 
 def cell(x, d: int = 3) -> str:
@@ -46,17 +47,17 @@ def cells(rows) -> list[list[str]]:
 
 
 def plot_curves(groups: dict, path: str, made_by: str = COMMAND) -> None:
-    """The learning curves (validation score, RMSE and control-TV ratios to the base law against training steps,
-    one line per seed, one column per group) as a PNG."""
+    """The learning curves (validation figure, and the tracking and disturbance figures against the base law's, over
+    training steps, one line per seed, one column per group) as a PNG."""
     keys = list(groups)
     fig, axes = plt.subplots(3, len(keys), figsize=(4.2 * len(keys), 8.0), squeeze=False, sharex="col")
     for j, k in enumerate(keys):
-        for i, (name, ylabel) in enumerate(CURVES):
-            field = name if name == "score" else f"rel_{name}"
+        for i, (field, ylabel) in enumerate(CURVES):
             ax = axes[i][j]
             for r in groups[k]:
                 h = r["history"]
-                ax.plot([x["step"] / 1e3 for x in h], [x[field] for x in h], lw=1, marker=".",
+                ax.plot([x["step"] / 1e3 for x in h], [np.nan if x[field] is None else x[field] for x in h], lw=1,
+                        marker=".",
                         label=f"seed {r['config']['seed']}")
             ax.axhline(1.0, color="k", lw=0.8, ls="--")
             ax.set_ylabel(ylabel, fontsize=8)
@@ -95,38 +96,38 @@ def hyperparameter_rows() -> list[list[str]]:
 
 
 def exploration_rows(noise: dict) -> list[list[str]]:
-    """The exploration-noise study (``exploration_noise.json``), one row per candidate log_std_init."""
-    return cells([[r["log_std_init"], r["std_mA"], r["explore_score"],
-                   "; ".join(", ".join(f"{x:.3f}" for x in v) for v in r["early_scores"].values()),
-                   r["mean_early_score"], r["worst_early_score"], "yes" if r["below_base"] else "no"]
+    """The initial-exploration-noise study (``exploration_noise.json``), one row per candidate log_std_init."""
+    return cells([[r["log_std_init"], r["std_mA"], r["explore_figure"],
+                   "; ".join(", ".join(f"{x:.3f}" for x in v) for v in r["early_figures"].values()),
+                   r["mean_early_figure"], r["worst_early_figure"], "yes" if r["below_base"] else "no"]
                   for r in noise["rows"]])
 
 
 def cost_rows(groups: dict) -> list[list[str]]:
-    """Training cost per seed: steps, wall time [min] in all and to the kept policy, kept step and its score."""
+    """Training cost per seed: steps, wall time [min] in all and to the kept policy, kept step and its figure."""
     return cells([[an.label(k), r["config"]["seed"], r["summary"]["timesteps"], r["summary"]["wall_s"] / 60,
-                   an.wall_to_best(r) / 60, r["summary"]["best_step"], r["summary"]["best_validation"]["score"]]
+                   an.wall_to_best(r) / 60, r["summary"]["best_step"], r["summary"]["best_validation"]["figure"]]
                   for k, rs in groups.items() for r in rs])
 
 
 def summary_rows(res) -> list[list[str]]:
-    """The harness's summary: one row per (suite, policy) with the score's CI over seeds and episodes."""
+    """The harness's summary: one row per (suite, policy) with the overall figure's CI over seeds and episodes."""
     rows = []
     for d in res.summary:
-        lo = d.get("score_mean_lo_both", d["score_mean_lo"])
-        hi = d.get("score_mean_hi_both", d["score_mean_hi"])
-        rows.append([d["suite"], d["policy"], d["n_runs"], d["n_episodes"], d["score_mean"],
-                     f"[{cell(lo)}, {cell(hi)}]", d["score_iqm"], d["rmse"], d["max_abs_e_friction"], d["tv_u_rate"],
-                     d["divergence_rate"], d["rank"]])
+        lo = d.get("figure_lo_both", d["figure_lo"])
+        hi = d.get("figure_hi_both", d["figure_hi"])
+        rows.append([d["suite"], d["policy"], d["n_runs"], d["n_episodes"], d["figure"],
+                     f"[{cell(lo)}, {cell(hi)}]", d["figure_iqm"], d["trk_rmse"], d["dst_peak"], d["tv_u_rate"],
+                     "FAILED" if d["failed"] else "", d["rank"] or "earlier loop"])
     return cells(rows)
 
 
 def comparison_rows(res) -> list[list[str]]:
     """The learned policies against the best CLF law and against their own base law."""
-    return cells([[c["suite"], c["policy"], c["n_runs"], c["score_reference"], c["score_mean"], c["best_clf"],
-                   c["best_clf_score_mean"], c["improvement"], f"[{cell(c['improvement_lo'])}, "
-                   f"{cell(c['improvement_hi'])}]", c["base_law"], c.get("rmse_ratio"), c.get("tv_ratio"),
-                   c.get("friction_peak_ratio")] for c in res.comparisons])
+    return cells([[c["suite"], c["policy"], c["n_runs"], c["figure"], c["best_clf"], c["best_clf_figure"],
+                   c["improvement"], f"[{cell(c['improvement_lo'])}, {cell(c['improvement_hi'])}]", c["base_law"],
+                   c["tracking_ratio"], c["disturbance_ratio"], c["effort_ratio"], c["chatter_ratio"]]
+                  for c in res.comparisons])
 
 
 def tv_rows(tv: list) -> list[list[str]]:
@@ -143,11 +144,11 @@ def task_context(t: dict, res) -> dict:
 
 
 def shipped_context(groups: dict, shipped: list[str], folder: str) -> dict | None:
-    """The shipped models: the chosen variant per (task, n) with the others' scores, the files and their size."""
+    """The shipped models: the chosen variant per (task, n) with the others' figures, the files and their size."""
     if not shipped:
         return None
-    chosen = [{"base": an.label(b + ("",)), "label": an.label(k), "score": an.mean_validation(groups[k]),
-               "others": [{"label": an.label(o), "score": an.mean_validation(groups[o])} for o in groups
+    chosen = [{"base": an.label(b + ("",)), "label": an.label(k), "figure": an.mean_validation(groups[k]),
+               "others": [{"label": an.label(o), "figure": an.mean_validation(groups[o])} for o in groups
                           if o[:3] == b and o != k]} for b, k in sorted(an.choose_variants(groups).items())]
     total = sum(os.path.getsize(p + ext) for p in shipped for ext in (".safetensors", ".json"))
     return {"chosen": chosen, "count": len(shipped), "folder": folder, "kb": total / 1e3,

@@ -1,5 +1,5 @@
 """``ehss tune``'s report: the search's trials, its best config, and that config against the shipped recipe on
-the held-out validation score (``TUNE.md``, ``trials.csv``, ``compare.csv`` next to ``best_config.json``)."""
+the held-out validation figure (``TUNE.md``, ``trials.csv``, ``compare.csv`` next to ``best_config.json``)."""
 
 from __future__ import annotations
 
@@ -35,12 +35,12 @@ def _table(rows: list[dict], keys: list[str]) -> list[str]:
 
 
 def summary_lines(compare: list[dict]) -> list[str]:
-    """Mean (min..max) kept-policy validation score per recipe; lower is better, the base law scores 1."""
+    """Mean (min..max) kept-policy validation figure per recipe; lower is better, the base law scores 1."""
     lines = []
     for recipe in ("tuned", "shipped"):
-        vals = [r["validation_score"] for r in compare if r["recipe"] == recipe]
+        vals = [r["validation_figure"] for r in compare if r["recipe"] == recipe]
         if vals:
-            lines.append(f"- {recipe}: mean validation score {statistics.fmean(vals):.4f} "
+            lines.append(f"- {recipe}: mean validation figure {statistics.fmean(vals):.4f} "
                          f"(min {min(vals):.4f}, max {max(vals):.4f}) over {len(vals)} seed(s)")
     return lines
 
@@ -56,20 +56,21 @@ def write_report(result: dict, settings, out: str, command: str, wall_s: float) 
         wall_s: the command's wall time [s].
     """
     trials, best, compare = result["trials"], result["best_config"], result["compare"]
-    hp_keys = [k for k in trials[0] if k not in ("trial", "status", "steps", "best_score", "score", "train_s")]
+    hp_keys = [k for k in trials[0] if k not in ("trial", "status", "steps", "best_objective", "figure", "train_s")]
     made = f"Made by `{command}` (ehss-gym {__version__}); do not edit: rerun the command."
     lines = ["# Hyperparameter search for the residual agent", "", made, "",
              f"Ray Tune with Optuna's TPE sampler (seed {settings.seed}) and ASHA (reduction factor 3, grace "
              f"{settings.grace} steps, rungs on the validation evaluations every {settings.eval_freq} steps): "
              f"{settings.trials} trials of residual PPO on the {settings.task} task (n = {settings.n}), at most "
              f"{settings.timesteps} agent steps each, {settings.concurrent} at a time. Metric: the best held-out "
-             f"validation score so far ({settings.eval_episodes} validation scenarios of {settings.eval_seconds:g} s; "
-             "0.5 RMSE + 0.5 TV relative to the n = 2 law; lower is better, the base law scores 1), the policy "
+             f"validation so far ({settings.eval_episodes} validation scenarios of {settings.eval_seconds:g} s): the "
+             "overall figure G against the n = 2 law (lower is better, the base law scores 1; inf for a failed "
+             "gate: divergence, lost track or saturation above 10 %), the policy "
              f"a run keeps. Wall time of this command: {wall_s:.0f} s (a rerun restores the finished search and takes "
              f"the comparison from its store; the trials' own times are the train_s column: "
              f"{sum(t['train_s'] for t in trials if math.isfinite(t['train_s'])):.0f} s in all).", "",
-             "## Trials (best first)", "", made, "", *_table(trials, ["trial", "status", "steps", "best_score",
-                                                                      "score", "train_s", *hp_keys]), "",
+             "## Trials (best first)", "", made, "", *_table(trials, ["trial", "status", "steps", "best_objective",
+                                                                      "figure", "train_s", *hp_keys]), "",
              "## Best config", "", "`best_config.json` (train it with `ehss train --config best_config.json "
              "--seed S`):", "", *_table([{**best["hp"]}], list(best["hp"])), "",
              "The shipped recipe's values:", "", *_table([result["shipped"]], list(result["shipped"])), ""]
@@ -79,7 +80,7 @@ def write_report(result: dict, settings, out: str, command: str, wall_s: float) 
                   "search's), scored on the held-out validation block (the kept policy: the run's best "
                   "evaluation). The search chose its config on this same validation block, so the comparison "
                   "favours it; the held-out test block of `ehss evaluate` is the unbiased check.", "",
-                  *_table(compare, ["recipe", "seed", "steps", "best_step", "validation_score", "final_score",
+                  *_table(compare, ["recipe", "seed", "steps", "best_step", "validation_figure", "final_figure",
                                     "wall_s"]), "", *summary_lines(compare), ""]
     os.makedirs(out, exist_ok=True)
     atomic_write_text(os.path.join(out, "trials.csv"), _csv(trials))

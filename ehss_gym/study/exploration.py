@@ -6,10 +6,11 @@
 For each candidate ``log_std_init`` (Gaussian std in action units; one unit = ``residual_scale`` mA):
 
 1. *exploration cost*: the untrained residual policy (mean exactly 0) sampled stochastically, as PPO's
-   rollouts are, on the validation scenarios; its primary score against the base law (1 = the base law);
+   rollouts are, on the validation scenarios; its overall figure against the base law (1 = the base law;
+   :mod:`ehss_gym.evaluation.heldout`);
 2. *early evaluations*: a short training run (same seed, same everything else) evaluated
-   deterministically every ``eval_freq`` steps; the worst (largest) score of those early evaluations,
-   and whether any fell below the base law (score > 1).
+   deterministically every ``eval_freq`` steps; the worst (largest) figure of those early evaluations,
+   and whether any fell below the base law (figure > 1, or the failure gate failed).
 
 The criterion of the design is that early evaluations do not fall below the base law; the study
 reports, for each candidate, whether they did (``below_base``) and the largest candidate that passed
@@ -66,13 +67,15 @@ def run(candidates=CANDIDATES, timesteps: int = 40_960, eval_freq: int = 8_192, 
             train(cfg)
             with open(os.path.join(out, "evaluations.json"), encoding="utf-8") as f:
                 early[seed] = [r for r in json.load(f) if r["step"] > 0]
-        scores = [r["score"] for seed in seeds for r in early[seed]]
+        figs = [r["figure"] for seed in seeds for r in early[seed]]
+        failed = any(r["failed"] for seed in seeds for r in early[seed])
         rows.append({"log_std_init": v, "std_action": math.exp(v), "std_mA": math.exp(v) * scale,
-                     "explore_score": explore["score"], "explore_rel_rmse": explore["rel_rmse"],
-                     "explore_rel_tv": explore["rel_tv"], "early_steps": [r["step"] for r in early[seeds[0]]],
-                     "early_scores": {str(seed): [r["score"] for r in early[seed]] for seed in seeds},
-                     "mean_early_score": float(np.mean(scores)), "worst_early_score": max(scores),
-                     "below_base": any(x > 1.0 for x in scores), "wall_s": time.perf_counter() - t0})
+                     "explore_figure": explore["figure"], "explore_failed": explore["failed"],
+                     "explore_rel_tracking": explore["rel_tracking"], "explore_rel_effort": explore["rel_effort"],
+                     "early_steps": [r["step"] for r in early[seeds[0]]],
+                     "early_figures": {str(seed): [r["figure"] for r in early[seed]] for seed in seeds},
+                     "mean_early_figure": float(np.mean(figs)), "worst_early_figure": max(figs),
+                     "below_base": failed or any(x > 1.0 for x in figs), "wall_s": time.perf_counter() - t0})
     ok = [r["log_std_init"] for r in rows if not r["below_base"]]
     return {"command": "python -m ehss_gym.study.exploration", "timesteps": timesteps, "eval_freq": eval_freq,
             "episodes": episodes, "seeds": list(seeds), "env_kwargs": resolved_env_kwargs(kw), "rows": rows,
@@ -92,8 +95,8 @@ def main(argv=None) -> int:
     res = run(timesteps=args.timesteps, episodes=args.episodes, workdir=args.workdir)
     atomic_write_text(args.out, json.dumps(res, indent=1) + "\n")
     for r in res["rows"]:
-        print(f"log_std_init {r['log_std_init']:+.0f} (std {r['std_mA']:.2f} mA): exploration score "
-              f"{r['explore_score']:.3f}, early evaluation scores {r['early_scores']}")
+        print(f"log_std_init {r['log_std_init']:+.0f} (std {r['std_mA']:.2f} mA): exploration figure "
+              f"{r['explore_figure']:.3f}, early evaluation figures {r['early_figures']}")
     print(f"largest log_std_init whose early evaluations stayed at or above the base law: "
           f"{res['largest_safe_log_std_init']}; wrote {args.out}")
     return 0

@@ -9,7 +9,7 @@ Reads every run folder under the ``--runs`` folders (those with ``summary.json``
    evaluation harness (:func:`ehss_gym.evaluation.harness.evaluate`) on its held-out suite (seeds disjoint from
    training and from the validation block used for model selection) and on the paper's scenario, next
    to the scripted CLF laws n = 2, 4, 6 (:func:`evaluate_groups`), with the targets of the residual policies
-   (:func:`residual_targets`) and each seed's score (:func:`seed_scores`);
+   (:func:`residual_targets`) and each seed's figure (:func:`seed_scores`);
 3. what the reference law's error is made of (:func:`base_law_diagnostics`, :func:`error_budget`), how much of
    the friction peak a residual can reach (:func:`friction_authority`) and where a residual's added control TV
    comes from (:func:`tv_sources`);
@@ -38,9 +38,9 @@ from ehss_gym.evaluation import harness as ev
 from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 ONSET_PEAK = 0.01  # [s] a friction-window peak this soon after the switch-on is the torque step's transient
-TARGET_IMPROVEMENT = 0.2  # [-] the residuals' target: 1 - score/score_best >= this, ...
+TARGET_IMPROVEMENT = 0.2  # [-] the residuals' target: 1 - G/G_best (overall figures) >= this, ...
 TARGET_SEEDS = 5  # ... its CI excluding 0, over at least this many training seeds
-TARGET_FRICTION = 0.5  # [-] and the friction-window peak at most this times the base law's (halved)
+TARGET_FRICTION = 0.5  # [-] and the disturbance figure at most this times the base law's (halved)
 
 
 def read_json(path: str):
@@ -140,41 +140,44 @@ def evaluate_groups(groups: dict, episodes: int, workers: int, progress: bool, c
 def residual_targets(res) -> list[dict]:
     """The residual policies' targets on the held-out suite, from the harness's comparisons.
 
-    Returns one dict per residual policy: ``policy``, ``n_runs``, ``best_clf``, ``improvement`` (1 -
-    score/score_best) with its CI ``improvement_lo``/``_hi`` and ``improvement_met`` (>= TARGET_IMPROVEMENT, CI
-    excluding 0, >= TARGET_SEEDS seeds); ``tv_ratio`` and ``friction_ratio`` (to its base law) with ``tv_met``
-    (<= 1) and ``friction_met`` (<= TARGET_FRICTION); ``rmse_vs_best`` and ``tv_vs_best`` (means over the
-    episodes, against the best CLF itself).
+    Returns one dict per residual policy: ``policy``, ``n_runs``, ``best_clf``, ``improvement`` (1 - G/G_best, the
+    overall figures) with its CI ``improvement_lo``/``_hi`` and ``improvement_met`` (>= TARGET_IMPROVEMENT, CI
+    excluding 0, >= TARGET_SEEDS seeds); ``tv_ratio`` (the effort figure over the base law's: control TV and RMS
+    current on the noise-free episodes) and ``friction_ratio`` (the disturbance figure over the base law's) with
+    ``tv_met`` (<= 1) and ``friction_met`` (<= TARGET_FRICTION); ``rmse_vs_best`` and ``tv_vs_best`` (means over the
+    episodes of the tracking RMSE and the control TV, against the best CLF itself).
     """
     means = {(d["suite"], d["policy"]): d for d in res.summary}
     out = []
     for c in res.comparisons:
         if c["suite"] != "heldout" or not c["policy"].startswith("residual-ppo"):
             continue
-        tv = c.get("tv_ratio", math.nan)
-        fr = c.get("friction_peak_ratio", math.nan)
+        tv = c.get("effort_ratio", math.nan)
+        fr = c.get("disturbance_ratio", math.nan)
         pol, best = means[("heldout", c["policy"])], means[("heldout", c["best_clf"])]
         out.append({"policy": c["policy"], "n_runs": c["n_runs"], "best_clf": c["best_clf"],
                     "improvement": c["improvement"], "improvement_lo": c["improvement_lo"],
                     "improvement_hi": c["improvement_hi"],
                     "improvement_met": c["improvement"] >= TARGET_IMPROVEMENT and c["improvement_lo"] > 0
                     and c["n_runs"] >= TARGET_SEEDS, "tv_ratio": tv, "tv_met": tv <= 1, "friction_ratio": fr,
-                    "friction_met": fr <= TARGET_FRICTION, "rmse_vs_best": pol["rmse"] / best["rmse"],
+                    "friction_met": fr <= TARGET_FRICTION, "rmse_vs_best": pol["trk_rmse"] / best["trk_rmse"],
                     "tv_vs_best": pol["tv_u_rate"] / best["tv_u_rate"]})
     return out
 
 
 def seed_scores(res) -> list[tuple[str, str, float]]:
-    """(policy, run folder name, mean held-out score) of every training seed of the learned policies."""
+    """(policy, run folder name, held-out overall figure) of every training seed of the learned policies: the
+    geometric mean of its per-episode overall ratios (the episodes it finished)."""
     out = []
     for d in res.specs:
         if not d.learned:
             continue
         for i in range(len(d.runs)):
-            sel = [r for r in res.rows if r["policy"] == d.name and r["run"] == i and r["suite"] == "heldout"]
-            if sel:
+            q = [r["q_overall"] for r in res.rows if r["policy"] == d.name and r["run"] == i
+                 and r["suite"] == "heldout" and math.isfinite(r["q_overall"])]
+            if q:
                 out.append((d.name, os.path.basename(os.path.dirname(os.path.dirname(str(d.runs[i])))),
-                            float(np.mean([r["score"] for r in sel]))))
+                            float(np.exp(np.mean(np.log(q))))))
     return out
 
 
@@ -351,7 +354,7 @@ def tv_sources(policy_paths: list[str], episodes: int) -> dict:
 
 def mean_validation(rs: list[dict]) -> float:
     """Mean validation score of a group's kept policies (the selection data; never the held-out test suite)."""
-    return float(np.mean([r["summary"]["best_validation"]["score"] for r in rs]))
+    return float(np.mean([r["summary"]["best_validation"]["figure"] for r in rs]))
 
 
 def choose_variants(groups: dict) -> dict[tuple, tuple]:
