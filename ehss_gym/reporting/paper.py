@@ -84,7 +84,7 @@ CLAIM_SETS = ("P0", "P1", "P2", "P3")
 OLD_NEW = (("P1", "P1_old"), ("P3", "P3_old"))
 FINAL_ROWS = (("old", "the first implementation's defaults, its ZOH filters"),
               ("fixed", "the first implementation's defaults, corrected filters"),
-              ("new", "the new defaults, corrected filters"))
+              ("new", "this study's recommendation, corrected filters"))
 
 
 def csv_write(path: str, records: Sequence[Record]) -> None:
