@@ -18,6 +18,7 @@ import numba as nb
 
 from ehss_gym._version import __version__
 from ehss_gym.core.params import PlantParams
+from ehss_gym.envs import EnvConfig
 from ehss_gym.infra.fmt import fmt_axis, md_table
 from ehss_gym.infra.fmt import fmt_num as _f
 from ehss_gym.infra.util import atomic_write, atomic_write_text
@@ -371,6 +372,22 @@ def recommendation_json(st: Study) -> dict:
     }
 
 
+def env_agreement(st: Study) -> tuple[list, list]:
+    """(settings the env's defaults restate from this study's recommendation, settings where they differ), as
+    "name (task)" labels, read from EnvConfig."""
+    rec = st.rec
+    same, diff = [], []
+    for task in ("velocity", "position"):
+        env = EnvConfig.from_kwargs({"task": task})
+        ours = {"control_period": rec["h"], "substeps": rec["substeps"], "current_limit": rec["limit"],
+                "fr": rec[f"fr_{task}"], "sigma": rec[f"sigma_{task}"],
+                "smoothing": rec["smoothing" if task == "velocity" else "smoothing_position"],
+                "estimator": st.cfg.estimator}
+        for key, v in ours.items():
+            (same if getattr(env, key) == v else diff).append(f"{key} ({task})")
+    return same, diff
+
+
 def _cpu_seconds() -> float:
     """CPU time of this process and its finished children (the plot workers) [s]."""
     a = resource.getrusage(resource.RUSAGE_SELF)
@@ -427,7 +444,8 @@ def report_context(st: Study, data: str, cmd: str, wall_s: float | None) -> dict
                                CHATTER_WINDOW=CHATTER_WINDOW, MATTERS=MATTERS, SAT_MATTERS=SAT_MATTERS,
                                REC_ABS=REC_ABS),
                by_group=sorted(st.timings.get("by_group", {}).items(), key=lambda kv: -kv[1]),
-               math=math, G_NOMINAL=G_NOMINAL, claim_period=CLAIM_PERIOD)
+               math=math, G_NOMINAL=G_NOMINAL, claim_period=CLAIM_PERIOD,
+               env_agreement=env_agreement(st))
     ctx.update(paper_tables(st))
     ctx.update(claims_context(st, data))
     ctx.update(regions=facts.regions(st), div=facts.divergence_facts(st), probes=facts.probe_facts(st),
