@@ -467,3 +467,13 @@ def test_admissible_sigmas():
     recs = [rec(sigma=1.0, saturation=1.0), rec(sigma=1e5, saturation=0.002), rec(sigma=1e6, diverged=True),
             rec(sigma=1e7, saturation=0.0), rec(sigma=1e4, saturation=0.0, n=4)]
     assert R.admissible_sigmas(recs) == [1e5, 1e7]
+
+
+def test_evidence_shows_a_ratio_near_one_by_its_deviation():
+    """A verdict that rests on a difference of 1e-7 says so in its evidence."""
+    assert R.ratio_text(1.0 + 5.5e-8) == "1+5.5e-08" and R.ratio_text(0.9999990) == "1-1.0e-06"
+    assert R.ratio_text(0.601) == "0.601" and R.ratio_text(1.0) == "1"
+    near = {(POS, 6): dict(dst_peak=0.03 * (1 + 1e-7))}
+    res = R.claim_c5(healthy_set(near))
+    # the figure is the geometric mean of the peak and IAE ratios: a 1e-7 larger peak gives 5e-8
+    assert res.verdict == "reproduced" and "n=6 over the larger of n=2, 4: 1+5.0e-08" in res.evidence

@@ -171,6 +171,13 @@ def claim_c4(runs: dict) -> ClaimResult:
     return ClaimResult("C4", VERDICTS[2], ev)
 
 
+def ratio_text(r: float) -> str:
+    """A ratio for the evidence: near 1 as 1 plus its deviation (so a difference of 1e-7 shows as one)."""
+    if math.isfinite(r) and r != 1.0 and abs(r - 1.0) < 1e-3:
+        return f"1{r - 1.0:+.1e}"
+    return _f(r, ".3g")
+
+
 def disturbance_figures(recs: dict) -> dict:
     """n -> the disturbance-class figure (the ruler's, :func:`ehss_gym.evaluation.scoring.class_log_ratio`: the
     geometric mean of the friction-window peak and IAE ratios) of each run against n = 2's on the same episode;
@@ -204,6 +211,8 @@ def claim_c5(runs: dict) -> ClaimResult:
                                  f"RMSE nominal {_f(r.get('rmse_nominal'))} rad, friction peak "
                                  f"{_f(r.get('dst_peak'))} rad, IAE {_f(r.get('dst_iae'))} rad s, disturbance "
                                  f"figure {_f(q[n], '.3g')}") for n, r in rs.items())
+    if all(math.isfinite(q[n]) for n in NS):
+        ev += f"; n=6 over the larger of n=2, 4: {ratio_text(q[6] / max(q[2], q[4]))}"
     if track and worst6:
         return ClaimResult("C5", VERDICTS[0], ev)
     if track or worst6:
@@ -257,7 +266,7 @@ def claim_c7(heldout: dict) -> ClaimResult:
         for k, n in enumerate((2, 4)):
             g, lo, hi, used = paired_disturbance(by_n[n], by_n[6], seed=k)
             ok &= hi < 1.0  # NaN compares False: an undefined figure does not hold
-            txt.append(f"n={n}/n=6 {_f(g, '.3g')} [{_f(lo, '.3g')}, {_f(hi, '.3g')}]")
+            txt.append(f"n={n}/n=6 {ratio_text(g)} [{ratio_text(lo)}, {ratio_text(hi)}]")
         div = "/".join(str(sum(1 for m in by_n[n] if m["diverged"])) for n in NS)
         parts.append(f"{task}: " + ", ".join(txt) + f" ({len(by_n[6])} episodes; diverged n=2/4/6: {div})")
         holds.append(ok)
