@@ -293,7 +293,8 @@ def _cell(v) -> str:
 def defaults_table() -> str:
     """Every default a user of the env sees, per task, as a markdown table read from :class:`EnvConfig` (the one
     table README.md, docs/ENV.md and the env's docstring show; ``python -m ehss_gym.envs.defaults --write``
-    rewrites them). Rows for another law's sigma and for an n whose defaults differ from the default n's follow."""
+    rewrites them). Rows for a law with its own default sigma and for an n whose defaults differ from the default
+    n's follow."""
     cfgs = {t: EnvConfig.from_kwargs({"task": t}) for t in TASKS}
     rows = ["| setting | " + " | ".join(cfgs) + " | unit |", "|---|" + "---|" * len(cfgs) + "---|"]
     for key in [k for k in LOOP_KEYS if k != "task"] + list(ENV_KEYS):
@@ -304,10 +305,11 @@ def defaults_table() -> str:
                             + f" | {SETTING_UNITS[key]} |")
             continue
         rows.append(f"| `{key}` | " + " | ".join(_cell(v) for v in vals) + f" | {SETTING_UNITS[key]} |")
-    for law in names(LAWS):
-        if any(law != c.law for c in cfgs.values()):
-            vals = [_cell(EnvConfig.from_kwargs({"task": t, "law": law}).sigma) for t in cfgs]
-            rows.append(f'| `sigma` with `law="{law}"` | ' + " | ".join(vals) + f" | {SETTING_UNITS['sigma']} |")
+    for law in names(LAWS):  # a law with its own default sigma (the others take the task's)
+        sig = {t: EnvConfig.from_kwargs({"task": t, "law": law}).sigma for t in cfgs}
+        if any(sig[t] != c.sigma for t, c in cfgs.items()):
+            rows.append(f'| `sigma` with `law="{law}"` | ' + " | ".join(_cell(v) for v in sig.values())
+                        + f" | {SETTING_UNITS['sigma']} |")
     for n in (4, 6):
         per_n = {t: EnvConfig.from_kwargs({"task": t, "n": n}) for t in cfgs}
         for key in (k for k in LOOP_KEYS if k not in ("task", "n")):

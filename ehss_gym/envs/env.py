@@ -167,7 +167,6 @@ class EHSSTrackingEnv(gym.Env):
     | `episode_seconds` | None | None | s (None: 2 s random, 20 s paper) |
     | `terminate_on_lost_track` | False | False |  |
     | `sigma` with `law="lin-sontag"` | 3e6 | 1e7 | unit of s |
-    | `sigma` with `law="min-norm"` | 1e5 | 1e6 | unit of s |
 
     <!-- env-defaults:end -->
 
