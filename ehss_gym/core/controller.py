@@ -315,4 +315,5 @@ def _sgn(x):
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
 
-__all__ = ["controller_update", "controller_sense", "controller_apply", "dob_current", "shape_reference", "fhan", "NOISE_TAU"]
+__all__ = ["controller_update", "controller_sense", "controller_apply", "dob_current", "shape_reference", "fhan",
+           "NOISE_TAU"]

@@ -176,11 +176,13 @@ class Scenario:
         object.__setattr__(self, "bumpless", check_bool("bumpless", self.bumpless))
         object.__setattr__(self, "ref_accel", check_finite("ref_accel", self.ref_accel, low=0.0))
         # the observer's filter runs once per period: its cutoff must lie below the period's Nyquist frequency
+        nyquist = 0.5 / self.control_period
         try:
-            dob = check_finite("dob_hz", self.dob_hz, low=0.0, high=0.5 / self.control_period, high_open=True)
-        except ValueError as exc:
-            raise ValueError(f"{exc} [Hz]: the disturbance observer's cutoff must be 0 (off) or below the Nyquist "
-                             f"frequency 1/(2 control_period) of the control period {self.control_period:g} s") from None
+            dob = check_finite("dob_hz", self.dob_hz, low=0.0, high=nyquist, high_open=True)
+        except ValueError:
+            raise ValueError(f"dob_hz must be a finite number in [0, {nyquist:g}) Hz: 0 (off) or a cutoff below the "
+                             f"Nyquist frequency 1/(2 control_period) of the control period {self.control_period:g} s, "
+                             f"got {self.dob_hz!r}") from None
         object.__setattr__(self, "dob_hz", dob)
         if self.pressure_domain is not None:
             object.__setattr__(self, "pressure_domain", check_finite("pressure_domain", self.pressure_domain, low=0.0,

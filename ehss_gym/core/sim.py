@@ -207,7 +207,8 @@ class Trajectory:
 
         out = {"t": "s", "y": U, "y_ref": U, "e": U, "u": "mA", "u_applied": "mA", "u_base": "mA",
                "s": deriv(m - 1), "V": "-", "friction": "N*m", "r": U, "u_applied_min": "mA",
-               "u_applied_max": "mA", "u_dob": "mA", "d_hat": deriv(m), "theta": "rad", "omega": "rad/s", "p_load": "Pa", "valve_area": "m^2"}
+               "u_applied_max": "mA", "u_dob": "mA", "d_hat": deriv(m), "theta": "rad", "omega": "rad/s",
+               "p_load": "Pa", "valve_area": "m^2"}
         for i in range(1, m + 1):
             out[f"y_ref_d{i}"] = deriv(i)
         for i in range(1, m):
