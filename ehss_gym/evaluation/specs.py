@@ -508,7 +508,8 @@ def object_spec(name: str, policy, env_kwargs: dict | None = None, runs: Sequenc
 
 
 def default_specs() -> list[PolicySpec]:
-    """Every shipped policy: the scripted CLF (n = 2, 4, 6) and PID, and the models in ehss_gym/models."""
+    """Every shipped policy: the scripted CLF (n = 2, 4, 6), the CLF law with the disturbance observer (n = 2) and
+    PID, and the models in ehss_gym/models."""
     return [scripted_spec(n) for n in SCRIPTED_DEFAULT] + shipped_specs()
 
 
