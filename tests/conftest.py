@@ -6,11 +6,15 @@ its token) when it starts, and fails when it ends if a test added or removed one
 output folder, store or cache pointed at tmp_path shows up here, on the first run, instead of on a later one.
 """
 
+import atexit
 import os
+import shutil
 import sys
+import tempfile
 
 import pytest
 from hypothesis import settings
+from hypothesis.configuration import set_hypothesis_home_dir
 from hypothesis.database import InMemoryExampleDatabase
 
 from ehss_gym.infra.execution import pin_blas
@@ -20,9 +24,13 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 pin_blas()  # as every ehss command: MKL's code path fixed before any test computes (tests/test_reproducible.py)
 
-# hypothesis keeps its examples in ./.hypothesis by default (the checkout): in memory for the session instead
+# hypothesis keeps its examples in ./.hypothesis by default (the checkout): in memory for the session instead; its
+# other files (a cache of the constants it reads from the sources) go to a temporary folder removed at exit
 settings.register_profile("session-memory", database=InMemoryExampleDatabase())
 settings.load_profile("session-memory")
+_HYPOTHESIS_HOME = tempfile.mkdtemp(prefix="ehss-hypothesis-")
+set_hypothesis_home_dir(_HYPOTHESIS_HOME)
+atexit.register(shutil.rmtree, _HYPOTHESIS_HOME, True)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SKIPPED_DIRS = {".git", "__pycache__", ".pytest_cache", ".ruff_cache"}

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ehss_gym.core.params import PlantParams
-from ehss_gym.core.physics import integrate_plant, plant_rhs
+from ehss_gym.core.physics import N_LANE_CONST, integrate_lanes, lane_constants, plant_only_arrays, plant_rhs
 from ehss_gym.core.signals import step
 from ehss_gym.core.sim import simulate
 from ehss_gym.envs import EnvConfig
@@ -67,11 +67,15 @@ def test_forward_pass_is_the_simulators_integrator_bit_for_bit():
                         amps=amps)
     u = np.concatenate([np.full(150, 10.0), np.full(100, -10.0), np.random.default_rng(3).uniform(-10, 10, 50)])
     X = pr.simulate(u)
-    x, work, p = np.zeros(4), np.zeros((5, 4)), plant.as_array()
-    ev = np.array(events, dtype=np.float64)
+    x, work = np.zeros((4, 1)), np.zeros((6, 4, 1))  # the loop's integrator on one lane
+    c = np.zeros((N_LANE_CONST, 1))
+    lane_constants(plant.as_array().reshape(1, -1), c)
+    ev = np.array(events, dtype=np.float64).reshape(1, -1, 3)
+    arrays = plant_only_arrays(1)
     for s in range(n):
-        integrate_plant(x, u[s // spc] if s < 300 * spc else 0.3, s * DT, DT, 1, p, ev, work)
-        assert np.array_equal(x, X[s + 1]), f"step {s}"
+        u_s = u[s // spc] if s < 300 * spc else 0.3
+        integrate_lanes(x, np.array([u_s]), s * DT, DT, 1, c, ev, work, False, *arrays)
+        assert np.array_equal(x[:, 0], X[s + 1]), f"step {s}"
     assert np.abs(X[:, 2]).max() == plant.P_s  # the relief valve acted
 
 

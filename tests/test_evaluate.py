@@ -198,8 +198,10 @@ def test_sb3_zip_and_safe_weights_are_evaluated(tmp_path, capsys):
     by = {d["policy"]: d for d in res.summary}
     assert by[zspec.name]["n_runs"] == 1 and by[multi.name]["n_runs"] == 2
     assert "figure_lo_seeds" in by[multi.name]  # a CI over training seeds exists with 2 seeds
-    # a model file that does not record issue 14's settings acts in the loop before them: listed apart, not compared
-    assert by[zspec.name]["earlier_loop"] and by[multi.name]["earlier_loop"] and not res.comparisons
+    # safe weights that do not record the newer loop settings act in the legacy loop: listed apart, not compared; a
+    # zip with no env spec is scored at the env's defaults (with a warning), today's loop, and compared
+    assert by[multi.name]["earlier_loop"] and not by[zspec.name]["earlier_loop"]
+    assert [c["policy"] for c in res.comparisons] == [zspec.name] * len(res.comparisons) and res.comparisons
     for d in by.values():
         assert d["n_episodes"] == 3 and math.isfinite(d["figure"])
 

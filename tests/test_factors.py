@@ -35,7 +35,7 @@ def test_factor_table_quick(tmp_path):
     assert {(c["factor"], c["class"]) for c in res["checks"]} == set(factors.CHECKS)
     assert all(math.isfinite(c["ratio"]) for c in res["checks"])
     out = tmp_path / "factors"
-    assert main(["factors", "--quick", "--tasks", "velocity", "--episodes", "3", "--out", str(out)]) == 0
+    assert main(["factors", "--quick", "--task", "velocity", "--episodes", "3", "--out", str(out)]) == 0
     text = (out / "FACTORS.md").read_text()
     assert "ehss factors" in text and "## velocity task" in text and ("check met" in text or "check NOT met" in text)
     assert (out / "factors.csv").read_text().startswith("task,factor,tracking")

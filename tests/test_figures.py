@@ -81,7 +81,7 @@ def test_every_text_of_the_comparison_figures_lies_inside_the_canvas(long_named_
         warnings.simplefilter("always")
         made = cf.make_figures(long_named_results, str(tmp_path))
     assert not [w for w in caught if "ayout" in str(w.message)], [str(w.message) for w in caught]
-    assert made["bars"] and made["metrics"] and len(saved) >= 4
+    assert made["pareto"] and made["metrics"] and len(saved) >= 4
     for fig in saved:
         fig.canvas.draw()
         r = fig.canvas.get_renderer()

@@ -291,6 +291,7 @@ LOOP_TYPES = {
     "smoothing": finite("--smoothing", 0.0, low_open=False),
     "layer_gain": finite("--layer-gain", 0.0, low_open=False),
     "ref_accel": finite("--ref-accel", 0.0, low_open=False),
+    "dob_hz": finite("--dob-hz", 0.0, low_open=False),
     "pressure_domain": or_none("--pressure-domain", finite("--pressure-domain", 0.0)),
     "lost_track": or_none("--lost-track", finite("--lost-track", 0.0)),
 }
@@ -421,11 +422,11 @@ def add_evaluate(p) -> None:
     full = EvalConfig()
     p.add_argument("--policies", nargs="+", default=None, metavar="SPEC",
                    help="comma- or space-separated: clf-n2, clf-n4, clf-n6, the CLF variants <law>-n<k> and "
-                        "<law>-<estimator>-n<k>, pid, residual-ppo:PATH, ppo-direct:PATH, sb3:PATH (any SB3 "
-                        "algorithm, its mode from the env spec saved with it; PATH may be an rl-zoo3 run folder), or a "
-                        "shipped model name; LABEL=SPEC names one in the report (e.g. "
-                        "final=residual-ppo:RUN/final/policy best=residual-ppo:RUN/best/policy) (default: every "
-                        "shipped policy)")
+                        "<law>-<estimator>-n<k>, dob-n<k> (the CLF law with the disturbance observer), pid, "
+                        "residual-ppo:PATH, ppo-direct:PATH, sb3:PATH (any SB3 algorithm, its mode from the env spec "
+                        "saved with it; PATH may be an rl-zoo3 run folder), or a shipped model name; LABEL=SPEC "
+                        "names one in the report (e.g. final=residual-ppo:RUN/final/policy "
+                        "best=residual-ppo:RUN/best/policy) (default: every shipped policy)")
     p.add_argument("--suite", choices=(*SUITES, "all"), default="all", help="which suites to run")
     p.add_argument("--task", type=task_list, default=tuple(TASKS),
                    help=f"comma-separated subset of {','.join(TASKS)} (default: both)")

@@ -6,7 +6,8 @@ Every policy here has ``predict(observation, state=None, episode_start=None, det
 :func:`ehss_gym.envs.observation.decode_observation`.
 
 - :class:`CLFPolicy`: the CLF law of the env it acts in (its ``law`` and ``estimator``; names such as ``clf-n2``,
-  ``lin-sontag-n4`` or ``sontag-foh-n2`` map to env settings by :func:`parse_scripted`) for the env's n.
+  ``lin-sontag-n4`` or ``sontag-foh-n2`` map to env settings by :func:`parse_scripted`; ``dob-n2`` adds the
+  disturbance observer, ``dob_hz``) for the env's n.
   Residual mode: a zero residual (the base law alone). Direct mode: the law's current the env reports in the
   observation (``u_base``), over ``residual_scale``, held for the agent period.
 - :class:`PIDPolicy`: a PID on the tracking error, u = -(kp e + ki int e dt + kd e') [mA], with the
@@ -38,9 +39,10 @@ Every policy here has ``predict(observation, state=None, episode_start=None, det
 """
 
 from .base import ScriptedPolicy
-from .clf import SCRIPTED_FORMS, CLFPolicy, parse_scripted
+from .clf import DOB_HZ, SCRIPTED_FORMS, CLFPolicy, parse_scripted
 from .feedforward import FrictionFeedforwardPolicy
 from .pid import PID_GAINS, PID_RELAY, RULES, PIDPolicy, default_pid_gains, relay_experiment, tune_pid
 
-__all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "PIDPolicy", "FrictionFeedforwardPolicy",
-           "tune_pid", "relay_experiment", "PID_GAINS", "PID_RELAY", "RULES", "default_pid_gains"]
+__all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "DOB_HZ", "PIDPolicy",
+           "FrictionFeedforwardPolicy", "tune_pid", "relay_experiment", "PID_GAINS", "PID_RELAY", "RULES",
+           "default_pid_gains"]

@@ -23,6 +23,7 @@ from .layout import (
     FBV_C_REF,
     FBV_D_REF,
     I_AM,
+    I_DHAT,
     I_E,
     I_E_R,
     I_E_TRUE,
@@ -36,6 +37,7 @@ from .layout import (
     I_UAPP,
     I_UBASE,
     I_UCMD,
+    I_UDOB,
     I_URES,
     I_V,
     I_W,
@@ -46,6 +48,7 @@ from .layout import (
     X_OMEGA,
     X_PL,
     X_THETA,
+    Z_DOB,
     Z_NOISE,
     Z_REF,
     Z_SHAPE,
@@ -57,6 +60,7 @@ from .settings import (
     C_ANALOG,
     C_BASE,
     C_BUMPLESS,
+    C_DOB_GAIN,
     C_EST,
     C_LAM0,
     C_LAW,
@@ -103,7 +107,7 @@ def controller_update(z, k, h, model_p, ctrl, ref, filt, u_res, info, work):
         work: scratch (8, 4).
     """
     u_base = controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work)
-    return controller_apply(info, ctrl, u_base, u_res)
+    return controller_apply(z, info, ctrl, u_base, u_res)
 
 
 @jit_noalloc
@@ -113,10 +117,11 @@ def controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work):
     Fills ``info`` except I_URES, I_UCMD, I_UAPP, I_SAT (see :func:`controller_apply`) and I_TF (the plant's, the
     loop records it), and advances the controller's memory (z[4:]) over the period: the reference shaper, the
     digital filters w <- Phi w + E v with the inputs v of this sample (:func:`ehss_gym.core.estimators.advance_filters`;
-    with an analog estimator the plant's integrator advances the continuous filters instead) and, with an adaptive
-    boundary layer, the running mean square of the steps of s (time constant NOISE_TAU). At k = 0 with a bumpless
-    start the reference model's rows are first set to the measured output and the estimated derivatives. The plant
-    rows z[:4] are only read. Arguments as in :func:`controller_update`.
+    with an analog estimator the plant's integrator advances the continuous filters instead), with an adaptive
+    boundary layer the running mean square of the steps of s (time constant NOISE_TAU) and, with the disturbance
+    observer on, its estimate d_hat from this sample's s (:func:`dob_current`; its current is part of u_base). At
+    k = 0 with a bumpless start the reference model's rows are first set to the measured output and the estimated
+    derivatives. The plant rows z[:4] are only read. Arguments as in :func:`controller_update`.
     """
     t = k * h
     m = int(ctrl[C_ORDER])
@@ -192,16 +197,48 @@ def controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work):
         advance_filters(z, m, int(ctrl[C_EST]), filt, info, hd)
     # the law
     u_base = base_current(ctrl[C_LAW], psi, G, s, n, sigma, w, ctrl[C_ULIM])
+    info[I_DHAT] = 0.0
+    info[I_UDOB] = 0.0
+    alpha = ctrl[C_DOB_GAIN]
+    if alpha > 0.0:
+        u_base += dob_current(z, k, h, alpha, s, G, ctrl[C_ULIM], info)
     info[I_V] = clf_value(s, n, sigma)
     info[I_UBASE] = u_base
     return u_base
 
 
+@jit_inline
+def dob_current(z, k, h, alpha, s, G, ulim, info):
+    """The disturbance observer at sample k: its estimate d_hat updated from this sample's s; returns its current [mA].
+
+    The combined error obeys s' = psi + G u + d, d the lumped effect of what the model leaves out (friction,
+    mismatch). The innovation (s_k - s_{k-1})/h - (psi_{k-1} + G_{k-1} u_app,k-1) measures d over the last period
+    (the prediction was recorded by :func:`controller_apply`); a first-order filter of gain ``alpha`` = 1 -
+    exp(-2 pi f_d h) [-] smooths it into d_hat [unit of s / s], and the current -d_hat/G [mA], clipped to +-``ulim``,
+    cancels it (docs/MODEL.md, "Disturbance observer"). At k = 0 there is no last period: d_hat stays at its initial
+    0. Writes I_DHAT and I_UDOB of ``info``.
+    """
+    if k > 0:
+        innovation = (s - z[Z_DOB + 1]) / h - z[Z_DOB + 2]
+        z[Z_DOB] += alpha * (innovation - z[Z_DOB])
+    d_hat = z[Z_DOB]
+    u = -d_hat / G if G != 0.0 else 0.0
+    if u > ulim:
+        u = ulim
+    elif u < -ulim:
+        u = -ulim
+    info[I_DHAT] = d_hat
+    info[I_UDOB] = u
+    return u
+
+
 @jit_noalloc
-def controller_apply(info, ctrl, u_base, u_res):
+def controller_apply(z, info, ctrl, u_base, u_res):
     """Add the residual u_res [mA] to ctrl[C_BASE] * u_base [mA], apply the current limit; returns u_app [mA].
 
-    Writes I_URES, I_UCMD, I_UAPP and I_SAT of ``info``.
+    Writes I_URES, I_UCMD, I_UAPP and I_SAT of ``info`` and, with the disturbance observer on, records in z what it
+    compares the next sample with: this sample's s and its prediction psi + G u_app of s' (the applied current, so a
+    clipped command does not wind the estimate up).
     """
     u_cmd = ctrl[C_BASE] * u_base + u_res
     ulim = ctrl[C_ULIM]
@@ -217,6 +254,9 @@ def controller_apply(info, ctrl, u_base, u_res):
     info[I_UCMD] = u_cmd
     info[I_UAPP] = u_app
     info[I_SAT] = sat
+    if ctrl[C_DOB_GAIN] > 0.0:
+        z[Z_DOB + 1] = info[I_S]
+        z[Z_DOB + 2] = info[I_PSI] + info[I_G] * u_app
     return u_app
 
 
@@ -275,4 +315,5 @@ def _sgn(x):
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
 
-__all__ = ["controller_update", "controller_sense", "controller_apply", "shape_reference", "fhan", "NOISE_TAU"]
+__all__ = ["controller_update", "controller_sense", "controller_apply", "dob_current", "shape_reference", "fhan",
+           "NOISE_TAU"]

@@ -15,7 +15,8 @@ Z_EST = 8  # estimator state y_e, y_e', ... (up to 3 slots)
 Z_OBS = 11  # extended-state observer ("eso"): velocity and lumped disturbance acceleration (FOH form, 2 slots)
 Z_NOISE = 13  # noise estimate of the adaptive boundary layer: last s, running mean of (s_k - s_{k-1})^2
 Z_SHAPE = 15  # reference shaper (position task): shaped reference p, its rate, the last r and its last rate
-N_LOOP = 19
+Z_DOB = 19  # disturbance observer: d_hat [unit of s / s], the last s, the last prediction psi + G u_app of s'
+N_LOOP = 22
 MAX_ORDER = 4  # largest relative degree (position task)
 
 # --- Plant parameters: PlantParams.as_array() --------------------------------
@@ -74,7 +75,7 @@ I_S = 15  # combined error s
 I_V = 16  # V = (s/sigma)^n / n
 I_PSI = 17  # psi, the drift of s
 I_G = 18  # input gain of s [unit of s per s per mA]
-I_UBASE = 19  # the law's current [mA]
+I_UBASE = 19  # the base current [mA]: the law's, plus the disturbance observer's (I_UDOB)
 I_URES = 20  # residual current [mA]
 I_UCMD = 21  # commanded current u_base + u_res [mA]
 I_UAPP = 22  # applied (limited) current [mA]
@@ -86,7 +87,9 @@ I_W = 30  # boundary-layer width in use (the fixed w, or the adaptive one) [unit
 I_E_TRUE = 31  # true tracking error y - y_d (the plant's output, no sensor noise): what the metrics *_true use
 I_RM = 32  # the reference model's input: r, or the shaped reference p (C_REF_ACCEL > 0)
 I_E_R = 33  # true output minus the raw reference r (no reference model): what the metric rmse_r uses
-N_INFO = 34
+I_DHAT = 34  # the disturbance observer's estimate d_hat of the lumped disturbance of s' [unit of s / s]; 0 if off
+I_UDOB = 35  # the observer's current -d_hat/G, clipped to the limit [mA] (part of I_UBASE); 0 if off
+N_INFO = 36
 # A sample is quiet (it counts for the quiet RMSE) past the start-up and neither in a friction event nor within
 # QUIET_GUARD after one ends (ehss_gym.core.metrics.accumulate classifies it, and its metric window below).
 QUIET_STARTUP = 0.2  # [s] the start-up window (t < this), excluded from the quiet RMSE and the tracking class
@@ -173,4 +176,6 @@ L_UMIN = 26  # smallest applied current [mA] over the control periods the sample
 L_UMAX = 27  # largest
 L_W = 28  # boundary-layer width in use
 L_RM = 29  # the reference model's input (r, or the shaped reference)
-N_LOG = 30
+L_DHAT = 30  # the disturbance observer's d_hat [unit of s / s]
+L_UDOB = 31  # the observer's current [mA] (part of L_UBASE)
+N_LOG = 32

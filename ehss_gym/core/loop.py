@@ -27,6 +27,7 @@ from .layout import (
     DIV_PRESSURE,
     FB_VEC2,
     FBV_D_REF,
+    I_DHAT,
     I_E,
     I_R,
     I_RM,
@@ -36,11 +37,13 @@ from .layout import (
     I_UAPP,
     I_UBASE,
     I_UCMD,
+    I_UDOB,
     I_URES,
     I_V,
     I_W,
     I_YD,
     I_YE,
+    L_DHAT,
     L_E,
     L_R,
     L_RM,
@@ -50,6 +53,7 @@ from .layout import (
     L_UAPP,
     L_UBASE,
     L_UCMD,
+    L_UDOB,
     L_UMAX,
     L_UMIN,
     L_URES,
@@ -123,6 +127,8 @@ def write_log(row, z, info):
     row[L_TF] = info[I_TF]
     row[L_W] = info[I_W]
     row[L_RM] = info[I_RM]
+    row[L_DHAT] = info[I_DHAT]
+    row[L_UDOB] = info[I_UDOB]
     row[L_UMIN] = info[I_UAPP]  # the envelope of the sample's log interval starts here
     row[L_UMAX] = info[I_UAPP]
 
@@ -178,9 +184,9 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
             pre[b] = False
             for i in range(N_INFO):
                 info[b, i] = peek[b, i]
-            u = controller_apply(info[b], ctrl[b], peek[b, I_UBASE], u_res[b])
             for i in range(N_PLANT, z.shape[1]):
                 z[b, i] = peek[b, N_INFO + i]
+            u = controller_apply(z[b], info[b], ctrl[b], peek[b, I_UBASE], u_res[b])
         else:
             u = controller_update(z[b], k, h, model[b], ctrl[b], ref[b], filt[b], u_res[b], info[b], work)
         info[b, I_TF] = friction_torque(k * h, zprev[b, X_OMEGA], events[b], plant[b, P_DF])  # the plant's, at t_k

@@ -59,7 +59,8 @@ C_BUMPLESS = 19  # 1: the reference model starts at the measured output (bumples
 C_REF_ACCEL = 20  # acceleration bound of the reference shaper [rad/s^2] (position task); 0 = r drives the model
 C_PDOMAIN = 21  # the model is evaluated at |x3| <= C_PDOMAIN * P_s (of the model); inf = at the measured x3 as is
 C_ANALOG = 22  # 1: the estimator's filters and the reference model are continuous, integrated with the plant
-N_CTRL = 23
+C_DOB_GAIN = 23  # disturbance observer: its filter gain per period, 1 - exp(-2 pi dob_hz h) [-]; 0 = off
+N_CTRL = 24
 
 
 def check_friction(events) -> tuple[tuple[float, float, float], ...]:
@@ -145,6 +146,11 @@ class Scenario:
     projected into |x3| <= pressure_domain * P_s of the model, in (0, 1]; None = at the measured x3 as is (the paper's
     loop; the env's default is 0.95). Outside it a model with a lower P_s than the plant's reverses the sign of G. See
     docs/MODEL.md, "The model's pressure domain"."""
+    dob_hz: float = 0.0
+    """bandwidth f_d [Hz] of the disturbance observer on the combined error: it estimates the lumped disturbance d of
+    s' = psi + G u + d (friction, model mismatch) with a first-order filter of cutoff f_d and adds -d_hat/G (clipped
+    to +-current_limit) to the law's current; in [0, 1/(2 control_period)) (below the Nyquist frequency of the control
+    period); 0 = off (the paper's loop). See docs/MODEL.md, "Disturbance observer"."""
     omega_max: float = 1e3
     """divergence bound on |x2| [rad/s]"""
     pressure_bound: float = 1.5
@@ -169,6 +175,15 @@ class Scenario:
                                                             high=LAYER_GAIN_MAX))
         object.__setattr__(self, "bumpless", check_bool("bumpless", self.bumpless))
         object.__setattr__(self, "ref_accel", check_finite("ref_accel", self.ref_accel, low=0.0))
+        # the observer's filter runs once per period: its cutoff must lie below the period's Nyquist frequency
+        nyquist = 0.5 / self.control_period
+        try:
+            dob = check_finite("dob_hz", self.dob_hz, low=0.0, high=nyquist, high_open=True)
+        except ValueError:
+            raise ValueError(f"dob_hz must be a finite number in [0, {nyquist:g}) Hz: 0 (off) or a cutoff below the "
+                             f"Nyquist frequency 1/(2 control_period) of the control period {self.control_period:g} s, "
+                             f"got {self.dob_hz!r}") from None
+        object.__setattr__(self, "dob_hz", dob)
         if self.pressure_domain is not None:
             object.__setattr__(self, "pressure_domain", check_finite("pressure_domain", self.pressure_domain, low=0.0,
                                                                      high=1.0, low_open=True))
@@ -266,8 +281,19 @@ def ctrl_row(sc: Scenario) -> np.ndarray:
     row[C_BUMPLESS] = 1.0 if sc.bumpless else 0.0
     row[C_REF_ACCEL] = sc.ref_accel
     row[C_PDOMAIN] = math.inf if sc.pressure_domain is None else sc.pressure_domain
+    row[C_DOB_GAIN] = dob_gain(sc.dob_hz, sc.control_period)
     return row
 
 
+def dob_gain(dob_hz: float, control_period: float) -> float:
+    """The disturbance observer's filter gain per period, alpha = 1 - exp(-2 pi f_d h) [-] (0 = off).
+
+    Args:
+        dob_hz: its cutoff f_d [Hz] (0 = off).
+        control_period: the control period h [s].
+    """
+    return -math.expm1(-2.0 * math.pi * dob_hz * control_period)
+
+
 __all__ = ["Scenario", "TASKS", "UNITS", "PAPER_FRICTION", "LAYER_GAIN_MAX", "PHYSICAL_FIELDS", "LOOP_SETTINGS",
-           "check_friction", "lambdas", "ctrl_row", "N_CTRL"]
+           "check_friction", "lambdas", "ctrl_row", "dob_gain", "N_CTRL"]

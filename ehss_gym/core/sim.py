@@ -29,6 +29,7 @@ from .layout import (
     DIV_NONE,
     EV_END,
     EV_START,
+    L_DHAT,
     L_E,
     L_R,
     L_RM,
@@ -38,6 +39,7 @@ from .layout import (
     L_UAPP,
     L_UBASE,
     L_UCMD,
+    L_UDOB,
     L_UMAX,
     L_UMIN,
     L_V,
@@ -139,7 +141,10 @@ class Trajectory:
     V = property(lambda self: self.log[:, L_V], doc="CLF value")
     u = property(lambda self: self.log[:, L_UCMD], doc="commanded current [mA]")
     u_applied = property(lambda self: self.log[:, L_UAPP], doc="applied current [mA]")
-    u_base = property(lambda self: self.log[:, L_UBASE], doc="Sontag current [mA]")
+    u_base = property(lambda self: self.log[:, L_UBASE], doc="base current [mA]: the law's plus the observer's")
+    u_dob = property(lambda self: self.log[:, L_UDOB], doc="the disturbance observer's current [mA] (0 if off)")
+    d_hat = property(lambda self: self.log[:, L_DHAT],
+                     doc="the disturbance observer's estimate of d in s' = psi + G u + d [unit of s / s] (0 if off)")
     friction = property(lambda self: self.log[:, L_TF], doc="friction torque [N*m]")
     u_applied_min = property(lambda self: self.log[:, L_UMIN],
                              doc="smallest applied current over each sample's log interval [mA]")
@@ -202,7 +207,8 @@ class Trajectory:
 
         out = {"t": "s", "y": U, "y_ref": U, "e": U, "u": "mA", "u_applied": "mA", "u_base": "mA",
                "s": deriv(m - 1), "V": "-", "friction": "N*m", "r": U, "u_applied_min": "mA",
-               "u_applied_max": "mA", "theta": "rad", "omega": "rad/s", "p_load": "Pa", "valve_area": "m^2"}
+               "u_applied_max": "mA", "u_dob": "mA", "d_hat": deriv(m), "theta": "rad", "omega": "rad/s",
+               "p_load": "Pa", "valve_area": "m^2"}
         for i in range(1, m + 1):
             out[f"y_ref_d{i}"] = deriv(i)
         for i in range(1, m):
@@ -213,7 +219,8 @@ class Trajectory:
         """Named arrays for saving (npz / csv)."""
         out = {"t": self.t, "y": self.y, "y_ref": self.y_ref, "e": self.e, "u": self.u, "u_applied": self.u_applied,
                "u_base": self.u_base, "s": self.s, "V": self.V, "friction": self.friction, "r": self.r,
-               "u_applied_min": self.u_applied_min, "u_applied_max": self.u_applied_max}
+               "u_applied_min": self.u_applied_min, "u_applied_max": self.u_applied_max, "u_dob": self.u_dob,
+               "d_hat": self.d_hat}
         names = ("theta", "omega", "p_load", "valve_area")
         for i, nm in enumerate(names):
             out[nm] = self.x[:, i]

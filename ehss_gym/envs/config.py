@@ -79,6 +79,7 @@ class EnvDefaults:
         agent_period: control periods per agent step.
         residual_scale: current of a unit action [mA] when current_limit is None (else the current limit).
         pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (None = anywhere).
+        dob_hz: cutoff of the disturbance observer on the combined error [Hz]; 0 = off.
         scenario: "random" or "paper".
         reward_weights: track, effort, rate, tv, tv_u, divergence weights.
         lost_track: lost-track bound as a multiple of the reference's amplitude (see ``Scenario.lost_track``).
@@ -94,6 +95,7 @@ class EnvDefaults:
     agent_period: int = 5
     residual_scale: float = 10.0
     pressure_domain: float | None = 0.95
+    dob_hz: float = 0.0
     scenario: str = "random"
     reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("tv_u", 0.0),
                              ("divergence", 10.0))
@@ -134,9 +136,11 @@ TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_
 NONE_IS_A_VALUE = tuple(f.name for f in fields(Scenario) if f.name in LOOP_KEYS and "None" in str(f.type)) + (
     "episode_seconds",)
 # The loop of the first policies of release 0.1: the settings added since (the law, the adaptive boundary layer, the
-# bumpless start, the reference shaper, the model's pressure domain) at the values that reproduce the loop before
-# them. A policy whose recorded settings lack them was trained in that loop and acts in it (:func:`in_legacy_loop`).
-LEGACY_LOOP = {"law": "sontag", "layer_gain": 0.0, "bumpless": False, "ref_accel": 0.0, "pressure_domain": None}
+# bumpless start, the reference shaper, the model's pressure domain, the disturbance observer) at the values that
+# reproduce the loop before them. A policy whose recorded settings lack them was trained in that loop and acts in it
+# (:func:`in_legacy_loop`).
+LEGACY_LOOP = {"law": "sontag", "layer_gain": 0.0, "bumpless": False, "ref_accel": 0.0, "pressure_domain": None,
+               "dob_hz": 0.0}
 
 
 def in_legacy_loop(env_kwargs: dict) -> dict:
@@ -270,7 +274,8 @@ SETTING_UNITS = {
     "control_period": "s", "substeps": "RK4 steps per period", "estimator_hz": "Hz", "estimator": "",
     "observer_hz": "Hz",
     "law": "", "layer_gain": "-", "bumpless": "", "ref_accel": "rad/s^2 (0: none)", "pressure_domain": "x P_s",
-    "lost_track": "x reference amplitude", "mode": "", "residual_scale": "mA", "agent_period": "control periods",
+    "lost_track": "x reference amplitude", "dob_hz": "Hz (0: off)",
+    "mode": "", "residual_scale": "mA", "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
     "terminate_on_lost_track": "",
 }

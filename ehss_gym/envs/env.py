@@ -152,6 +152,7 @@ class EHSSTrackingEnv(gym.Env):
     | `bumpless` | True | True |  |
     | `ref_accel` | 0 | 100 | rad/s^2 (0: none) |
     | `pressure_domain` | 0.95 | 0.95 | x P_s |
+    | `dob_hz` | 0 | 0 | Hz (0: off) |
     | `lost_track` | 1 | 1 | x reference amplitude |
     | `mode` | `"residual"` | `"residual"` |  |
     | `residual_scale` | 10 | 10 | mA |
@@ -203,6 +204,10 @@ class EHSSTrackingEnv(gym.Env):
             See docs/MODEL.md, "Reference shaper".
         pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (None = at the
             measured pressure as is, as in the legacy loop).
+        dob_hz: cutoff f_d [Hz] of the disturbance observer on the combined error, in [0, 1/(2 control_period)):
+            it estimates the lumped disturbance d of s' = psi + G u + d (friction, model mismatch) and adds
+            -d_hat/G, clipped to the current limit, to the base current (0: off; the scripted policy ``dob-n<k>``
+            turns it on). See docs/MODEL.md, "Disturbance observer".
         scenario: "random" (the training distribution of :mod:`ehss_gym.core.scenarios`), "paper",
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
@@ -246,7 +251,8 @@ class EHSSTrackingEnv(gym.Env):
                  substeps: int = DEFAULTS.substeps, estimator: str | None = None,
                  estimator_hz: float | None = None, observer_hz: float | None = None, law: str | None = None,
                  layer_gain: float | None = None, bumpless: bool | None = None, ref_accel: float | None = None,
-                 pressure_domain: float | None = DEFAULTS.pressure_domain, agent_period: int = DEFAULTS.agent_period,
+                 pressure_domain: float | None = DEFAULTS.pressure_domain, dob_hz: float = DEFAULTS.dob_hz,
+                 agent_period: int = DEFAULTS.agent_period,
                  residual_scale: float | None = None, scenario: str | Scenario = DEFAULTS.scenario,
                  reward_weights: dict | None = None, error_scale: float | None = None,
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,

@@ -1,4 +1,5 @@
-"""``ehss evaluate``'s engine: scripted CLF laws (n = 2, 4, 6), a PID and learned policies on the same scenarios.
+"""``ehss evaluate``'s engine: scripted CLF laws (n = 2, 4, 6; n = 2 with the disturbance observer), a PID and learned
+policies on the same scenarios.
 
 Every policy acts in the Gymnasium env ``EHSSTracking-v0`` (:class:`ehss_gym.envs.env.EHSSTrackingEnv`) through
 SB3's ``predict(obs, state, episode_start, deterministic=True)``; every episode is pinned to a scenario

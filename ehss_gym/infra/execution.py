@@ -60,8 +60,10 @@ NUMBA_CACHE_ENV = "NUMBA_CACHE_DIR"
 # MKL (torch's BLAS on x86) picks its kernels by CPU: an AVX-512 machine sums a layer's products in another order than
 # an AVX2 one, so a learned policy's actions, and the episodes they steer, differ in their last bits from machine to
 # machine. Its conditional-numerical-reproducibility mode pins one code path: AVX2's, which every x86 CPU of the last
-# decade runs (Intel and AMD alike). MKL reads it at its first call, so it is set before torch computes anything.
-BLAS_ENV = {"MKL_CBWR": "AVX2"}
+# decade runs (Intel and AMD alike). Its strict form also makes a row's result independent of its place in the batch
+# (without it, identical observations in one batch got actions differing in the last bit). MKL reads it at its first
+# call, so it is set before torch computes anything.
+BLAS_ENV = {"MKL_CBWR": "AVX2,STRICT"}
 RESULT = "result.json"
 CONNECT_TIMEOUT = 3.0  # [s] to reach a Ray cluster's address before saying it is unreachable
 

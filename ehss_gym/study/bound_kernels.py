@@ -5,7 +5,7 @@ The optimiser core is generic over a model: a code (``MODEL_*``) whose pair of f
 ``rhs(x, u, a, p, dx)`` and its Jacobians ``jac(x, u, a, p, A, b)`` (A = d rhs/dx, b = d rhs/du), with ``a`` a
 per-step scalar held over the step (the plant's friction amplitude). The EHSS plant's ``rhs`` is
 :func:`ehss_gym.core.physics.plant_rhs` with the friction torque formed exactly as
-:func:`ehss_gym.core.physics.integrate_plant` forms it, so a trajectory here is the simulator's to the last bit
+:func:`ehss_gym.core.physics.integrate_lanes` forms it, so a trajectory here is the simulator's to the last bit
 (tests/test_bound.py checks it); its Jacobian is built from the physics module's own derivative functions
 (``orifice_root_prime``, ``dsigm``) and checked against central differences of ``plant_rhs``. The first-order
 lag is the closed-form reference case of the tests, run through the same code.
@@ -100,7 +100,7 @@ def model_jac(kind, x, u, a, p, A, b):
 def rk4_step(x, u, a, dt, p, kind, clip_i, clip_v, k):
     """One RK4 step of model ``kind`` with u held, in place; then x[clip_i] projected onto [-clip_v, clip_v] (none if
     clip_i < 0). Returns True if the projection acted. ``k`` is scratch (5, n). The same operations, in the same
-    order, as :func:`ehss_gym.core.physics.integrate_plant` with one substep."""
+    order, as :func:`ehss_gym.core.physics.integrate_lanes` with one substep."""
     n = x.shape[0]
     k1, k2, k3, k4, xt = k[0], k[1], k[2], k[3], k[4]
     model_rhs(kind, x, u, a, p, k1)
