@@ -25,3 +25,14 @@ def test_first_example_runs_in_a_fresh_interpreter_without_importing_ehss_gym(tm
     r = subprocess.run([sys.executable, "-c", check], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.startswith("ok")
+
+
+def test_simulator_example_runs_in_the_env_default_loop():
+    """The README's simulator example runs as written, on the env's default loop (not a hand-copied one)."""
+    from ehss_gym.envs import EnvConfig
+
+    ns: dict = {}
+    exec(readme_block("simulator-example"), ns)
+    env = EnvConfig.from_kwargs({"task": "velocity"}).template()
+    assert all(getattr(ns["sc"], k) == getattr(env, k) for k in EnvConfig.KEYS if k in env.__dataclass_fields__)
+    assert [t.scenario.n for t in ns["trajs"]] == [2, 4, 6] and not ns["traj"].metrics()["diverged"]

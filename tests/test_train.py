@@ -546,3 +546,19 @@ def test_train_config_file_gives_defaults_that_flags_override_and_bad_files_are_
         config_from_args(p.parse_args(["--config", str(tmp_path / "missing.json")]))
     path.write_text(json.dumps({"n": 3}))
     assert cli_main(["train", "--config", str(path), "--out", str(tmp_path / "r")]) == 2  # validated like a flag
+
+
+def test_report_names_the_exploration_study_by_its_command():
+    """The exploration section names the command that runs the study today, and says so when the JSON it reads was
+    recorded under another module name."""
+    from ehss_gym.study.exploration import COMMAND
+
+    row = {"log_std_init": -1.0, "std_mA": 3.7, "explore_figure": 1.0, "early_figures": {"0": [1.0]},
+           "mean_early_figure": 1.0, "worst_early_figure": 1.0, "below_base": False}
+    ex = {"command": COMMAND, "seeds": [0], "episodes": 2, "timesteps": 64, "eval_freq": 32, "rows": [row],
+          "largest_safe_log_std_init": -1.0}
+    text = report_writer.markdown("ehss training-report --runs r", {}, [], ex, None, "f.png", 8)
+    assert f"Measured by `{COMMAND}` (seeds" in text
+    old = report_writer.markdown("ehss training-report --runs r", {}, [], {**ex, "command": "python -m old.name"},
+                                 None, "f.png", 8)
+    assert f"Measured by `{COMMAND}`" in old and "`python -m old.name`, which no longer exists" in old

@@ -267,6 +267,63 @@ def _episode_settings(kwargs: dict, td: TaskDefaults, d: EnvDefaults, agent_dt: 
             "terminate_on_lost_track": bool(stop_lost)}
 
 
+# The unit of each setting in the defaults table (U = the task's output unit: rad/s velocity, rad position; "" for a
+# choice or a flag).
+SETTING_UNITS = {
+    "n": "-", "fr": "Hz", "sigma": "unit of s", "smoothing": "unit of s", "current_limit": "mA (None: unlimited)",
+    "control_period": "s", "substeps": "RK4 steps per period", "estimator_hz": "Hz", "estimator": "",
+    "observer_hz": "Hz",
+    "law": "", "layer_gain": "-", "bumpless": "", "ref_accel": "rad/s^2 (0: none)", "pressure_domain": "x P_s",
+    "lost_track": "x reference amplitude", "dob_hz": "Hz (0: off)",
+    "mode": "", "residual_scale": "mA", "agent_period": "control periods",
+    "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
+    "terminate_on_lost_track": "",
+}
+
+
+def _cell(v) -> str:
+    """A default as the table shows it."""
+    if v is None or isinstance(v, (bool, np.bool_, int)):
+        return str(v)
+    if isinstance(v, float):
+        if v != 0.0 and not 1e-3 <= abs(v) < 1e4:  # 1e5, 5e-5: the way the docs write them
+            m, e = f"{v:.6e}".split("e")
+            return f"{m.rstrip('0').rstrip('.')}e{int(e)}"
+        return f"{v:g}"
+    if isinstance(v, str):
+        return f'`"{v}"`'
+    return str(v)
+
+
+def defaults_table() -> str:
+    """Every default a user of the env sees, per task, as a markdown table read from :class:`EnvConfig` (the one
+    table README.md, docs/ENV.md and the env's docstring show; ``python -m ehss_gym.envs.defaults --write``
+    rewrites them). Rows for a law with its own default sigma and for an n whose defaults differ from the default
+    n's follow."""
+    cfgs = {t: EnvConfig.from_kwargs({"task": t}) for t in TASKS}
+    rows = ["| setting | " + " | ".join(cfgs) + " | unit |", "|---|" + "---|" * len(cfgs) + "---|"]
+    for key in [k for k in LOOP_KEYS if k != "task"] + list(ENV_KEYS):
+        vals = [getattr(c, key) for c in cfgs.values()]
+        if isinstance(vals[0], dict):  # one row per entry (the reward weights)
+            for k in vals[0]:
+                rows.append(f'| `{key}["{k}"]` | ' + " | ".join(_cell(v[k]) for v in vals)
+                            + f" | {SETTING_UNITS[key]} |")
+            continue
+        rows.append(f"| `{key}` | " + " | ".join(_cell(v) for v in vals) + f" | {SETTING_UNITS[key]} |")
+    for law in names(LAWS):  # a law with its own default sigma (the others take the task's)
+        sig = {t: EnvConfig.from_kwargs({"task": t, "law": law}).sigma for t in cfgs}
+        if any(sig[t] != c.sigma for t, c in cfgs.items()):
+            rows.append(f'| `sigma` with `law="{law}"` | ' + " | ".join(_cell(v) for v in sig.values())
+                        + f" | {SETTING_UNITS['sigma']} |")
+    for n in (4, 6):
+        per_n = {t: EnvConfig.from_kwargs({"task": t, "n": n}) for t in cfgs}
+        for key in (k for k in LOOP_KEYS if k not in ("task", "n")):
+            if any(getattr(per_n[t], key) != getattr(cfgs[t], key) for t in cfgs):
+                rows.append(f"| `{key}` with `n={n}` | " + " | ".join(_cell(getattr(per_n[t], key)) for t in cfgs)
+                            + f" | {SETTING_UNITS[key]} |")
+    return "\n".join(rows) + "\n"
+
+
 __all__ = ["TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
            "ENV_KEYS", "POLICY_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
-           "in_legacy_loop"]
+           "in_legacy_loop", "SETTING_UNITS", "defaults_table"]

@@ -55,14 +55,14 @@ class EHSSTrackingEnv(gym.Env):
     with Coulomb friction events T_f (never observed). The output y is x2 (task "velocity", relative
     degree m = 3) or x1 ("position", m = 4). Every control period h (``control_period``) the digital
     controller samples (with sensor noise), forms the tracking errors e = y - y_d and their estimates
-    (``estimator``: by default an extended-state observer; the paper's state-variable filter is "foh"),
+    (``estimator``: per task, the defaults table below; the paper's state-variable filter is "foh"),
     the combined error s = e^(m-1) + lambda_{m-2} e^(m-2) + ... and the CLF current on
     V = (s/sigma)^n / n (:mod:`ehss_gym.core.laws`; ``law``: Sontag's formula by default)::
 
         u_base = -psi/G - sgn_w(s) sign(G) hypot(psi/G, |s/sigma|^(n-1) |G| / sigma)
 
-    (y_d: the reference model's output, by default started at the measured output; position: driven by
-    the reference shaper's feasible version of r.)
+    (y_d: the reference model's output, started at the measured output or at its steady state for r(0),
+    ``bumpless``; position: driven by the reference shaper's feasible version of r when ``ref_accel`` > 0.)
 
     and applies, held over the period (ZOH, ``substeps`` RK4 steps)::
 
@@ -130,60 +130,98 @@ class EHSSTrackingEnv(gym.Env):
     ``reset`` returns the drawn scenario (``info["scenario"]``, ``info["scenario_name"]``, and
     ``info["scenario_seed"]`` for random draws).
 
-    Args (keyword only; unknown names or bad values raise ValueError listing what is valid; defaults
-    in :data:`DEFAULTS`):
-        task: "velocity" (default) or "position" (see docs/ENV.md for what each task's base law achieves).
-        n: CLF power factor, even >= 2 (default 2).
-        fr: combined-error cutoff f_r [Hz] (default 60 velocity, 20 position).
-        sigma: CLF scale [unit of s] (default 1e5 velocity, 1e6 position; 1 = the paper's law).
-        smoothing: sign(s) smoothing width [unit of s], >= 0 (default 1e3 velocity, 100 position).
-        mode: "residual" (default) or "direct" (pure RL: no base current applied).
-        residual_scale: current of a unit action [mA] (default: current_limit, or 10 if unlimited).
-        agent_period: control periods per agent step, >= 1 (default 5: the agent acts at 4 kHz).
-        control_period: h [s], in [1e-7, 1e-2] (default 5e-5).
-        substeps: RK4 plant steps per control period, >= 1 (default 1).
-        current_limit: |u| limit [mA] or None = unlimited (default 10).
-        estimator_hz: cutoff of the paper's state-variable filter (SVF) [Hz] (default 1000, the paper's).
-        estimator: how the output derivatives are estimated, a row of :data:`ehss_gym.core.registry.ESTIMATORS`
-            (default "foh" velocity, "eso" position): "foh" (the paper's SVF, first-order-hold discretisation,
+    **Defaults** per task (generated from :data:`DEFAULTS` by ``python -m ehss_gym.envs.defaults --write``, the
+    same table as README.md and docs/ENV.md; U = the output unit):
+
+    <!-- env-defaults:start -->
+
+    | setting | velocity | position | unit |
+    |---|---|---|---|
+    | `n` | 2 | 2 | - |
+    | `fr` | 60 | 20 | Hz |
+    | `sigma` | 1e5 | 1e6 | unit of s |
+    | `smoothing` | 1000 | 100 | unit of s |
+    | `current_limit` | 10 | 10 | mA (None: unlimited) |
+    | `control_period` | 5e-5 | 5e-5 | s |
+    | `substeps` | 1 | 1 | RK4 steps per period |
+    | `estimator_hz` | 1000 | 1000 | Hz |
+    | `estimator` | `"foh"` | `"eso"` |  |
+    | `observer_hz` | 200 | 1000 | Hz |
+    | `law` | `"sontag"` | `"sontag"` |  |
+    | `layer_gain` | 3 | 3 | - |
+    | `bumpless` | True | True |  |
+    | `ref_accel` | 0 | 100 | rad/s^2 (0: none) |
+    | `pressure_domain` | 0.95 | 0.95 | x P_s |
+    | `dob_hz` | 0 | 0 | Hz (0: off) |
+    | `lost_track` | 1 | 1 | x reference amplitude |
+    | `mode` | `"residual"` | `"residual"` |  |
+    | `residual_scale` | 10 | 10 | mA |
+    | `agent_period` | 5 | 5 | control periods |
+    | `scenario` | `"random"` | `"random"` |  |
+    | `reward_weights["track"]` | 1 | 1 | - |
+    | `reward_weights["effort"]` | 0.05 | 0.05 | - |
+    | `reward_weights["rate"]` | 0.05 | 0.05 | - |
+    | `reward_weights["tv"]` | 0 | 0 | - |
+    | `reward_weights["tv_u"]` | 0 | 0 | - |
+    | `reward_weights["divergence"]` | 10 | 10 | - |
+    | `error_scale` | 0.01 | 0.01 | U |
+    | `episode_seconds` | None | None | s (None: 2 s random, 20 s paper) |
+    | `terminate_on_lost_track` | False | False |  |
+    | `sigma` with `law="lin-sontag"` | 3e6 | 1e7 | unit of s |
+
+    <!-- env-defaults:end -->
+
+    Args (keyword only; unknown names or bad values raise ValueError listing what is valid; defaults in the
+    table above):
+        task: "velocity" (the default) or "position" (see docs/ENV.md for what each task's base law achieves).
+        n: CLF power factor, even >= 2.
+        fr: combined-error cutoff f_r [Hz].
+        sigma: CLF scale [unit of s] (1 = the paper's law).
+        smoothing: sign(s) smoothing width [unit of s], >= 0.
+        mode: "residual" or "direct" (pure RL: no base current applied).
+        residual_scale: current of a unit action [mA] (None: current_limit, or 10 if unlimited).
+        agent_period: control periods per agent step, >= 1.
+        control_period: h [s], in [1e-7, 1e-2].
+        substeps: RK4 plant steps per control period, >= 1.
+        current_limit: |u| limit [mA] or None = unlimited.
+        estimator_hz: cutoff of the paper's state-variable filter (SVF) [Hz] (the paper's: 1000).
+        estimator: how the output derivatives are estimated, a row of :data:`ehss_gym.core.registry.ESTIMATORS`:
+            "foh" (the paper's SVF, first-order-hold discretisation,
             O(h^2) to its continuous filters), "zoh" (the first implementation's zero-order hold, biased by O(h)),
             "analog" (continuous filters integrated with the plant), "state" (the model's Lie derivatives of the
             measured state) or "eso" (an extended-state observer of the velocity and a lumped disturbance
             acceleration). See docs/MODEL.md, "Digital filters" and "Estimators".
-        observer_hz: error bandwidth of the "eso" observer [Hz] (default 200 velocity, where it is unused, 1000
-            position).
-        law: the CLF law, a row of :data:`ehss_gym.core.registry.LAWS` (default "sontag", both tasks: Sontag's
-            universal formula, the paper's; "lin-sontag": Lin & Sontag's formula for controls bounded by
-            current_limit). Without ``sigma`` each law gets its own default sigma, where the env has one
-            (:attr:`TaskDefaults.sigma_by_law`; else the task's). See docs/MODEL.md, "Laws".
+        observer_hz: error bandwidth of the "eso" observer [Hz] (unused by the other estimators).
+        law: the CLF law, a row of :data:`ehss_gym.core.registry.LAWS` ("sontag": Sontag's universal formula,
+            the paper's; "lin-sontag": Lin & Sontag's formula for controls bounded by current_limit). Without
+            ``sigma`` each law gets its own default sigma, where the env has one (:attr:`TaskDefaults.sigma_by_law`;
+            else the task's). See docs/MODEL.md, "Laws".
         layer_gain: adaptive boundary layer: width max(smoothing, layer_gain * running noise std of s), in
-            [0, 100] (default 3 both tasks; 0: the fixed width ``smoothing``).
+            [0, 100] (0: the fixed width ``smoothing``).
         bumpless: the reference model starts at the measured output (and the estimated derivatives) instead of at
-            its steady state for r(0) (default True, both tasks).
-        ref_accel: position task: the reference shaper's acceleration bound [rad/s^2], 0 = none (default 100
-            position, 0 velocity). See docs/MODEL.md, "Reference shaper".
-        pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (default 0.95;
-            None = at the measured pressure as is, as in the legacy loop).
+            its steady state for r(0).
+        ref_accel: position task: the reference shaper's acceleration bound [rad/s^2], 0 = none (velocity: 0).
+            See docs/MODEL.md, "Reference shaper".
+        pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (None = at the
+            measured pressure as is, as in the legacy loop).
         dob_hz: cutoff f_d [Hz] of the disturbance observer on the combined error, in [0, 1/(2 control_period)):
             it estimates the lumped disturbance d of s' = psi + G u + d (friction, model mismatch) and adds
-            -d_hat/G, clipped to the current limit, to the base current (default 0: off; the scripted policy
-            ``dob-n<k>`` turns it on). See docs/MODEL.md, "Disturbance observer".
-        scenario: "random" (default; the training distribution of :mod:`ehss_gym.core.scenarios`), "paper",
+            -d_hat/G, clipped to the current limit, to the base current (0: off; the scripted policy ``dob-n<k>``
+            turns it on). See docs/MODEL.md, "Disturbance observer".
+        scenario: "random" (the training distribution of :mod:`ehss_gym.core.scenarios`), "paper",
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
             overrides it for one episode (also accepting a dict of physical fields).
-        reward_weights: dict overriding any of track (1), effort (0.05), rate (0.05), tv (0), tv_u (0),
-            divergence (10).
-        error_scale: error scale of reward and observation [output unit] (default 0.01).
-        episode_seconds: episode duration [s] for "random" and "paper" (default None: 2 s random,
-            20 s paper; a pinned Scenario keeps its t_end).
-        lost_track: lost-track bound as a multiple of the reference's amplitude (default 1; None = never
-            flagged): an episode has lost track once, past 0.2 s, the RMS of e over a 0.1 s sliding window
-            exceeds it (``Scenario.lost_track``; a saturated oscillation within the state bounds, which is
-            not a divergence). Reported every step as ``info["lost_track"]``.
+        reward_weights: dict overriding any of track, effort, rate, tv, tv_u, divergence.
+        error_scale: error scale of reward and observation [output unit].
+        episode_seconds: episode duration [s] for "random" and "paper" (None: 2 s random, 20 s paper; a pinned
+            Scenario keeps its t_end).
+        lost_track: lost-track bound as a multiple of the reference's amplitude (None = never flagged): an
+            episode has lost track once, past 0.2 s, the RMS of e over a 0.1 s sliding window exceeds it
+            (``Scenario.lost_track``; a saturated oscillation within the state bounds, which is not a divergence).
+            Reported every step as ``info["lost_track"]``.
         terminate_on_lost_track: end the episode (``terminated=True``, ``info["lost_track"]=True``,
-            ``info["diverged"]=False``, no divergence penalty) at the end of the step in which it lost track
-            (default False).
+            ``info["diverged"]=False``, no divergence penalty) at the end of the step in which it lost track.
         render_mode: None or "rgb_array" (a dashboard: raw reference r, filtered y_d and output y; error; the
             applied current on a linear axis with its limit and its min/max envelope over each agent step;
             friction).

@@ -18,13 +18,25 @@ import numba as nb
 
 from ehss_gym._version import __version__
 from ehss_gym.core.params import PlantParams
+from ehss_gym.envs import EnvConfig
 from ehss_gym.infra.fmt import fmt_axis, md_table
 from ehss_gym.infra.fmt import fmt_num as _f
 from ehss_gym.infra.util import atomic_write, atomic_write_text
-from ehss_gym.study.claims import CLAIM_FIG, CLAIMS, VERDICTS, best_verdict, evaluate_claims, sweep_claims
+from ehss_gym.study.claims import (
+    CLAIMS,
+    HELDOUT,
+    VERDICTS,
+    claims_on_cell,
+    context_verdicts,
+    judge_claims,
+    runs_of_records,
+)
 from ehss_gym.study.config import (
     C4_TOL,
     CHATTER_STRONG,
+    CHATTER_WINDOW,
+    CLAIM_CONFIGS,
+    CLAIM_PERIOD,
     CONFIG_FIGS,
     CONFIGS,
     EDGE_TOL,
@@ -34,7 +46,6 @@ from ehss_gym.study.config import (
     OSC_PAPER,
     OSC_RATIO,
     REC_ABS,
-    ROBUST_MARGIN,
     SAT_MATTERS,
     SLIGHT_TOL,
     SUPPRESS,
@@ -65,7 +76,8 @@ SET_TITLES = {
     "P1": "sigma = 1 with a 10 mA limit at the core's default 10 kHz",
     "P2": "sigma = 1 with a 10 mA limit at 100 kHz",
     "P3": "normalised CLF (recommended sigma, period, substeps, limit), plain law w = 0",
-    "P4": "the recommended env defaults (P3 plus the chosen smoothing)",
+    "P4": "P3 plus this study's chosen smoothing (its recommendation; the env's defaults have moved on since, "
+          "docs/ENV.md)",
     "P1_old": "P1 with the first implementation's biased ZOH filters",
     "P3_old": "the first implementation's P3 (its recommended settings) with its ZOH filters",
 }
@@ -73,16 +85,16 @@ CLAIM_SETS = ("P0", "P1", "P2", "P3")
 OLD_NEW = (("P1", "P1_old"), ("P3", "P3_old"))
 FINAL_ROWS = (("old", "the first implementation's defaults, its ZOH filters"),
               ("fixed", "the first implementation's defaults, corrected filters"),
-              ("new", "the new defaults, corrected filters"))
+              ("new", "this study's recommendation, corrected filters"))
 
 
 def csv_write(path: str, records: Sequence[Record]) -> None:
     """Settings, metrics and features of runs as one CSV table."""
     pkeys = ["group", "task", "fr", "n", "sigma", "smoothing", "limit", "h", "substeps", "t_end", "estimator_hz",
-             "estimator"]
+             "estimator", "law", "layer_gain", "observer_hz", "bumpless", "ref_accel", "pressure_domain", "noisy"]
     mkeys = ["diverged", "t_diverged", "divergence_reason", "rmse", "rmse_nominal", "rmse_quiet", "iae", "max_abs_e",
              "max_abs_e_friction", "recovery_on", "recovery_off", "tv_u", "tv_u_rate", "peak_u", "peak_u_applied",
-             "rms_u", "saturation", "v_decrease", "steps"]
+             "rms_u", "saturation", "v_decrease", "steps", "trk_rmse", "trk_iae", "dst_peak", "dst_iae"]
     fkeys = sorted({k for r in records for k in r.features})
     buf = io.StringIO()
     w = csv.writer(buf)
@@ -156,6 +168,12 @@ def figure_jobs(st: Study, figs: str, cmd: str) -> list:
             jobs.append((plot_paper_set, (recs, task, fr, os.path.join(figs, f"paper_{key}_{task}_{fr:g}.png"),
                                           f"{CONFIG_FIGS[(task, fr)]} ({task}, f_r = {fr:g} Hz), set {key}: "
                                           f"{title}\n{set_desc(recs)}", cmd)))
+    runs = designated_runs(st)
+    for c, (task, _, _) in CLAIM_CONFIGS.items():
+        recs = [r for (cc, _), r in runs.items() if cc == c]
+        if recs:
+            jobs.append((plot_paper_set, (recs, task, None, os.path.join(figs, f"claims_{c.replace(' ', '_')}.png"),
+                                          f"Claims, designated configuration '{c}': {_config_short(c)}", cmd)))
     fric = (f"{cfg.sweep_t_end:g} s runs, friction {cfg.sweep_friction[0][0]:g} N m on "
             f"[{cfg.sweep_friction[0][1]:.3f}, {cfg.sweep_friction[0][2]:.3f}) s")
     for name, row, col, rl, cl in SWEEPS:
@@ -189,6 +207,8 @@ def write_data(st: Study, data: str) -> None:
             csv_write(os.path.join(data, f"{'sweep_' if g in dict.fromkeys(s[0] for s in SWEEPS) else ''}{g}.csv"),
                       st.group(g))
     csv_write(os.path.join(data, "paper_runs.csv"), [r for k in SET_TITLES for r in st.group(k)])
+    if st.group("claims"):
+        csv_write(os.path.join(data, "claims_runs.csv"), st.group("claims") + st.group("claims_heldout"))
     dist = [r for g in sorted(st.records) if g.startswith(("distribution", "map_", "final_")) for r in st.group(g)]
     csv_write(os.path.join(data, "randomised_scenarios.csv"), dist)
 
@@ -198,54 +218,86 @@ def write_data(st: Study, data: str) -> None:
 # ------------------------------------------------------------------------------------------------
 
 
-def _claim_row(cid: str, text: str, per: dict, cells: list) -> list:
-    """One row of the claims table: the best verdict over the sets and the sweep cells, with its evidence."""
-    verdict, where = best_verdict(per)
-    cell_best = next((v for v in VERDICTS if any(r.verdict == v for _, r in cells)), None)
-    if cell_best is not None and VERDICTS.index(cell_best) < VERDICTS.index(verdict):
-        verdict, where = cell_best, []
-    hits = [(lab, r) for lab, r in cells if r.verdict == verdict] if verdict != VERDICTS[2] else []
-    pref = [k for k in ("P1", "P2", "P3", "P0") if k in where]
-    if pref:
-        ev, fig = f"[{pref[0]}] " + per[pref[0]].evidence, f"paper_{pref[0] if pref[0] != 'P0' else 'P1'}"
-    elif hits:
-        ev, fig = f"[{hits[0][0]}] " + hits[0][1].evidence, f"sweep_{hits[0][0].split(':')[0]}"
-    else:
-        k = next(k for k in ("P1", "P3", "P2", "P0") if k in per)
-        ev, fig = f"[{k}] " + per[k].evidence, f"paper_{k if k != 'P0' else 'P1'}"
-    figname = f"{fig}_{CLAIM_FIG[cid]}.png" if fig.startswith("paper") else f"{fig}.png"
-    if verdict == VERDICTS[2]:
-        settings = "none of " + ", ".join(per) + f" nor of {len(cells)} sweep cells"
-    else:
-        settings = ", ".join(k for k in per if per[k].verdict == verdict)
-        if hits:
-            settings += ("; " if settings else "") + f"{len(hits)} of {len(cells)} sweep cells, e.g. " + \
-                "; ".join(lab for lab, _ in hits[:3])
-    return [cid, text, f"**{verdict}**", ev, f"[fig](figures/{figname})", settings]
+def designated_runs(st: Study) -> dict:
+    """(claim configuration, n) -> the designated run (group "claims")."""
+    return runs_of_records(st.group("claims"))
+
+
+def heldout_by_task(st: Study) -> dict:
+    """task -> n -> the held-out episodes' metrics (group "claims_heldout", in episode order)."""
+    out: dict = {}
+    for r in st.group("claims_heldout"):
+        out.setdefault(r.params["task"], {}).setdefault(r.params["n"], []).append(r.metrics)
+    return out
+
+
+def _law_text(p: dict) -> str:
+    return (f"sigma {p['sigma']:g}, w {p['smoothing']:g}, layer gain {p['layer_gain']:g}, f_r {p['fr']:g} Hz, "
+            f"{p['law']}, estimator {p['estimator']}")
+
+
+def claim_config_rows(st: Study) -> list:
+    """One row per designated run: configuration, n and its settings."""
+    rows = []
+    for (c, n), r in sorted(designated_runs(st).items(), key=lambda kv: (list(CLAIM_CONFIGS).index(kv[0][0]),
+                                                                          kv[0][1])):
+        p = r.params
+        rows.append([c, n, fmt_axis(p["limit"]), f"{p['h']:g}", _law_text(p),
+                     f"{p['t_end']:g} s, paper's start" if not p["bumpless"] else f"{p['t_end']:g} s"])
+    held = st.group("claims_heldout")
+    for task in dict.fromkeys(r.params["task"] for r in held):
+        for n in NS:
+            rs = [r for r in held if r.params["task"] == task and r.params["n"] == n]
+            if rs:
+                p = rs[0].params
+                rows.append([f"{HELDOUT} ({task})", n, fmt_axis(p["limit"]), f"{p['h']:g}", _law_text(p),
+                             f"{len(rs)} episodes of {p['t_end']:g} s, bumpless start"])
+    return rows
+
+
+def _context_text(cells: list) -> str:
+    if not cells:
+        return "no sweep cell holds its runs"
+    k = {v: sum(r.verdict == v for _, r in cells) for v in VERDICTS}
+    return f"{k[VERDICTS[0]]} reproduced, {k[VERDICTS[1]]} partly of {len(cells)} sweep cells"
+
+
+def _config_short(c: str) -> str:
+    if c == HELDOUT:
+        return f"{HELDOUT}, both tasks, env defaults per n"
+    task, fr, lim = CLAIM_CONFIGS[c]
+    frs = "the env's per n" if fr is None else f"{fr:g} Hz"
+    lims = "no limit" if lim is None else f"{lim:g} mA"
+    return f"{task}, f_r {frs}, {lims}, h {CLAIM_PERIOD:g} s, paper's run, env defaults per n"
 
 
 def claims_context(st: Study, data: str) -> dict:
-    """The claims table, the verdict per set, old against new, and data/claims.csv."""
-    claim_sets = {k: evaluate_claims(runs_by_set(st, k)) for k in CLAIM_SETS if st.group(k)}
-    old_sets = {k: evaluate_claims(runs_by_set(st, k)) for pair in OLD_NEW for k in pair if st.group(k)}
-    sweep_res = sweep_claims(st.records)
+    """The verdict table (rule, configuration, numbers, verdict, sweep context), the verdict per paper set, old
+    against new, and data/claims.csv."""
+    verdicts = judge_claims(designated_runs(st), heldout_by_task(st))
+    set_res = {k: claims_on_cell(runs_of_records(st.group(k))) for k in CLAIM_SETS if st.group(k)}
+    old_sets = {k: claims_on_cell(runs_of_records(st.group(k))) for pair in OLD_NEW for k in pair if st.group(k)}
+    sweep_res = context_verdicts(st.records)
     rows, detail = [], []
-    for cid, (text, _) in CLAIMS.items():
-        per = {k: res[cid] for k, res in claim_sets.items()}
-        cells = sweep_res.get(cid, [])
-        rows.append(_claim_row(cid, text, per, cells))
-        counts = {v: sum(r.verdict == v for _, r in cells) for v in VERDICTS}
-        detail.append([cid] + [per[k].verdict for k in claim_sets]
-                      + [f"{counts[VERDICTS[0]]} / {counts[VERDICTS[1]]} / {len(cells)}"])
-    old_new = [[cid] + [f"{old_sets[old][cid].verdict} -> {old_sets[new][cid].verdict}" for new, old in OLD_NEW
-                        if new in old_sets and old in old_sets] for cid in CLAIMS]
+    for cid, c in CLAIMS.items():
+        res = verdicts[cid]
+        fig = (f"[fig](figures/claims_{c.config.replace(' ', '_')}.png)" if c.config != HELDOUT else "")
+        rows.append([cid, c.paper, c.rule, _config_short(c.config), res.evidence, f"**{res.verdict}**",
+                     _context_text(sweep_res.get(cid, [])), fig])
+        detail.append([cid] + [set_res[k][cid].verdict if cid in set_res[k] else "-" for k in set_res])
+    old_new = [[cid] + [f"{old_sets[old][cid].verdict} -> {old_sets[new][cid].verdict}"
+                        if cid in old_sets[old] and cid in old_sets[new] else "-"
+                        for new, old in OLD_NEW if new in old_sets and old in old_sets] for cid in CLAIMS]
     changed = [(cid, new, old_sets[old][cid], old_sets[new][cid]) for cid in CLAIMS for new, old in OLD_NEW
-               if new in old_sets and old in old_sets and old_sets[old][cid].verdict != old_sets[new][cid].verdict]
+               if new in old_sets and old in old_sets and cid in old_sets[old] and cid in old_sets[new]
+               and old_sets[old][cid].verdict != old_sets[new][cid].verdict]
 
     def write(f):
         w = csv.writer(f)
-        w.writerow(["claim", "set", "verdict", "evidence"])
-        for k, res in {**claim_sets, **old_sets}.items():
+        w.writerow(["claim", "where", "verdict", "evidence"])
+        for cid, r in verdicts.items():
+            w.writerow([cid, f"designated: {CLAIMS[cid].config}", r.verdict, r.evidence])
+        for k, res in {**set_res, **old_sets}.items():
             for cid, r in res.items():
                 w.writerow([cid, k, r.verdict, r.evidence])
         for cid, cells in sweep_res.items():
@@ -253,10 +305,11 @@ def claims_context(st: Study, data: str) -> dict:
                 w.writerow([cid, lab, r.verdict, r.evidence])
 
     atomic_write(os.path.join(data, "claims.csv"), write, mode="w")
-    return {"claims_table": md_table(["claim", "paper says", "verdict", "measured evidence (best set)", "figure",
-                                      "settings"], rows),
-            "claims_detail": md_table(["claim"] + list(claim_sets) + ["sweep cells: reproduced / partly / tested"],
-                                      detail),
+    return {"claims_table": md_table(["claim", "paper says", "rule", "configuration", "measured", "verdict",
+                                      "context: the rule on the sweep cells", "figure"], rows),
+            "claims_config": md_table(["configuration", "n", "limit [mA]", "h [s]", "law (the env's defaults for n)",
+                                       "run"], claim_config_rows(st)),
+            "claims_detail": md_table(["claim"] + list(set_res), detail),
             "claims_old_new": md_table(["claim"] + [f"{old} -> {new}" for new, old in OLD_NEW], old_new),
             "claims_changed": changed}
 
@@ -319,6 +372,22 @@ def recommendation_json(st: Study) -> dict:
     }
 
 
+def env_agreement(st: Study) -> tuple[list, list]:
+    """(settings the env's defaults restate from this study's recommendation, settings where they differ), as
+    "name (task)" labels, read from EnvConfig."""
+    rec = st.rec
+    same, diff = [], []
+    for task in ("velocity", "position"):
+        env = EnvConfig.from_kwargs({"task": task})
+        ours = {"control_period": rec["h"], "substeps": rec["substeps"], "current_limit": rec["limit"],
+                "fr": rec[f"fr_{task}"], "sigma": rec[f"sigma_{task}"],
+                "smoothing": rec["smoothing" if task == "velocity" else "smoothing_position"],
+                "estimator": st.cfg.estimator}
+        for key, v in ours.items():
+            (same if getattr(env, key) == v else diff).append(f"{key} ({task})")
+    return same, diff
+
+
 def _cpu_seconds() -> float:
     """CPU time of this process and its finished children (the plot workers) [s]."""
     a = resource.getrusage(resource.RUSAGE_SELF)
@@ -372,10 +441,11 @@ def report_context(st: Study, data: str, cmd: str, wall_s: float | None) -> dict
                cpu_s=_cpu_seconds(), cpus=os.cpu_count(), threads=nb.get_num_threads(), NS=NS,
                thresholds=dict(TRACK_TOL=TRACK_TOL, SLIGHT_TOL=SLIGHT_TOL, EDGE_TOL=EDGE_TOL, OSC_RATIO=OSC_RATIO,
                                OSC_PAPER=OSC_PAPER, SUPPRESS=SUPPRESS, C4_TOL=C4_TOL, CHATTER_STRONG=CHATTER_STRONG,
-                               ROBUST_MARGIN=ROBUST_MARGIN, MATTERS=MATTERS, SAT_MATTERS=SAT_MATTERS,
+                               CHATTER_WINDOW=CHATTER_WINDOW, MATTERS=MATTERS, SAT_MATTERS=SAT_MATTERS,
                                REC_ABS=REC_ABS),
                by_group=sorted(st.timings.get("by_group", {}).items(), key=lambda kv: -kv[1]),
-               math=math, G_NOMINAL=G_NOMINAL)
+               math=math, G_NOMINAL=G_NOMINAL, claim_period=CLAIM_PERIOD,
+               env_agreement=env_agreement(st))
     ctx.update(paper_tables(st))
     ctx.update(claims_context(st, data))
     ctx.update(regions=facts.regions(st), div=facts.divergence_facts(st), probes=facts.probe_facts(st),

@@ -40,10 +40,11 @@ def _env(t: np.ndarray, y: np.ndarray, bins: int = 1500) -> tuple[np.ndarray, np
     return np.concatenate([tt, t[m:]]), np.concatenate([yy, y[m:]])
 
 
-def plot_paper_set(recs: Sequence[Record], task: str, fr: float, path: str, title: str, cmd: str):
-    """Figs. 5-13 in one: columns n = 2, 4, 6; rows friction, response vs reference, error, control."""
+def plot_paper_set(recs: Sequence[Record], task: str, fr: float | None, path: str, title: str, cmd: str):
+    """Figs. 5-13 in one: columns n = 2, 4, 6; rows friction, response vs reference, error, control (the runs of
+    ``task`` at ``fr`` [Hz]; None: at any f_r)."""
 
-    by_n = {r.params["n"]: r for r in recs if r.params["task"] == task and r.params["fr"] == fr}
+    by_n = {r.params["n"]: r for r in recs if r.params["task"] == task and fr in (None, r.params["fr"])}
     fig, ax = plt.subplots(4, 3, figsize=(14, 10), sharex="col")
     unit = UNITS[task]
     for j, n in enumerate(NS):

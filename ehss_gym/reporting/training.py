@@ -19,6 +19,7 @@ from ehss_gym.agents.specs import AGENTS
 from ehss_gym.infra.fmt import fmt_cell
 from ehss_gym.infra.util import atomic_write, atomic_write_text
 from ehss_gym.study import training as an
+from ehss_gym.study.exploration import COMMAND as EXPLORATION_COMMAND
 
 from .render import render
 
@@ -160,6 +161,7 @@ def markdown(command: str, groups: dict, tasks: list[dict], exploration: dict | 
     """TRAINING.md: the template filled with the numbers and tables above."""
     return render("training.md.j2", command=command, runs=runs_context(groups), agents=list(AGENTS),
                   hyperparameter_rows=hyperparameter_rows(), exploration=exploration,
+                  exploration_command=EXPLORATION_COMMAND,
                   exploration_rows=exploration_rows(exploration) if exploration else [],
                   agent_log_std=AGENTS["residual-ppo"].log_std_init,
                   has_variants=any("log_std_init" in k[3] for k in groups), cost_rows=cost_rows(groups),

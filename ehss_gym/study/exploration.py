@@ -35,6 +35,8 @@ from ehss_gym.infra.util import atomic_write_text
 from ehss_gym.train.config import Config
 from ehss_gym.train.loop import train
 
+COMMAND = "python -m ehss_gym.study.exploration"  # the command that runs this study (its JSON records it)
+
 CANDIDATES = (-4.0, -3.0, -2.0, -1.0)
 
 
@@ -77,14 +79,14 @@ def run(candidates=CANDIDATES, timesteps: int = 40_960, eval_freq: int = 8_192, 
                      "mean_early_figure": float(np.mean(figs)), "worst_early_figure": max(figs),
                      "below_base": failed or any(x > 1.0 for x in figs), "wall_s": time.perf_counter() - t0})
     ok = [r["log_std_init"] for r in rows if not r["below_base"]]
-    return {"command": "python -m ehss_gym.study.exploration", "timesteps": timesteps, "eval_freq": eval_freq,
+    return {"command": COMMAND, "timesteps": timesteps, "eval_freq": eval_freq,
             "episodes": episodes, "seeds": list(seeds), "env_kwargs": resolved_env_kwargs(kw), "rows": rows,
             "largest_safe_log_std_init": max(ok) if ok else None, "chosen_log_std_init": spec.log_std_init}
 
 
 def main(argv=None) -> int:
     """Run the study from the command line and write its JSON."""
-    p = argparse.ArgumentParser(prog="python -m ehss_gym.study.exploration", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(prog=COMMAND, description=__doc__.split("\n")[0])
     p.add_argument("--out", default=os.path.join("reports", "training", "exploration_noise.json"),
                    help="the JSON written (default: %(default)s)")
     p.add_argument("--timesteps", type=int, default=40_960, help="steps of each short run (default: %(default)s)")

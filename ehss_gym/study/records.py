@@ -12,10 +12,12 @@ import numba as nb
 import numpy as np
 from tqdm import tqdm
 
-from ehss_gym.core.layout import L_E, L_S, L_X, L_YD, M_STEPS, M_TV_U
+from ehss_gym.core.layout import L_E, L_S, L_X, L_YD
 from ehss_gym.core.physics import lie_derivatives
 from ehss_gym.core.sim import Scenario, Trajectory, lambdas, simulate_batch
 from ehss_gym.infra.execution import Executor, Job
+
+from .config import CHATTER_WINDOW
 
 
 @dataclass
@@ -82,6 +84,30 @@ def _window_max(t, e, a, b):
     return float(np.max(np.abs(e[sel]))) if sel.any() else math.nan
 
 
+def chatter_index(u: np.ndarray, dt: float, window: float = CHATTER_WINDOW) -> float:
+    """RMS(u - its centred moving average over ``window``) / RMS(u): the share of a signal that switches faster
+    than ``window`` (a smooth law scores ~0, a relay switching every sample ~1).
+
+    Args:
+        u: the signal sampled every ``dt`` [any unit].
+        dt: its sampling interval [s].
+        window: the moving average's length [s] (rounded to an odd number of samples >= 3).
+
+    Returns:
+        The index (dimensionless), NaN if ``u`` is shorter than the window or identically 0.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    w = max(3, 2 * int(round(0.5 * window / dt)) + 1)
+    if u.size < w:
+        return math.nan
+    ma = np.convolve(u, np.ones(w) / w, mode="valid")  # ma[i] is centred on u[i + w // 2]
+    core = u[w // 2: w // 2 + ma.size]
+    rms_u = math.sqrt(float(np.mean(core ** 2)))
+    if rms_u == 0.0:
+        return math.nan
+    return math.sqrt(float(np.mean((core - ma) ** 2))) / rms_u
+
+
 def features_of(traj) -> dict:
     """Features beyond the core metrics, from the logged trajectory (log interval, not control rate).
 
@@ -89,8 +115,8 @@ def features_of(traj) -> dict:
     - amp_fric_sus / amp_post_sus: max|e| from 0.5 s after the friction switches on (off) to the
       next edge (the end): a sustained oscillation, not the edge transient.
     - peak_edge_dist: time from the friction-window error peak to the nearest friction edge [s].
-    - tv_smooth_rate: TV rate of the 50 ms moving average of the applied current [mA/s];
-      chatter_ratio = control TV rate / tv_smooth_rate.
+    - chatter_index: :func:`chatter_index` of the applied current (NaN unless the run is logged at every control
+      period).
     - relay_log_ratio: median log10(beta / |psi/G|); beta_log_limit: median log10(beta / limit);
       psi_over_G: median |psi/G| [mA] (the equivalent control); G_med: median |G|.
     - window_rms_max: largest RMS error over consecutive 0.1 s windows after the first 0.2 s (the
@@ -125,15 +151,8 @@ def features_of(traj) -> dict:
     tail = e[t >= 0.2]
     k = len(tail) // nw
     f["window_rms_max"] = float(np.sqrt(np.mean(tail[:k * nw].reshape(k, nw) ** 2, axis=1)).max()) if k else math.nan
-    w = max(1, int(round(0.05 / dt_log)))
-    if len(ua) > 2 * w:
-        sm = np.convolve(ua, np.ones(w) / w, mode="valid")
-        dur = max(float(t[-1] - t[0]), 1e-12)
-        f["tv_smooth_rate"] = float(np.sum(np.abs(np.diff(sm))) / dur)
-    else:
-        f["tv_smooth_rate"] = math.nan
-    tvr = traj.acc[M_TV_U] / max(traj.acc[M_STEPS] * sc.control_period, 1e-12)
-    f["chatter_ratio"] = float(tvr / f["tv_smooth_rate"]) if f["tv_smooth_rate"] > 0 else math.nan
+    # C6's chatter index needs every control period (switching at the control rate aliases at a coarser log)
+    f["chatter_index"] = chatter_index(ua, sc.control_period) if sc.log_every == 1 else math.nan
     if len(t) > 1:
         lam = np.zeros(3)
         lv = lambdas(sc.order, sc.fr)

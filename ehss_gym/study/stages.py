@@ -12,9 +12,10 @@ from dataclasses import dataclass, field
 from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, heldout_scenarios, paper_scenario, sample_scenario
 from ehss_gym.core.signals import sine
 from ehss_gym.core.sim import Scenario
+from ehss_gym.envs import EnvConfig
 from ehss_gym.infra.execution import Executor
 
-from .config import CONFIGS, NS, StudyConfig
+from .config import CLAIM_CONFIGS, CLAIM_LOGGED, CLAIM_PERIOD, CONFIGS, NS, StudyConfig
 from .records import RecordStore, Runner, probe_summary
 from .rules import (
     admissible_sigmas,
@@ -277,8 +278,43 @@ def stage_final(st: Study, run: Runner) -> None:
     st.add(run.run(items))
 
 
+def env_template(task: str, n: int) -> Scenario:
+    """The env's default loop for ``task`` and power factor ``n`` (its tuned law for that n where the env has one),
+    as a Scenario of the paper's run."""
+    return EnvConfig.from_kwargs({"task": task, "n": n}).template()
+
+
+def claim_scenario(cfg: StudyConfig, name: str, n: int, logged: bool = False) -> Scenario:
+    """The designated run of claim configuration ``name`` (:data:`~.config.CLAIM_CONFIGS`) for power factor ``n``:
+    the paper's run (its start, the study's duration and friction) with the env's defaults for ``n``, at the
+    configuration's f_r (None: the env's) and current limit, h = CLAIM_PERIOD; ``logged``: every control period."""
+    task, fr, limit = CLAIM_CONFIGS[name]
+    tmpl = env_template(task, n)
+    return paper_scenario(tmpl, cfg.paper_t_end).replace(
+        fr=tmpl.fr if fr is None else fr, current_limit=limit, control_period=CLAIM_PERIOD, bumpless=False,
+        friction=cfg.paper_friction, log_interval=CLAIM_PERIOD if logged else 1e-3)
+
+
+def stage_claims(st: Study, run: Runner) -> None:
+    """The claims' designated runs (group "claims"; the configurations of CLAIM_LOGGED once more at every control
+    period for the chatter index, which is copied onto their "claims" record) and the held-out suite of each task
+    for n = 2, 4, 6 at the env's defaults for each n (group "claims_heldout", the evaluation's held-out episodes)."""
+    cfg = st.cfg
+    items = [("claims", claim_scenario(cfg, name, n)) for name in CLAIM_CONFIGS for n in NS]
+    logged = [("claims_logged", claim_scenario(cfg, name, n, logged=True)) for name in CLAIM_LOGGED for n in NS]
+    held = [("claims_heldout", sc) for task in ("velocity", "position") for n in NS
+            for sc in heldout_scenarios(cfg.heldout_episodes, env_template(task, n))]
+    recs = run.run(items, keep=True)
+    full = run.run(logged)
+    by_key = {(name, n): r for (name, n), r in zip([(c, n) for c in CLAIM_CONFIGS for n in NS], recs)}
+    for (name, n), r in zip([(c, n) for c in CLAIM_LOGGED for n in NS], full):
+        by_key[(name, n)].features["chatter_index"] = r.features["chatter_index"]
+    st.add(recs)
+    st.add(run.run(held))
+
+
 STAGES = (stage_paper_sweep, stage_robust_velocity, stage_substeps_position, stage_limit_fr_smoothing,
-          stage_position_probe, stage_lost_track_maps, stage_final)
+          stage_position_probe, stage_lost_track_maps, stage_final, stage_claims)
 
 
 def run_study(cfg: StudyConfig, progress: bool = True, executor: Executor | None = None) -> Study:
