@@ -314,7 +314,7 @@ def run_all(quick: bool = False, progress: bool = True) -> dict:
         progress: show a tqdm bar on stderr.
     """
     t0 = time.perf_counter()
-    # the closed loop also at the env's default period (the issue's check "and at the new default period")
+    # the closed loop also at the env's default period (a change of the default period must keep the fidelity it had)
     cl_periods = QUICK_PERIODS if quick else tuple(sorted(set(PERIODS) | {DEFAULTS.control_period}, reverse=True))
     t_end = QUICK_T_END if quick else T_END
     jobs = open_loop_jobs(PERIODS)
