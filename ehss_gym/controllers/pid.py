@@ -1,8 +1,9 @@
 """A PID on the tracking error, and the documented procedure that tunes it (:func:`tune_pid`).
 
 The procedure (Astrom-Hagglund relay experiment, classic rules, selection, refinement) is described in
-:mod:`ehss_gym.controllers`; :data:`PID_GAINS` stores its output for the env's default settings and
-``tests/test_policies.py`` re-runs it. Every tuning run goes through the one rollout loop
+:mod:`ehss_gym.controllers`; :data:`PID_RELAY_GAINS` stores its output for the env's default settings
+(``tests/test_policies.py`` re-runs it); :data:`PID_GAINS`, the gains in use, are those, the direct mode's refined by
+the baselines' tuning (``ehss baselines``). Every tuning run goes through the one rollout loop
 (:func:`ehss_gym.envs.rollouts.rollout`).
 """
 
@@ -145,17 +146,26 @@ def tune_pid(env_or_config=None, relay_ma: float = 0.05, relay_seconds: float = 
             "scores": scores}
 
 
-# Output of tune_pid() for the default settings of each (task, mode), (kp, ki, kd); regenerate with
-# {key: tune_pid(EnvConfig.from_kwargs({"task": t, "mode": m}))["gains"]}; checked by tests/test_policies.py.
+# Output of tune_pid() (the relay procedure) for the default settings of each (task, mode), (kp, ki, kd); regenerate
+# with {key: tune_pid(EnvConfig.from_kwargs({"task": t, "mode": m}))["gains"]}; checked by tests/test_policies.py.
 # Tuning-scenario RMSE at the defaults, re-derived at the noise study's defaults (ehss noise; h = 50 us, f_r 60 /
 # 20 Hz): velocity residual 1.442e-3 rad/s (Tyreus-Luyben PID), velocity direct 7.597e-2 rad/s, position residual
 # 2.10e-4 rad (Tyreus-Luyben PID; the CLF law under it changed: the observer, the adaptive layer), position direct
 # 2.259e-2 rad (ZN-PID). The direct gains and the velocity residual gains came out unchanged.
-PID_GAINS: dict[tuple[str, str], tuple[float, float, float]] = {
+PID_RELAY_GAINS: dict[tuple[str, str], tuple[float, float, float]] = {
     ("velocity", "residual"): (125.91967545728258, 170.34588130043636, 0.20986612576213765),
     ("velocity", "direct"): (0.14329896123699692, 1.320727753336377, 0.003886984323553541),
     ("position", "residual"): (97.41736132118437, 67.38355032097732, 2.489554789319156),
     ("position", "direct"): (0.8061566651706392, 29.70050871681302, 0.030633953276484285),
+}
+# The gains in use at the default settings. Direct mode (the PID alone, ``pid`` in ``ehss evaluate``): tuned by
+# ``ehss baselines`` from the relay procedure's gains, on training scenarios with the evaluation's figure
+# (reports/baselines/tuned.json; tests/test_baselines.py checks them). Residual mode (a PID on top of the CLF law):
+# the relay procedure's.
+PID_GAINS: dict[tuple[str, str], tuple[float, float, float]] = {
+    **PID_RELAY_GAINS,
+    ("velocity", "direct"): PID_RELAY_GAINS[("velocity", "direct")],
+    ("position", "direct"): PID_RELAY_GAINS[("position", "direct")],
 }
 
 

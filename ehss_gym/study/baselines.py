@@ -6,7 +6,8 @@ gains kp, ki, kd, +-2 decades around the relay procedure's gains, :data:`PID_STA
 parameter space (log grids with ranges, :class:`Axis`), its fixed settings, the settings it takes from another
 row's result (``inherit``: a residual on the n = 2 law takes that law's tuned sigma and f_r) and how a candidate
 becomes episodes (:data:`RUNNERS`: the CLF laws through :func:`ehss_gym.core.sim.simulate_batch`, the PID through the
-env's rollout loop, as ``ehss evaluate`` runs it). Adding a baseline is one row.
+env's rollout loop, as ``ehss evaluate`` runs it). Adding a baseline is one row (the disturbance-observer residual's:
+``*[dob_row(t) for t in TASKS]``, :func:`dob_row`).
 
 **The objective**: the evaluation ruler's overall figure G (:mod:`ehss_gym.evaluation.scoring`: per-episode class log
 ratios, class figures, their geometric mean) of the candidate against a fixed anchor, the env's default law as it
@@ -35,6 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ehss_gym.controllers import PIDPolicy
+from ehss_gym.controllers.pid import PID_RELAY_GAINS
 from ehss_gym.core.scenarios import sample_scenario
 from ehss_gym.core.sim import simulate_batch
 from ehss_gym.envs import EnvConfig
@@ -54,9 +57,9 @@ LAW_NS = (2, 4, 6)
 ANCHOR = {"velocity": {"n": 2, "sigma": 1e5, "fr": 60.0, "smoothing": 1e3, "layer_gain": 3.0},
           "position": {"n": 2, "sigma": 1e6, "fr": 20.0, "smoothing": 100.0, "layer_gain": 3.0}}
 # The PID's start (kp [mA/U], ki [mA/(U s)], kd [mA s/U], U the output unit): the relay procedure's gains
-# (ehss_gym.controllers.tune_pid) for the direct mode, which is how `ehss evaluate` runs the PID.
-PID_START = {"velocity": {"kp": 0.14329896123699692, "ki": 1.320727753336377, "kd": 0.003886984323553541},
-             "position": {"kp": 0.8061566651706392, "ki": 29.70050871681302, "kd": 0.030633953276484285}}
+# (ehss_gym.controllers.tune_pid, stored as PID_RELAY_GAINS) for the direct mode, which is how `ehss evaluate` runs
+# the PID.
+PID_START = {t: dict(zip(("kp", "ki", "kd"), PID_RELAY_GAINS[(t, "direct")])) for t in TASKS}
 
 
 @dataclass(frozen=True)
@@ -159,6 +162,16 @@ def _pid_row(task: str) -> Baseline:
     return Baseline(f"{task}/pid", task, "pid", pid_axes(task), dict(PID_START[task]))
 
 
+def dob_row(task: str) -> Baseline:
+    """The disturbance-observer residual on the n = 2 law (loop setting ``dob_hz``, its cutoff f_d [Hz]): f_d on a
+    log grid 1..500 Hz, then the smoothing width and the boundary layer (starting at the n = 2 law's tuned values),
+    with that law's tuned sigma and f_r. Its row in :data:`BASELINES` goes after the n = 2 law's, where the loop has
+    the setting."""
+    axes = (Axis("dob_hz", 1.0, 500.0, 0.25, unit="Hz"), *law_axes(task)[2:])
+    inherit = ((f"{task}/clf-n2", ("sigma", "fr", "smoothing", "layer_gain")),)
+    return Baseline(f"{task}/dob-n2", task, "law", axes, {"dob_hz": 20.0}, {"n": 2}, inherit=inherit)
+
+
 BASELINES: tuple[Baseline, ...] = tuple(
     [_law_row(t, n) for t in TASKS for n in LAW_NS] + [_pid_row(t) for t in TASKS])
 
@@ -183,8 +196,6 @@ def law_metrics(task: str, settings: dict, episodes: int, seconds: float) -> lis
 
 def pid_metrics(task: str, settings: dict, episodes: int, seconds: float) -> list[dict]:
     """Per-episode metrics of the PID (direct mode, as ``ehss evaluate`` runs it) with gains kp, ki, kd."""
-    from ehss_gym.controllers import PIDPolicy  # the controllers' package (a layer below) only when a PID is tuned
-
     kw = {"task": task, "mode": "direct"}
     cfg = EnvConfig.from_kwargs(kw)
     pol = PIDPolicy(cfg, gains=(settings["kp"], settings["ki"], settings["kd"]))
@@ -400,5 +411,6 @@ def tune(cfg: TuneSettings = TuneSettings(), progress=None) -> dict:
 
 
 __all__ = ["PROG", "BUDGET", "EPISODES", "EPISODE_SECONDS", "KEEP_MARGIN", "LAW_NS", "ANCHOR", "PID_START", "Axis",
-           "Baseline", "BASELINES", "RUNNERS", "law_axes", "pid_axes", "law_metrics", "pid_metrics", "objective",
+           "Baseline", "BASELINES", "dob_row", "RUNNERS",
+           "law_axes", "pid_axes", "law_metrics", "pid_metrics", "objective",
            "Search", "search", "TuneSettings", "tune_row", "anchors_of", "default_n", "tune", "scenario_seeds"]
