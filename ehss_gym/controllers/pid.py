@@ -164,8 +164,8 @@ PID_RELAY_GAINS: dict[tuple[str, str], tuple[float, float, float]] = {
 # the relay procedure's.
 PID_GAINS: dict[tuple[str, str], tuple[float, float, float]] = {
     **PID_RELAY_GAINS,
-    ("velocity", "direct"): PID_RELAY_GAINS[("velocity", "direct")],
-    ("position", "direct"): PID_RELAY_GAINS[("position", "direct")],
+    ("velocity", "direct"): (0.45724534438828157, 0.41020486244348087, 0.007562672418672776),
+    ("position", "direct"): (0.7302149143728409, 8.280878032968157, 0.01246172162633976),
 }
 
 
