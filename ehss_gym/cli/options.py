@@ -319,8 +319,9 @@ def add_loop_arguments(p: argparse.ArgumentParser, *, t_end: float = 20.0) -> No
     """The controller's settings (a preset, and every loop setting on its own, overriding it) and the episode."""
     g = p.add_argument_group("loop (each setting not given comes from --preset)")
     g.add_argument("--preset", choices=PRESETS, default="recommended",
-                   help="recommended: the env's defaults (the studies' recommendation: sigma 1e5, 10 mA limit, "
-                        "h = 50 us, smoothing, the noise study's estimator and law; tracks); paper: the law as printed "
+                   help="recommended: the env's defaults (the studies' recommendation: the CLF law tuned per task and "
+                        "n by ehss baselines, 10 mA limit, h = 50 us, the noise study's estimator and law; tracks); "
+                        "paper: the law as printed "
                         "(sigma 1, no limit, f_r 100 Hz, h = 100 us, 10 substeps; diverges within a millisecond)")
     g.add_argument("--task", choices=tuple(TASKS), default="velocity", help="the output tracked")
     docs = field_docs(Scenario)

@@ -134,9 +134,12 @@ class EHSSTrackingEnv(gym.Env):
     in :data:`DEFAULTS`):
         task: "velocity" (default) or "position" (see docs/ENV.md for what each task's base law achieves).
         n: CLF power factor, even >= 2 (default 2).
-        fr: combined-error cutoff f_r [Hz] (default 60 velocity, 20 position).
-        sigma: CLF scale [unit of s] (default 1e5 velocity, 1e6 position; 1 = the paper's law).
-        smoothing: sign(s) smoothing width [unit of s], >= 0 (default 1e3 velocity, 100 position).
+        fr: combined-error cutoff f_r [Hz] (default: tuned per task and n, :data:`ehss_gym.envs.config.LAW_DEFAULTS`;
+            n = 2: 128 velocity, 60 position).
+        sigma: CLF scale [unit of s] (default: tuned per task and n; n = 2: 7.0e4 velocity, 1.04e5 position; 1 = the
+            paper's law).
+        smoothing: sign(s) smoothing width [unit of s], >= 0 (default: tuned per task and n; n = 2: 65 velocity,
+            37 position).
         mode: "residual" (default) or "direct" (pure RL: no base current applied).
         residual_scale: current of a unit action [mA] (default: current_limit, or 10 if unlimited).
         agent_period: control periods per agent step, >= 1 (default 5: the agent acts at 4 kHz).
@@ -157,7 +160,8 @@ class EHSSTrackingEnv(gym.Env):
             current_limit). Without ``sigma`` each law gets its own default sigma, where the env has one
             (:attr:`TaskDefaults.sigma_by_law`; else the task's). See docs/MODEL.md, "Laws".
         layer_gain: adaptive boundary layer: width max(smoothing, layer_gain * running noise std of s), in
-            [0, 100] (default 3 both tasks; 0: the fixed width ``smoothing``).
+            [0, 100] (default: tuned per task and n; n = 2: 11.8 velocity, 5.1 position; 0: the fixed width
+            ``smoothing``).
         bumpless: the reference model starts at the measured output (and the estimated derivatives) instead of at
             its steady state for r(0) (default True, both tasks).
         ref_accel: position task: the reference shaper's acceleration bound [rad/s^2], 0 = none (default 100
@@ -185,7 +189,7 @@ class EHSSTrackingEnv(gym.Env):
             friction).
 
     Version history:
-        v0 (ehss-gym 0.1): first release. Within 0.1 the defaults changed three times; the settings that
+        v0 (ehss-gym 0.1): first release. Within 0.1 the defaults changed four times; the settings that
         reproduce each earlier loop are given.
 
         1. The reproduction study's recommendation (``ehss reproduce``): h = 30 us and smoothing 100 for
@@ -199,6 +203,9 @@ class EHSSTrackingEnv(gym.Env):
            pressure_domain, with the noise study's choices as the defaults (``ehss noise``; docs/ENV.md).
            :data:`ehss_gym.envs.config.LEGACY_LOOP` holds the values that reproduce the loop before them; a
            policy recorded without them acts in it (:func:`ehss_gym.envs.config.in_legacy_loop`).
+        4. The CLF law's sigma, f_r, smoothing and layer_gain tuned per task and n by one coded search on training
+           scenarios (``ehss baselines``, reports/baselines); before, every n had n = 2's: sigma 1e5, f_r 60 Hz,
+           smoothing 1e3, layer_gain 3 (velocity) and sigma 1e6, f_r 20 Hz, smoothing 100, layer_gain 3 (position).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
