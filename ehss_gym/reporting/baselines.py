@@ -17,7 +17,7 @@ from ehss_gym._version import __version__  # noqa: E402
 from ehss_gym.evaluation.scoring import CLASSES  # noqa: E402
 from ehss_gym.infra.fmt import fmt_cell  # noqa: E402
 from ehss_gym.infra.util import atomic_write_text  # noqa: E402
-from ehss_gym.study.baselines import KEEP_MARGIN  # noqa: E402
+from ehss_gym.study.baselines import BASELINES, KEEP_MARGIN  # noqa: E402
 
 from .render import render  # noqa: E402
 
@@ -54,25 +54,6 @@ def plot_convergence(results: list, task: str, path: str, cmd: str) -> None:
     plt.close(fig)
 
 
-def at_bounds(r: dict) -> list[str]:
-    """The tuned settings of a result that lie on an end of their searched range ("fr = 60 (range top)")."""
-    out = []
-    for k, v in r["tuned"].items():
-        lo, hi = r["bounds"][k]
-        for end, label in ((lo, "range bottom"), (hi, "range top")):
-            if math.isclose(v, end, rel_tol=1e-9):
-                out.append(f"{k} = {fmt_cell(v)} ({label})")
-    return out
-
-
-def _eval_seconds(results: list) -> dict:
-    """Mean wall time of one evaluation [s] per runner (the CLF laws' and the PID's)."""
-    out: dict = {}
-    for r in results:
-        out.setdefault(r["runner"], []).extend(e["wall_s"] for e in r["evaluations"])
-    return {k: sum(v) / len(v) for k, v in out.items() if v}
-
-
 def _settings_rows(results: list) -> list[list[str]]:
     rows = []
     for r in results:
@@ -95,15 +76,15 @@ def write_report(res: dict, out: str, command: str, wall_s: float) -> str:
         fig = f"convergence_{task}.png"
         plot_convergence(results, task, os.path.join(out, fig), command)
         spaces = [[r["policy"], "; ".join(f"{k}: {v}" for k, v in r["space"].items())] for r in results]
-        bound = [f"{r['policy']}: {', '.join(at_bounds(r))}" for r in results if at_bounds(r)]
-        tasks.append({"task": task, "table": _settings_rows(results), "spaces": spaces, "figure": fig, "bound": bound,
+        tasks.append({"task": task, "table": _settings_rows(results), "spaces": spaces, "figure": fig,
                       "anchor": res["anchor"][task], "defaults": res["defaults"].get(task)})
+    rows = {r.name: r for r in BASELINES}
     text = render("baselines.md.j2", command=command, version=__version__, wall_s=wall_s, tasks=tasks,
                   settings=res["settings"], classes=CLASSES, margin=KEEP_MARGIN, n_rows=len(res["baselines"]),
-                  eval_s=_eval_seconds(list(res["baselines"].values())))
+                  runners=sorted({rows[n].runner for n in res["baselines"] if n in rows}))
     path = os.path.join(out, "BASELINES.md")
     atomic_write_text(path, text)
     return path
 
 
-__all__ = ["DEFAULT_OUT", "at_bounds", "plot_convergence", "write_report"]
+__all__ = ["DEFAULT_OUT", "plot_convergence", "write_report"]

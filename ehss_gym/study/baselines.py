@@ -31,7 +31,6 @@ than 2 %. The env's per-n defaults are each n's tuned values (``ehss_gym.envs.co
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -338,9 +337,7 @@ def tune_row(row: Baseline, tuned: dict, cfg: TuneSettings, anchors: dict, progr
     run = RUNNERS[row.runner]
 
     def evaluate(point: dict) -> dict:
-        t0 = time.perf_counter()
-        out = objective(run(row.task, {**fixed, **point}, cfg.episodes, cfg.seconds), anchor, noisy)
-        return {**out, "wall_s": time.perf_counter() - t0}
+        return objective(run(row.task, {**fixed, **point}, cfg.episodes, cfg.seconds), anchor, noisy)
 
     res = search(row.axes, start, evaluate, cfg.budget, progress)
     out = res["best_out"]
@@ -349,14 +346,12 @@ def tune_row(row: Baseline, tuned: dict, cfg: TuneSettings, anchors: dict, progr
             "objective": out["figure"], "classes": out["classes"], "failed": out["failed"],
             "n_failed": out["n_failed"], "saturation": out["saturation"], "evaluations_used": res["used"],
             "space": {ax.name: ax.describe() for ax in row.axes},
-            "bounds": {ax.name: [ax.lo, ax.hi] for ax in row.axes},
             "evaluations": [_json_eval(h) for h in res["history"]]}
 
 
 def _json_eval(h: dict) -> dict:
     return {"point": h["point"], "objective": h["figure"], "classes": h["classes"], "failed": h["failed"],
-            "n_failed": h["n_failed"], "saturation": h["saturation"], "phase": h["phase"],
-            "wall_s": h.get("wall_s", math.nan)}
+            "n_failed": h["n_failed"], "saturation": h["saturation"], "phase": h["phase"]}
 
 
 def anchors_of(cfg: TuneSettings, tasks: Sequence[str]) -> dict:
