@@ -149,9 +149,9 @@ def tune_pid(env_or_config=None, relay_ma: float = 0.05, relay_seconds: float = 
 # Output of tune_pid() (the relay procedure) for the default settings of each (task, mode), (kp, ki, kd); regenerate
 # with {key: tune_pid(EnvConfig.from_kwargs({"task": t, "mode": m}))["gains"]}; checked by tests/test_policies.py.
 # Tuning-scenario RMSE at the defaults: velocity direct 7.597e-2 rad/s, position direct 2.259e-2 rad (ZN-PID), derived
-# at the noise study's defaults and not re-derived since (the direct mode applies no CLF law). Residual mode, re-derived on the CLF law
-# tuned by `ehss baselines` (n = 2; its loop is much stiffer, so the relay's ultimate gain rose): velocity
-# 1.307e-3 rad/s (ZN no-overshoot rule), position 7.58e-6 rad (Tyreus-Luyben PID).
+# at the noise study's defaults and not re-derived since (the direct mode applies no CLF law). Residual mode,
+# re-derived on the CLF law tuned by `ehss baselines` (n = 2; its loop is much stiffer, so the relay's ultimate gain
+# rose): velocity 1.307e-3 rad/s (ZN no-overshoot rule), position 7.58e-6 rad (Tyreus-Luyben PID).
 PID_RELAY_GAINS: dict[tuple[str, str], tuple[float, float, float]] = {
     ("velocity", "residual"): (462.1661438069571, 616221.5250759429, 0.6602373482956531),
     ("velocity", "direct"): (0.14329896123699692, 1.320727753336377, 0.003886984323553541),
