@@ -16,6 +16,7 @@ from ehss_gym import sine
 from ehss_gym.controllers import (
     PID_GAINS,
     PID_RELAY,
+    PID_RELAY_GAINS,
     CLFPolicy,
     FrictionFeedforwardPolicy,
     PIDPolicy,
@@ -142,9 +143,9 @@ def test_stored_pid_gains_are_used_for_default_settings():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("key", sorted(PID_GAINS), ids=lambda k: "-".join(k))
+@pytest.mark.parametrize("key", sorted(PID_RELAY_GAINS), ids=lambda k: "-".join(k))
 def test_tuning_procedure_reproduces_stored_pid_gains(key):
     task, mode = key
     out = tune_pid(EnvConfig.from_kwargs({"task": task, "mode": mode}))
-    assert out["gains"] == pytest.approx(PID_GAINS[key], rel=1e-9)
+    assert out["gains"] == pytest.approx(PID_RELAY_GAINS[key], rel=1e-9)
     assert (out["Ku"], out["Tu"]) == pytest.approx(PID_RELAY[key], rel=1e-9)

@@ -127,8 +127,11 @@ def validation(cfg: Config, env_kwargs: dict) -> tuple[list, list[dict], list[di
     base_kwargs = {k: v for k, v in env_kwargs.items() if k not in ("mode", "residual_scale")}
     scenarios = heldout_suite(env_kwargs, cfg.eval_episodes, VALIDATION_START, cfg.eval_seconds)
     base = run_episodes({**base_kwargs, "mode": "residual"}, scenarios)  # the agent's own base law
-    reference = base if cfg.n == 2 else run_episodes({**base_kwargs, "mode": "residual", "n": 2},
-                                                     [sc.replace(n=2) for sc in scenarios])
+    # the reference is the n = 2 law at its own settings: the same episodes (a pure function of their seeds) drawn
+    # for its loop, which differs from this n's in more than n where the law's defaults are tuned per n
+    ref_kwargs = {**base_kwargs, "mode": "residual", "n": 2}
+    reference = base if cfg.n == 2 else run_episodes(
+        ref_kwargs, heldout_suite(ref_kwargs, cfg.eval_episodes, VALIDATION_START, cfg.eval_seconds))
     return scenarios, base, reference
 
 

@@ -458,6 +458,18 @@ def add_factors(p) -> None:
     add_quick(p, "6 held-out episodes per task")
 
 
+def add_baselines(p) -> None:
+    p.add_argument("--budget", type=int_at_least("--budget", 1), default=None,
+                   help="evaluations per baseline (default 64; --quick 6)")
+    p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
+                   help="training scenarios, seeds 0..EPISODES-1 (default 48; --quick 3)")
+    p.add_argument("--seconds", type=finite("--seconds", 0.0), default=None,
+                   help="episode duration [s] (default 2; --quick 0.3)")
+    add_out(p, "output folder", os.path.join("reports", "baselines"))
+    add_quick(p, "3 episodes of 0.3 s and 6 evaluations per baseline (CI smoke run; numbers not meaningful)")
+    add_progress(p)
+
+
 def add_train(p) -> None:
     add_train_config(p, launch=True)
     add_deprecated(p, "--jobs", "--workers")
@@ -544,6 +556,12 @@ COMMANDS = (
             "The default law on the held-out suite with friction, model mismatch and sensor noise removed one at a "
             "time and all together: each metric class's level; writes FACTORS.md and factors.csv.", add_factors,
             "factors"),
+    Command("baselines", "tune every scripted baseline (CLF n=2/4/6, PID) by one coded search on training scenarios",
+            "One deterministic coordinate search on log grids (then halving refinement), the same budget for every "
+            "baseline, on training scenarios only; the objective is the ruler's overall figure against the env's "
+            "default law before tuning, with the failure gate. Writes tuned.json, BASELINES.md and convergence "
+            "figures, and applies the written defaults rule (which n is each task's default).", add_baselines,
+            "baselines"),
     Command("train", "train residual PPO or pure PPO (checkpoints, resume, held-out evaluation)",
             "Train residual PPO (or pure PPO) on EHSSTracking-v0: one seed, or several (--seeds) in parallel "
             "processes or on Ray.", add_train, "train"),

@@ -30,8 +30,10 @@ Every policy here has ``predict(observation, state=None, episode_start=None, det
   4. *Refinement*: coordinate search from the winner -- two rounds; in each, for kp, ki, kd in turn,
      the gain times 0.5, 0.7, 1.4 and 2 is tried on the tuning scenario and kept if it lowers the RMSE.
 
-  :data:`PID_GAINS` stores the result of this procedure for the default settings of each task and
-  mode; ``tests/test_policies.py`` re-runs the procedure and checks it reproduces them.
+  :data:`PID_RELAY_GAINS` stores the result of this procedure for the default settings of each task and
+  mode; ``tests/test_policies.py`` re-runs the procedure and checks it reproduces them. The direct mode's gains in
+  use (:data:`PID_GAINS`, the ``pid`` of ``ehss evaluate``) start from them and are tuned by ``ehss baselines``, the
+  coded search that tunes every scripted baseline.
 - :class:`FrictionFeedforwardPolicy`: an *oracle* residual that knows the friction events and adds a
   current doublet centred on each friction edge, sized so that G * int int u = Delta T_f / J cancels
   the torque step (G from the model's Lie derivatives at the measured state). It exists to show that
@@ -41,8 +43,8 @@ Every policy here has ``predict(observation, state=None, episode_start=None, det
 from .base import ScriptedPolicy
 from .clf import DOB_HZ, SCRIPTED_FORMS, CLFPolicy, parse_scripted
 from .feedforward import FrictionFeedforwardPolicy
-from .pid import PID_GAINS, PID_RELAY, RULES, PIDPolicy, default_pid_gains, relay_experiment, tune_pid
+from .pid import PID_GAINS, PID_RELAY, PID_RELAY_GAINS, RULES, PIDPolicy, default_pid_gains, relay_experiment, tune_pid
 
 __all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "DOB_HZ", "PIDPolicy",
-           "FrictionFeedforwardPolicy", "tune_pid", "relay_experiment", "PID_GAINS", "PID_RELAY", "RULES",
-           "default_pid_gains"]
+           "FrictionFeedforwardPolicy", "tune_pid", "relay_experiment", "PID_GAINS", "PID_RELAY_GAINS", "PID_RELAY",
+           "RULES", "default_pid_gains"]

@@ -2,12 +2,13 @@
 
 The env's settings are the loop settings of :class:`ehss_gym.core.settings.Scenario` (:data:`LOOP_KEYS`; a setting
 without an env default here takes the Scenario's) and the env's own (:data:`ENV_KEYS`: mode, reward, episode). The
-defaults are the recommendation of two studies, restated here (tests check both): the reproduction study
-(``reports/paper/recommended_defaults.json``, made by ``ehss reproduce``: period, substeps, current limit, n, f_r,
-smoothing, the SVF cutoff) and the noise study (``reports/noise/recommended.json``, made by ``ehss noise``: per
-task the estimator, the law and its sigma, the observer bandwidth, the adaptive boundary layer and the reference
-shaper). The bumpless start is the evaluation ruler's choice (:data:`BUMPLESS_DEFAULT`), not the noise study's. The
-evidence is in docs/ENV.md.
+defaults are the recommendation of three studies, restated here (tests check each): the baselines' tuning
+(``reports/baselines/tuned.json``, made by ``ehss baselines``: per task and n the CLF law's sigma, f_r, smoothing
+width and boundary-layer gain, :data:`LAW_DEFAULTS`, and by its written rule the default n), the reproduction study
+(``reports/paper/recommended_defaults.json``, made by ``ehss reproduce``: period, substeps, current limit, the SVF
+cutoff) and the noise study (``reports/noise/recommended.json``, made by ``ehss noise``: per task the estimator, the
+law, the observer bandwidth and the reference shaper, and each other law's sigma). The bumpless start is the
+evaluation ruler's choice (:data:`BUMPLESS_DEFAULT`). The evidence is in docs/ENV.md.
 """
 
 from __future__ import annotations
@@ -30,8 +31,67 @@ BUMPLESS_DEFAULT = True
 
 
 @dataclass(frozen=True)
+class LawSettings:
+    """The CLF law's settings that ``ehss baselines`` tunes per task and n.
+
+    Attributes:
+        sigma: CLF scale sigma [unit of s].
+        fr: combined-error cutoff f_r [Hz].
+        smoothing: sign(s) smoothing width w [unit of s] (0 = the plain law).
+        layer_gain: adaptive boundary-layer gain [-] (0 = the fixed width ``smoothing``).
+    """
+
+    sigma: float
+    fr: float
+    smoothing: float
+    layer_gain: float
+
+
+LAW_KEYS = tuple(f.name for f in fields(LawSettings))
+# The CLF law's defaults per task and n: the tuned values of `ehss baselines` (reports/baselines/tuned.json;
+# tests/test_baselines.py checks this table against it). An env made with n = k and none of these settings given
+# takes row k (an n without a row takes the task's default n's row); the task's defaults are its default n's row
+# (DEFAULT_N, the written rule's outcome: the lowest tuning objective, a smaller n kept unless a larger one is lower
+# by more than 2 %).
+LAW_DEFAULTS: dict[str, dict[int, LawSettings]] = {
+    "velocity": {
+        2: LawSettings(sigma=69783.05848598665, fr=127.56087677784359, smoothing=64.93816315762113,
+                       layer_gain=11.772569275453606),
+        4: LawSettings(sigma=165481.70999431814, fr=134.63407648289967, smoothing=64.93816315762113,
+                       layer_gain=4.299037710710888),
+        6: LawSettings(sigma=165481.70999431814, fr=134.63407648289967, smoothing=64.93816315762113,
+                       layer_gain=4.619779578178476),
+    },
+    "position": {
+        2: LawSettings(sigma=103663.2928437698, fr=60.0, smoothing=36.51741272548377,
+                       layer_gain=5.146313689028636),
+        4: LawSettings(sigma=10366.329284376983, fr=60.0, smoothing=36.51741272548377,
+                       layer_gain=2.8939848597335978),
+        6: LawSettings(sigma=10366.329284376983, fr=60.0, smoothing=39.24189758484536,
+                       layer_gain=3.109898785313094),
+    },
+}
+DEFAULT_N = {"velocity": 2, "position": 2}
+
+
+def law_defaults(task: str, n) -> LawSettings:
+    """The CLF law's default settings for ``task`` at power factor ``n`` (the default n's for an n without a row)."""
+    rows = LAW_DEFAULTS[task]
+    try:
+        return rows.get(n, rows[DEFAULT_N[task]])
+    except TypeError:  # an unhashable n: the env's validation names it
+        return rows[DEFAULT_N[task]]
+
+
+def _task_law(task: str) -> dict:
+    """The task's default n's row of LAW_DEFAULTS as TaskDefaults keyword arguments."""
+    ls = LAW_DEFAULTS[task][DEFAULT_N[task]]
+    return {k: getattr(ls, k) for k in LAW_KEYS}
+
+
+@dataclass(frozen=True)
 class TaskDefaults:
-    """Per-task defaults.
+    """Per-task defaults (the CLF law's at the task's default n; another n takes its row of :data:`LAW_DEFAULTS`).
 
     Attributes:
         fr: combined-error cutoff f_r [Hz].
@@ -87,7 +147,7 @@ class EnvDefaults:
         velocity, position: per-task defaults.
     """
 
-    n: int = 2
+    n: int = DEFAULT_N["velocity"]  # the rule gave both tasks the same n (tests/test_baselines.py checks it)
     mode: str = "residual"
     current_limit: float = 10.0
     control_period: float = 5e-5
@@ -102,17 +162,16 @@ class EnvDefaults:
     lost_track: float = 1.0
     terminate_on_lost_track: bool = False
     # Per task, the noise study's choice (reports/noise/recommended.json; tests/test_noise.py checks it): velocity the
-    # paper's SVF with Sontag and the adaptive layer, position the 1 kHz observer with Sontag, the adaptive layer and
-    # the 100 rad/s^2 reference shaper. The bumpless start is the ruler's choice, BUMPLESS_DEFAULT (the noise study
-    # kept the paper's start: it removes no lost episode, its start-up rule's criterion).
+    # paper's SVF with Sontag, position the 1 kHz observer with Sontag and the 100 rad/s^2 reference shaper. The law's
+    # sigma, f_r, smoothing and boundary layer are the baselines' tuning (LAW_DEFAULTS). The bumpless start is the
+    # ruler's choice, BUMPLESS_DEFAULT (the noise study kept the paper's start: it removes no lost episode, its
+    # start-up rule's criterion).
     velocity: TaskDefaults = field(default_factory=lambda: TaskDefaults(
-        fr=60.0, sigma=1e5, smoothing=1e3, estimator_hz=1000.0, error_scale=1e-2, estimator="foh", law="sontag",
-        sigma_by_law=(("sontag", 1e5), ("lin-sontag", 3e6)), observer_hz=200.0, layer_gain=3.0,
-        bumpless=BUMPLESS_DEFAULT, ref_accel=0.0))
+        **_task_law("velocity"), estimator_hz=1000.0, error_scale=1e-2, estimator="foh", law="sontag",
+        sigma_by_law=(("lin-sontag", 3e6),), observer_hz=200.0, bumpless=BUMPLESS_DEFAULT, ref_accel=0.0))
     position: TaskDefaults = field(default_factory=lambda: TaskDefaults(
-        fr=20.0, sigma=1e6, smoothing=100.0, estimator_hz=1000.0, error_scale=1e-2, estimator="eso", law="sontag",
-        sigma_by_law=(("sontag", 1e6), ("lin-sontag", 1e7)), observer_hz=1000.0, layer_gain=3.0,
-        bumpless=BUMPLESS_DEFAULT, ref_accel=100.0))
+        **_task_law("position"), estimator_hz=1000.0, error_scale=1e-2, estimator="eso", law="sontag",
+        sigma_by_law=(("lin-sontag", 1e7),), observer_hz=1000.0, bumpless=BUMPLESS_DEFAULT, ref_accel=100.0))
 
 
 DEFAULTS = EnvDefaults()
@@ -187,7 +246,12 @@ class EnvConfig:
         mode = check_choice("mode", kwargs.get("mode", d.mode), MODES)
         law = check_choice("law", kwargs.get("law", td.law), names(LAWS))
         loop = {k: kwargs[k] if k in kwargs else _default(k, td, d) for k in LOOP_KEYS}
-        loop.update(task=task, law=law, sigma=kwargs.get("sigma", td.sigma_for(law)))
+        # the law's settings not given: the row of the env's n (tuned per n); another law's sigma: its own
+        per_n = law_defaults(task, loop["n"])
+        loop.update({k: getattr(per_n, k) for k in LAW_KEYS if k not in kwargs})
+        if "sigma" not in kwargs and law != td.law:
+            loop["sigma"] = td.sigma_for(law)
+        loop.update(task=task, law=law)
         # the env's ranges beyond the Scenario's own checks
         loop["control_period"] = check_finite("control_period", loop["control_period"], low=1e-7, high=1e-2)
         loop["substeps"] = check_int("substeps", loop["substeps"], 1)
@@ -324,6 +388,7 @@ def defaults_table() -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
+__all__ = ["LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
+           "TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
            "ENV_KEYS", "POLICY_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
            "in_legacy_loop", "SETTING_UNITS", "defaults_table"]

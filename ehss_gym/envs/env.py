@@ -138,9 +138,9 @@ class EHSSTrackingEnv(gym.Env):
     | setting | velocity | position | unit |
     |---|---|---|---|
     | `n` | 2 | 2 | - |
-    | `fr` | 60 | 20 | Hz |
-    | `sigma` | 1e5 | 1e6 | unit of s |
-    | `smoothing` | 1000 | 100 | unit of s |
+    | `fr` | 127.561 | 60 | Hz |
+    | `sigma` | 6.978306e4 | 1.036633e5 | unit of s |
+    | `smoothing` | 64.9382 | 36.5174 | unit of s |
     | `current_limit` | 10 | 10 | mA (None: unlimited) |
     | `control_period` | 5e-5 | 5e-5 | s |
     | `substeps` | 1 | 1 | RK4 steps per period |
@@ -148,7 +148,7 @@ class EHSSTrackingEnv(gym.Env):
     | `estimator` | `"foh"` | `"eso"` |  |
     | `observer_hz` | 200 | 1000 | Hz |
     | `law` | `"sontag"` | `"sontag"` |  |
-    | `layer_gain` | 3 | 3 | - |
+    | `layer_gain` | 11.7726 | 5.14631 | - |
     | `bumpless` | True | True |  |
     | `ref_accel` | 0 | 100 | rad/s^2 (0: none) |
     | `pressure_domain` | 0.95 | 0.95 | x P_s |
@@ -168,6 +168,13 @@ class EHSSTrackingEnv(gym.Env):
     | `episode_seconds` | None | None | s (None: 2 s random, 20 s paper) |
     | `terminate_on_lost_track` | False | False |  |
     | `sigma` with `law="lin-sontag"` | 3e6 | 1e7 | unit of s |
+    | `fr` with `n=4` | 134.634 | 60 | Hz |
+    | `sigma` with `n=4` | 1.654817e5 | 1.036633e4 | unit of s |
+    | `layer_gain` with `n=4` | 4.29904 | 2.89398 | - |
+    | `fr` with `n=6` | 134.634 | 60 | Hz |
+    | `sigma` with `n=6` | 1.654817e5 | 1.036633e4 | unit of s |
+    | `smoothing` with `n=6` | 64.9382 | 39.2419 | unit of s |
+    | `layer_gain` with `n=6` | 4.61978 | 3.1099 | - |
 
     <!-- env-defaults:end -->
 
@@ -227,7 +234,7 @@ class EHSSTrackingEnv(gym.Env):
             friction).
 
     Version history:
-        v0 (ehss-gym 0.1): first release. Within 0.1 the defaults changed three times; the settings that
+        v0 (ehss-gym 0.1): first release. Within 0.1 the defaults changed four times; the settings that
         reproduce each earlier loop are given.
 
         1. The reproduction study's recommendation (``ehss reproduce``): h = 30 us and smoothing 100 for
@@ -241,6 +248,9 @@ class EHSSTrackingEnv(gym.Env):
            pressure_domain, with the noise study's choices as the defaults (``ehss noise``; docs/ENV.md).
            :data:`ehss_gym.envs.config.LEGACY_LOOP` holds the values that reproduce the loop before them; a
            policy recorded without them acts in it (:func:`ehss_gym.envs.config.in_legacy_loop`).
+        4. The CLF law's sigma, f_r, smoothing and layer_gain tuned per task and n by one coded search on training
+           scenarios (``ehss baselines``, reports/baselines); before, every n had n = 2's: sigma 1e5, f_r 60 Hz,
+           smoothing 1e3, layer_gain 3 (velocity) and sigma 1e6, f_r 20 Hz, smoothing 100, layer_gain 3 (position).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}

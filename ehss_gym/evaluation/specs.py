@@ -35,12 +35,13 @@ from ehss_gym.agents.safeweights import shipped_models
 from ehss_gym.controllers import parse_scripted
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
-from ehss_gym.envs.config import LOOP_KEYS, in_legacy_loop
+from ehss_gym.envs.config import DEFAULTS, LOOP_KEYS, in_legacy_loop
 
 from .loading import ZOO_ARGS, ZOO_CONFIG, PolicyError, load_safe, make_env, read_zoo_record
 from .suites import TASKS
 
-REFERENCE_POLICY = "clf-n2"  # the law every ratio of the evaluation is taken to (evaluation.scoring)
+# the law every ratio of the evaluation is taken to (evaluation.scoring): the env's default law
+REFERENCE_POLICY = f"clf-n{DEFAULTS.n}"
 SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "dob-n2", "pid")
 LEARNED_KINDS = ("residual-ppo", "ppo-direct", "sb3")  # sb3: any algorithm, its mode from the saved env spec
 # The settings that shape the base law's closed loop (the env's loop settings but the task, n and when a run is

@@ -29,6 +29,7 @@ from ehss_gym.core.sim import Scenario, lambdas, simulate_batch
 from ehss_gym.envs.config import LEGACY_LOOP, EnvConfig
 from ehss_gym.envs.rollouts import rollout
 from ehss_gym.infra.execution import Executor
+from ehss_gym.study.baselines import ANCHOR
 
 from . import bias
 from .noise_config import NS, TASKS, NoiseStudyConfig
@@ -47,8 +48,10 @@ class NoiseStudy(RecordStore):
 
 
 def old_env_kwargs(task: str) -> dict:
-    """The env's legacy loop for ``task`` (its defaults with LEGACY_LOOP and the paper's SVF)."""
-    return {"task": task, **LEGACY_LOOP, "estimator": "foh"}
+    """The env's legacy loop for ``task``: LEGACY_LOOP, the paper's SVF and the CLF law's settings of that loop (the
+    env's defaults before the baselines' tuning, :data:`ehss_gym.study.baselines.ANCHOR`, but its fixed layer), so
+    that the study's starting loop does not move with the env's defaults."""
+    return {"task": task, **ANCHOR[task], **LEGACY_LOOP, "estimator": "foh"}
 
 
 def old_template(task: str) -> Scenario:

@@ -1,0 +1,416 @@
+"""One tuning procedure for every scripted baseline, and the rule that turns its results into the env's defaults.
+
+**The baselines** (:data:`BASELINES`, one row each): per task the CLF law for n = 2, 4, 6 (sigma, f_r, the smoothing
+width w with 0 allowed, the boundary-layer gain with 0 = the fixed layer and > 0 the adaptive one) and the PID (its
+gains kp, ki, kd, +-2 decades around the relay procedure's gains, :data:`PID_START`). A row names its task, its
+parameter space (log grids with ranges, :class:`Axis`), its fixed settings, the settings it takes from another
+row's result (``inherit``: a residual on the n = 2 law takes that law's tuned sigma and f_r) and how a candidate
+becomes episodes (:data:`RUNNERS`: the CLF laws through :func:`ehss_gym.core.sim.simulate_batch`, the PID through the
+env's rollout loop, as ``ehss evaluate`` runs it). Adding a baseline is one row (the disturbance-observer residual's:
+``*[dob_row(t) for t in TASKS]``, :func:`dob_row`).
+
+**The objective**: the evaluation ruler's overall figure G (:mod:`ehss_gym.evaluation.scoring`: per-episode class log
+ratios, class figures, their geometric mean) of the candidate against a fixed anchor, the env's default law as it
+was before this tuning (:data:`ANCHOR`), on the same episodes of the training distribution only
+(``sample_scenario(seed, template)`` for seeds 0..K-1, 2 s; the held-out seeds are >= 2^62 and never drawn). The
+failure gate: any diverged or lost-track episode, or a mean saturation share above 0.10, makes a candidate
+infeasible; candidates are ordered as the ruler ranks policies (:func:`~ehss_gym.evaluation.scoring.rank_key`:
+feasible first by G, then the infeasible by failed episodes, then G), so the search can climb out of an infeasible
+start.
+
+**The search** (:func:`search`, the same for every row, deterministic, budget B evaluations): start at the row's
+start point; for each axis in the row's order evaluate its grid points (the others fixed) and keep the best; then
+refinement rounds, each halving the log step, try the incumbent times 10^(+-step) on each axis (within its range;
+an axis whose incumbent is its 0 point is left there) and keep any improvement, until B distinct points are spent.
+
+**The defaults rule** (written before the held-out suite was run; :func:`default_n`): per task, the env's default
+law is the tuned CLF baseline with the lowest objective; a smaller n is kept unless a larger one is lower by more
+than 2 %. The env's per-n defaults are each n's tuned values (``ehss_gym.envs.config``, checked against tuned.json).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ehss_gym.controllers import PIDPolicy
+from ehss_gym.controllers.pid import PID_RELAY_GAINS
+from ehss_gym.core.scenarios import sample_scenario
+from ehss_gym.core.sim import simulate_batch
+from ehss_gym.envs import EnvConfig
+from ehss_gym.envs.rollouts import rollout
+from ehss_gym.evaluation.scoring import episode_log_ratios, failure, figure_of, rank_key
+from ehss_gym.evaluation.suites import TASKS
+
+PROG = "ehss baselines"
+BUDGET = 64  # evaluations per baseline
+EPISODES = 48  # training scenario seeds 0..EPISODES-1
+EPISODE_SECONDS = 2.0  # [s]
+KEEP_MARGIN = 0.02  # the defaults rule: a larger n replaces a smaller one only if its objective is lower by more
+LAW_NS = (2, 4, 6)
+# The anchor of the objective: the env's default law (n = 2) as it was before this tuning, per task (sigma [unit of
+# s], f_r [Hz], smoothing w [unit of s], layer_gain [-]); frozen here so that a rerun after the defaults changed
+# measures against the same law.
+ANCHOR = {"velocity": {"n": 2, "sigma": 1e5, "fr": 60.0, "smoothing": 1e3, "layer_gain": 3.0},
+          "position": {"n": 2, "sigma": 1e6, "fr": 20.0, "smoothing": 100.0, "layer_gain": 3.0}}
+# The PID's start (kp [mA/U], ki [mA/(U s)], kd [mA s/U], U the output unit): the relay procedure's gains
+# (ehss_gym.controllers.tune_pid, stored as PID_RELAY_GAINS) for the direct mode, which is how `ehss evaluate` runs
+# the PID.
+PID_START = {t: dict(zip(("kp", "ki", "kd"), PID_RELAY_GAINS[(t, "direct")])) for t in TASKS}
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One searched parameter: a log grid on [lo, hi] with a step of ``step`` decades (rounded so that both ends
+    are on it), plus the value 0 when ``zero`` (the setting switched off).
+
+    Attributes:
+        name: the env setting (or the PID gain) it sets.
+        lo, hi: the range, both > 0, in the setting's unit.
+        step: the grid's log step [decades].
+        zero: 0 is a point of the grid too.
+        unit: the setting's unit (for the report).
+    """
+
+    name: str
+    lo: float
+    hi: float
+    step: float
+    zero: bool = False
+    unit: str = ""
+
+    @property
+    def points(self) -> int:
+        """Grid points on [lo, hi]."""
+        return max(2, round(math.log10(self.hi / self.lo) / self.step) + 1)
+
+    @property
+    def log_step(self) -> float:
+        """The grid's actual log step [decades]."""
+        return math.log10(self.hi / self.lo) / (self.points - 1)
+
+    def grid(self) -> list[float]:
+        """The grid: 0 first (if allowed), then lo .. hi."""
+        g = [float(v) for v in np.logspace(math.log10(self.lo), math.log10(self.hi), self.points)]
+        return ([0.0] if self.zero else []) + g
+
+    def around(self, x: float, step: float) -> list[float]:
+        """x * 10^(-step) and x * 10^(+step), clipped to [lo, hi]; none if x is the 0 point."""
+        if x == 0.0:
+            return []
+        return [min(max(x * 10.0 ** (sgn * step), self.lo), self.hi) for sgn in (-1.0, 1.0)]
+
+    def describe(self) -> str:
+        """The grid in words."""
+        return (f"log {self.lo:g}..{self.hi:g}{' ' + self.unit if self.unit else ''}, {self.points} points "
+                f"({self.log_step:.3g} decade step){' plus 0' if self.zero else ''}")
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """One row of :data:`BASELINES`.
+
+    Attributes:
+        name: "<task>/<policy>" (the policy's ``ehss evaluate`` name).
+        task: "velocity" or "position".
+        runner: a key of :data:`RUNNERS` (how a candidate becomes episodes).
+        axes: the searched parameters, in the search's order.
+        start: the start point (every axis' name -> value).
+        fixed: env settings held fixed (n, for a law).
+        inherit: (row name, settings) pairs taken from that row's tuned result (it must come earlier in the
+            table): a searched setting starts there, any other is held there.
+    """
+
+    name: str
+    task: str
+    runner: str
+    axes: tuple
+    start: dict
+    fixed: dict = field(default_factory=dict)
+    inherit: tuple = ()
+
+    @property
+    def policy(self) -> str:
+        """The policy's name in ``ehss evaluate``."""
+        return self.name.split("/", 1)[1]
+
+
+def law_axes(task: str) -> tuple[Axis, ...]:
+    """The CLF law's space on ``task``: sigma, f_r, the smoothing width and the boundary-layer gain."""
+    sig = (1e2, 1e9) if task == "velocity" else (1e3, 1e10)
+    fr = (20.0, 200.0) if task == "velocity" else (5.0, 60.0)
+    return (Axis("sigma", *sig, 1.0, unit="unit of s"), Axis("fr", *fr, 0.25, unit="Hz"),
+            Axis("smoothing", 1e-1, 1e6, 1.0, zero=True, unit="unit of s"),
+            Axis("layer_gain", 0.3, 30.0, 0.5, zero=True))
+
+
+def pid_axes(task: str) -> tuple[Axis, ...]:
+    """The PID's space: each gain +-2 decades around :data:`PID_START`, half-decade grid."""
+    units = {"kp": "mA/U", "ki": "mA/(U s)", "kd": "mA s/U"}
+    return tuple(Axis(k, v / 100.0, v * 100.0, 0.5, unit=units[k]) for k, v in PID_START[task].items())
+
+
+def _law_row(task: str, n: int) -> Baseline:
+    start = {k: v for k, v in ANCHOR[task].items() if k != "n"}
+    return Baseline(f"{task}/clf-n{n}", task, "law", law_axes(task), start, {"n": n})
+
+
+def _pid_row(task: str) -> Baseline:
+    return Baseline(f"{task}/pid", task, "pid", pid_axes(task), dict(PID_START[task]))
+
+
+def dob_row(task: str) -> Baseline:
+    """The disturbance-observer residual on the n = 2 law (loop setting ``dob_hz``, its cutoff f_d [Hz]): f_d on a
+    log grid 1..500 Hz, then the smoothing width and the boundary layer (starting at the n = 2 law's tuned values),
+    with that law's tuned sigma and f_r. Its row in :data:`BASELINES` goes after the n = 2 law's, where the loop has
+    the setting."""
+    axes = (Axis("dob_hz", 1.0, 500.0, 0.25, unit="Hz"), *law_axes(task)[2:])
+    inherit = ((f"{task}/clf-n2", ("sigma", "fr", "smoothing", "layer_gain")),)
+    return Baseline(f"{task}/dob-n2", task, "law", axes, {"dob_hz": 20.0}, {"n": 2}, inherit=inherit)
+
+
+BASELINES: tuple[Baseline, ...] = tuple(
+    [_law_row(t, n) for t in TASKS for n in LAW_NS] + [_pid_row(t) for t in TASKS])
+
+
+# --- how a candidate becomes episodes ------------------------------------------------------------------------
+
+
+def scenario_seeds(episodes: int = EPISODES) -> range:
+    """The training scenario seeds of the objective."""
+    return range(episodes)
+
+
+def _scenarios(env_kwargs: dict, episodes: int, seconds: float) -> list:
+    template = EnvConfig.from_kwargs(env_kwargs).template()
+    return [sample_scenario(s, template, seconds) for s in scenario_seeds(episodes)]
+
+
+def law_metrics(task: str, settings: dict, episodes: int, seconds: float) -> list[dict]:
+    """Per-episode metrics of the CLF law (zero residual) at env settings ``settings`` (simulate_batch)."""
+    return [t.metrics() for t in simulate_batch(_scenarios({"task": task, **settings}, episodes, seconds))]
+
+
+def pid_metrics(task: str, settings: dict, episodes: int, seconds: float) -> list[dict]:
+    """Per-episode metrics of the PID (direct mode, as ``ehss evaluate`` runs it) with gains kp, ki, kd."""
+    kw = {"task": task, "mode": "direct"}
+    cfg = EnvConfig.from_kwargs(kw)
+    pol = PIDPolicy(cfg, gains=(settings["kp"], settings["ki"], settings["kd"]))
+    return [r.metrics for r in rollout(pol, kw, _scenarios(kw, episodes, seconds), name="pid")]
+
+
+RUNNERS: dict[str, Callable[[str, dict, int, float], list[dict]]] = {"law": law_metrics, "pid": pid_metrics}
+
+
+# --- the objective -------------------------------------------------------------------------------------------
+
+
+def objective(metrics: Sequence[dict], anchor: Sequence[dict], noisy: Sequence[bool]) -> dict:
+    """The ruler's overall figure of per-episode ``metrics`` against the anchor's on the same episodes, with the gate.
+
+    Returns:
+        {"figure" (G), "classes" ({class: G_c}), "failed", "n_failed", "saturation" (mean share), "key" (the order:
+        :func:`~ehss_gym.evaluation.scoring.rank_key`)}.
+    """
+    logs: dict[str, list[float]] = {}
+    for m, a, nz in zip(metrics, anchor, noisy):
+        for c, v in episode_log_ratios(m, a, nz).items():
+            logs.setdefault(c, []).append(v)
+    g, gc = figure_of(logs)
+    failed, n_failed = failure(list(metrics))
+    sat = float(np.mean([m["saturation"] for m in metrics]))
+    return {"figure": g, "classes": gc, "failed": failed, "n_failed": n_failed, "saturation": sat,
+            "key": rank_key(failed, n_failed, g)}
+
+
+# --- the search ----------------------------------------------------------------------------------------------
+
+
+def _point_key(point: dict) -> tuple:
+    return tuple((k, float(f"{v:.12g}")) for k, v in sorted(point.items()))
+
+
+class Search:
+    """The coordinate search of the module docstring on ``axes`` with budget ``budget``, minimising ``evaluate``
+    (point -> a dict with "key", the order; lower is better). Evaluations are remembered: a point seen before costs
+    nothing."""
+
+    MAX_ROUNDS = 200  # refinement rounds at most (a round always offers a new point unless every axis is at 0)
+
+    def __init__(self, axes: Sequence[Axis], start: dict, evaluate: Callable[[dict], dict], budget: int,
+                 progress: Callable[[], None] | None = None):
+        self.axes, self.evaluate, self.budget, self.progress = tuple(axes), evaluate, int(budget), progress
+        self.seen: dict[tuple, dict] = {}
+        self.history: list[dict] = []
+        self.best, self.best_out = dict(start), None
+        self._phase = "start"
+
+    @property
+    def used(self) -> int:
+        """Evaluations spent."""
+        return len(self.history)
+
+    def _try(self, point: dict) -> bool:
+        """Evaluate ``point`` (unless seen or the budget is spent); True if it became the incumbent."""
+        key = _point_key(point)
+        if key in self.seen or self.used >= self.budget:
+            return False
+        out = self.evaluate(dict(point))
+        self.seen[key] = out
+        self.history.append({"point": dict(point), **{k: v for k, v in out.items() if k != "key"},
+                             "phase": self._phase})
+        if self.progress:
+            self.progress()
+        if self.best_out is None or out["key"] < self.best_out["key"]:
+            self.best, self.best_out = dict(point), out
+            return True
+        return False
+
+    def run(self) -> dict:
+        """Search until the budget is spent; returns {"best", "best_out", "used", "history"}."""
+        self._phase = "start"
+        self._try(self.best)
+        self._phase = "grid"
+        for ax in self.axes:
+            anchor = dict(self.best)  # the axis' points, the other axes at the incumbent of the pass's start
+            for v in ax.grid():
+                self._try({**anchor, ax.name: v})
+        steps = {ax.name: ax.log_step for ax in self.axes}
+        for r in range(self.MAX_ROUNDS):
+            if self.used >= self.budget:
+                break
+            self._phase = f"refine {r + 1}"
+            for ax in self.axes:
+                steps[ax.name] /= 2.0
+                anchor = dict(self.best)
+                for v in ax.around(anchor[ax.name], steps[ax.name]):
+                    self._try({**anchor, ax.name: v})
+        return {"best": self.best, "best_out": self.best_out, "used": self.used, "history": self.history}
+
+
+def search(axes: Sequence[Axis], start: dict, evaluate: Callable[[dict], dict], budget: int = BUDGET,
+           progress: Callable[[], None] | None = None) -> dict:
+    """:class:`Search` of ``axes`` from ``start`` within ``budget`` evaluations of ``evaluate``."""
+    return Search(axes, start, evaluate, budget, progress).run()
+
+
+# --- tuning every row ----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TuneSettings:
+    """What :func:`tune` measures on.
+
+    Attributes:
+        budget: evaluations per baseline.
+        episodes: training scenarios (seeds 0..episodes-1).
+        seconds: their duration [s].
+        rows: the baselines' names (default all of :data:`BASELINES`).
+    """
+
+    budget: int = BUDGET
+    episodes: int = EPISODES
+    seconds: float = EPISODE_SECONDS
+    rows: tuple = ()
+
+    @classmethod
+    def quick(cls) -> TuneSettings:
+        """The CI smoke form: 3 episodes of 0.3 s, 6 evaluations per baseline (numbers not meaningful)."""
+        return cls(budget=6, episodes=3, seconds=0.3)
+
+
+def _noisy(task: str, episodes: int, seconds: float) -> list[bool]:
+    return [any(v > 0.0 for v in sc.noise_std) for sc in _scenarios({"task": task}, episodes, seconds)]
+
+
+def tune_row(row: Baseline, tuned: dict, cfg: TuneSettings, anchors: dict, progress=None) -> dict:
+    """Tune one row (its inherited settings taken from ``tuned``, the rows tuned before it)."""
+    fixed, start = dict(row.fixed), dict(row.start)
+    names = {ax.name for ax in row.axes}
+    for src, keys in row.inherit:  # an inherited searched setting is the start there, any other one is fixed
+        for k in keys:
+            (start if k in names else fixed)[k] = tuned[src]["settings"][k]
+    anchor, noisy = anchors[row.task]
+    run = RUNNERS[row.runner]
+
+    def evaluate(point: dict) -> dict:
+        return objective(run(row.task, {**fixed, **point}, cfg.episodes, cfg.seconds), anchor, noisy)
+
+    res = search(row.axes, start, evaluate, cfg.budget, progress)
+    out = res["best_out"]
+    return {"name": row.name, "policy": row.policy, "task": row.task, "runner": row.runner, "fixed": fixed,
+            "settings": {**fixed, **res["best"]}, "tuned": res["best"], "start": start,
+            "objective": out["figure"], "classes": out["classes"], "failed": out["failed"],
+            "n_failed": out["n_failed"], "saturation": out["saturation"], "evaluations_used": res["used"],
+            "space": {ax.name: ax.describe() for ax in row.axes},
+            "evaluations": [_json_eval(h) for h in res["history"]]}
+
+
+def _json_eval(h: dict) -> dict:
+    return {"point": h["point"], "objective": h["figure"], "classes": h["classes"], "failed": h["failed"],
+            "n_failed": h["n_failed"], "saturation": h["saturation"], "phase": h["phase"]}
+
+
+def anchors_of(cfg: TuneSettings, tasks: Sequence[str]) -> dict:
+    """Per task (the anchor law's per-episode metrics, the episodes' noise flags)."""
+    return {t: (law_metrics(t, ANCHOR[t], cfg.episodes, cfg.seconds), _noisy(t, cfg.episodes, cfg.seconds))
+            for t in tasks}
+
+
+def default_n(tuned: dict, task: str, ns: Sequence[int] = LAW_NS, margin: float = KEEP_MARGIN) -> dict:
+    """The defaults rule: the task's default n and why (module docstring).
+
+    Args:
+        tuned: row name -> tuned result (``objective``, ``failed``, ``n_failed``).
+        task: the task.
+        ns: the law's n, ascending.
+        margin: a larger n replaces a smaller one only if its objective is lower by more than this share.
+
+    Returns:
+        {"n", "best_n" (the lowest objective), "objectives" ({n: G}), "feasible" ({n: bool})}.
+
+    Raises:
+        RuntimeError: no n passed the failure gate.
+    """
+    res = {n: tuned[f"{task}/clf-n{n}"] for n in ns}
+    ok = [n for n in ns if not res[n]["failed"]]
+    if not ok:
+        raise RuntimeError(f"{task}: no tuned CLF law passed the failure gate; the defaults rule has no candidate")
+    best = min(ok, key=lambda n: (res[n]["objective"], n))
+    chosen = next(n for n in ok if not res[best]["objective"] < (1.0 - margin) * res[n]["objective"])
+    return {"n": chosen, "best_n": best, "objectives": {n: res[n]["objective"] for n in ns},
+            "feasible": {n: not res[n]["failed"] for n in ns}}
+
+
+def tune(cfg: TuneSettings = TuneSettings(), progress=None) -> dict:
+    """Tune every row of :data:`BASELINES` (or ``cfg.rows``) in table order, then apply the defaults rule.
+
+    Returns:
+        {"settings" (budget, episodes, seconds, seeds), "anchor", "baselines" ({name: tune_row's result}),
+        "defaults" ({task: default_n's result and the per-n settings}) }.
+    """
+    rows = [r for r in BASELINES if not cfg.rows or r.name in cfg.rows]
+    tasks = [t for t in TASKS if any(r.task == t for r in rows)]
+    anchors = anchors_of(cfg, tasks)
+    tuned: dict = {}
+    for row in rows:
+        tuned[row.name] = tune_row(row, tuned, cfg, anchors, progress)
+    defaults = {}
+    for t in tasks:
+        if all(f"{t}/clf-n{n}" in tuned for n in LAW_NS):
+            rule = default_n(tuned, t)
+            per_n = {str(n): {k: tuned[f"{t}/clf-n{n}"]["tuned"][k] for k in ("sigma", "fr", "smoothing", "layer_gain")}
+                     for n in LAW_NS}
+            defaults[t] = {**rule, "per_n": per_n}
+    return {"settings": {"budget": cfg.budget, "episodes": cfg.episodes, "seconds": cfg.seconds,
+                         "seeds": [0, cfg.episodes - 1], "margin": KEEP_MARGIN},
+            "anchor": ANCHOR, "baselines": tuned, "defaults": defaults}
+
+
+__all__ = ["PROG", "BUDGET", "EPISODES", "EPISODE_SECONDS", "KEEP_MARGIN", "LAW_NS", "ANCHOR", "PID_START", "Axis",
+           "Baseline", "BASELINES", "dob_row", "RUNNERS",
+           "law_axes", "pid_axes", "law_metrics", "pid_metrics", "objective",
+           "Search", "search", "TuneSettings", "tune_row", "anchors_of", "default_n", "tune", "scenario_seeds"]
