@@ -216,15 +216,17 @@ def test_chatter_index_on_signals():
 
 
 def test_c6_rule_fails_a_smoothed_law_and_passes_the_paper_law():
-    """Real position runs at the designated period and limit, logged every control period: the env's smoothed
-    (boundary-layer) laws fail C6's rule, the unsmoothed paper law (sigma = 1, w = 0) passes it."""
+    """Real position runs at the designated period and limit, logged every control period: a law with a wide
+    boundary layer (w = 1e4, a fixed layer) fails C6's rule, the unsmoothed paper law (sigma = 1, w = 0) passes it.
+    (Whether the env's tuned defaults chatter is the report's finding, not this test's.)"""
     from ehss_gym.study.stages import claim_scenario
 
     cfg = R.StudyConfig.quick_config()
     runs_s, runs_p = {}, {}
     for n in R.NS:
         sc = claim_scenario(cfg, POS, n, logged=True).replace(t_end=0.3, friction=())
-        for runs, s in ((runs_s, sc), (runs_p, sc.replace(sigma=1.0, smoothing=0.0, layer_gain=0.0))):
+        smooth = sc.replace(smoothing=1e4, layer_gain=0.0)
+        for runs, s in ((runs_s, smooth), (runs_p, sc.replace(sigma=1.0, smoothing=0.0, layer_gain=0.0))):
             tr = simulate(s)
             runs[(POS, n)] = R.Record("t", R.params_of(s), tr.metrics(), R.features_of(tr))
     smooth, paper = R.claim_c6(runs_s), R.claim_c6(runs_p)
