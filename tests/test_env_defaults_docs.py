@@ -25,9 +25,10 @@ def test_committed_tables_equal_the_code():
 
 
 def test_a_changed_default_makes_the_committed_tables_stale(monkeypatch):
-    moved = ec.EnvDefaults(velocity=ec.TaskDefaults(**{**ec.DEFAULTS.velocity.__dict__, "fr": 45.0}))
+    # a setting of the task's defaults (the law's sigma, f_r, smoothing and layer come from the tuned per-n table)
+    moved = ec.EnvDefaults(velocity=ec.TaskDefaults(**{**ec.DEFAULTS.velocity.__dict__, "observer_hz": 150.0}))
     monkeypatch.setattr(ec, "DEFAULTS", moved)
-    assert "| `fr` | 45 | " in defaults_table()
+    assert "| `observer_hz` | 150 | " in defaults_table()
     assert sorted(defaults.stale()) == sorted(defaults.FILES)
 
 
