@@ -24,6 +24,7 @@ from ehss_gym.core.signals import from_array, sine
 from ehss_gym.core.sim import LoopArrays
 from ehss_gym.envs import EHSSTrackingEnv, EHSSTrackingVectorEnv, EnvConfig
 from ehss_gym.evaluation import SCRIPTED_DEFAULT
+from ehss_gym.study.baselines import ANCHOR
 
 TASKS = ("velocity", "position")
 FRICTION = 1.8  # [N*m] the paper's friction amplitude
@@ -33,6 +34,14 @@ T_ON, T_OFF = 1.0, 3.0  # [s] the friction event of the observer test
 def template(task: str, **kw) -> Scenario:
     """The env's default loop of ``task`` (its Scenario template), with settings changed."""
     return EnvConfig.from_kwargs({"task": task, **kw}).template()
+
+
+def smooth_template(task: str, **kw) -> Scenario:
+    """The loop with the law as it was before the per-n tuning (``ehss_gym.study.baselines.ANCHOR``: a wide boundary
+    layer, so s settles and the position friction peak is large). The tuned laws switch within their layer (their
+    chatter is the comparison's finding), so s and d_hat never settle on them and their friction peak is already
+    small; the observer's own properties are checked on this fixed, smooth loop."""
+    return template(task, **{**ANCHOR[task], **kw})
 
 
 def lumped_friction_disturbance(task: str, x2: np.ndarray, amplitude: float, p: PlantParams, fr: float) -> np.ndarray:
@@ -60,7 +69,7 @@ def lumped_friction_disturbance(task: str, x2: np.ndarray, amplitude: float, p: 
 def test_observer_converges_to_the_lumped_friction_disturbance(task, fd):
     # a steady motion (velocity: 1 rad/s; position: a 1 rad/s ramp) so sigm(x2) is constant; a friction event
     ref = sine(0.0, 1.0, 0.0, 1.0) if task == "velocity" else from_array([0.0, 10.0], [0.0, 10.0])
-    sc = template(task, dob_hz=fd).replace(reference=ref, friction=((FRICTION, T_ON, T_OFF),), t_end=T_OFF,
+    sc = smooth_template(task, dob_hz=fd).replace(reference=ref, friction=((FRICTION, T_ON, T_OFF),), t_end=T_OFF,
                                             log_interval=1e-3)
     tr = simulate(sc)
     assert not tr.diverged
@@ -124,8 +133,8 @@ def test_dob_on_reads_its_memory():
 
 
 def test_paper_position_run_friction_peak_falls_by_at_least_2x():
-    # the paper's run (sine 1 rad, 2 rad/s, 20 s; 1.8 N*m from 8 s to 10 s) in the env's default position loop
-    sc = paper_scenario(template("position"))
+    # the paper's run (sine 1 rad, 2 rad/s, 20 s; 1.8 N*m from 8 s to 10 s) in the smooth position loop
+    sc = paper_scenario(smooth_template("position"))
     off, on = simulate_batch([sc, sc.replace(dob_hz=DOB_HZ)])
     m_off, m_on = off.metrics(), on.metrics()
     assert not (m_off["diverged"] or m_on["diverged"] or m_off["lost_track"] or m_on["lost_track"])
