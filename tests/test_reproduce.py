@@ -254,10 +254,10 @@ def test_claim_runs_take_the_env_defaults_of_each_n(monkeypatch):
     # a changed env default moves the designated run with it
     import ehss_gym.envs.config as ec
 
-    moved = ec.EnvDefaults(position=ec.TaskDefaults(**{**ec.DEFAULTS.position.__dict__, "sigma": 3e6,
-                                                       "sigma_by_law": ()}))
+    # (a setting of the task's defaults: the law's sigma, f_r, smoothing and layer come from the tuned per-n table)
+    moved = ec.EnvDefaults(position=ec.TaskDefaults(**{**ec.DEFAULTS.position.__dict__, "observer_hz": 500.0}))
     monkeypatch.setattr(ec, "DEFAULTS", moved)
-    assert claim_scenario(cfg, POS, 4).sigma == 3e6
+    assert claim_scenario(cfg, POS, 4).observer_hz == 500.0
 
 
 # ---------------------------------------------------------------------------------------------- n effect
