@@ -116,7 +116,7 @@ def test_noise_rejects_bad_out(tmp_path):
 
 def test_quick_noise_report_renders(tmp_path):
     out = tmp_path / "noise"
-    assert main(["noise", "--quick", "--out", str(out), "--no-progress"]) == 0
+    assert main(["noise", "--quick", "--out", str(out), "--no-progress", "--store", str(tmp_path / "jobs")]) == 0
     text = (out / "REPORT.md").read_text()
     assert "ehss noise --quick" in text and "QUICK MODE" in text
     assert not re.search(r"\bnan\b", text, re.I)
