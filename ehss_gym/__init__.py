@@ -24,6 +24,7 @@ _EXPORTS = {
     "paper_reference": ".core.signals",
     "Scenario": ".core.settings", "PAPER_FRICTION": ".core.settings", "TASKS": ".core.settings",
     "Trajectory": ".core.sim", "simulate": ".core.sim", "simulate_batch": ".core.sim",
+    "Unmodelled": ".core.unmodelled",
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 __all__ = [*_EXPORTS, "__version__"]

@@ -75,6 +75,7 @@ from .settings import (
     C_SMOOTH,
     C_ULIM,
 )
+from .unmodelled_kernels import sense_unmodelled
 
 NOISE_TAU = 0.02  # [s] time constant of the adaptive boundary layer's noise estimate (docs/MODEL.md, "Laws")
 
@@ -134,6 +135,7 @@ def controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work):
     for i in range(N_PLANT):
         sd = ctrl[C_NOISE_THETA + i]
         xm[i] = z[i] + (sd * gaussian(seed, k, i) if sd > 0.0 else 0.0)
+    sense_unmodelled(z, xm, k, ctrl)  # the encoder's grid and the sensor delay (off: nothing)
     y_meas = xm[X_THETA] if m == 4 else xm[X_OMEGA]
     x3m = xm[X_PL]
     pmax = ctrl[C_PDOMAIN] * model_p[P_PS]  # the model's domain (docs/MODEL.md, "The model's pressure domain")

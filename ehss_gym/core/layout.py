@@ -16,7 +16,12 @@ Z_OBS = 11  # extended-state observer ("eso"): velocity and lumped disturbance a
 Z_NOISE = 13  # noise estimate of the adaptive boundary layer: last s, running mean of (s_k - s_{k-1})^2
 Z_SHAPE = 15  # reference shaper (position task): shaped reference p, its rate, the last r and its last rate
 Z_DOB = 19  # disturbance observer: d_hat [unit of s / s], the last s, the last prediction psi + G u_app of s'
-N_LOOP = 22
+# The effects the law's model leaves out (ehss_gym.core.unmodelled): the valve's play (hysteresis) operator output
+# [mA], then the sensor delay line, MAX_DELAY samples of the N_PLANT measured states (slot j holds x1..x4 at j * 4).
+Z_PLAY = 22
+Z_DELAY = 23
+MAX_DELAY = 8  # largest sensor delay [control samples]
+N_LOOP = Z_DELAY + N_PLANT * MAX_DELAY
 MAX_ORDER = 4  # largest relative degree (position task)
 
 # --- Plant parameters: PlantParams.as_array() --------------------------------

@@ -77,6 +77,7 @@ from .metrics import accumulate
 from .params import P_DF, P_PS
 from .physics import N_LANE_CONST, friction_torque, integrate_lanes, lane_constants
 from .settings import C_ANALOG, C_OMEGA_MAX, C_ORDER, C_P_BOUND
+from .unmodelled_kernels import valve_input
 
 MAX_LANES = 128  # scenarios integrated in lock-step by one thread
 
@@ -197,7 +198,7 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
                 z[b, i] = zprev[b, i]
             U[b] = 0.0
             continue
-        U[b] = u
+        U[b] = valve_input(z[b], u, ctrl[b])  # the valve's threshold and hysteresis (off: u)
         for i in range(nx):
             X[i, b] = z[b, i]
         # the sensor noise on the output at this sample, held over the period for an analog estimator

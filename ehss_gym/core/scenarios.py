@@ -29,19 +29,24 @@ model mismatch      true plant beta, J, B, c_sm, P_s each scaled by uniform 0.8 
 sensor noise        with probability 0.5, Gaussian noise with std uniform 0 .. 1 times
                     (1e-5 rad, 1e-4 rad/s, 2e3 Pa, 1e-10 m^2) on the measured x1..x4
 duration            ``episode_seconds`` (default 2 s)
+unmodelled effects  none; with ``Distribution.unmodelled`` (:data:`UNMODELLED_DISTRIBUTION`, the env's
+                    ``unmodelled_effects=True``): valve threshold 0.25-0.5 % and hysteresis 1.5-3 %
+                    of rated current, sensor delay 1-2 samples, a 16-20 bit position encoder, a
+                    velocity step 1e-4-1e-3 rad/s (:data:`ehss_gym.core.unmodelled.DATASHEET_RANGES`)
 ==================  ===========================================================================
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
 from .params import PlantParams
 from .settings import PAPER_FRICTION, PHYSICAL_FIELDS, Scenario
 from .signals import FAMILIES, chirp, multisine, paper_reference, sine, step
+from .unmodelled import DATASHEET_RANGES, NONE, UnmodelledRanges, draw_unmodelled
 
 TRAIN_SEED_LIMIT = 2**62  # training scenario seeds are < this; held-out seeds are >= this
 HELDOUT_SEED_BASE = TRAIN_SEED_LIMIT
@@ -65,6 +70,9 @@ class Distribution:
         mismatch: relative half-width of the plant-parameter scaling (0.2 = +-20 %).
         noise_probability: probability that an episode has sensor noise.
         noise_std_max: largest noise std of (x1 [rad], x2 [rad/s], x3 [Pa], x4 [m^2]).
+        unmodelled: the ranges of the valve and sensor effects the law's model leaves out, drawn from a generator
+            of their own (:func:`ehss_gym.core.unmodelled.draw_unmodelled`, so the other draws are unchanged); None
+            = none (the default).
     """
 
     episode_seconds: float = 2.0
@@ -78,9 +86,11 @@ class Distribution:
     mismatch: float = 0.2
     noise_probability: float = 0.5
     noise_std_max: tuple[float, float, float, float] = (1e-5, 1e-4, 2e3, 1e-10)
+    unmodelled: UnmodelledRanges | None = None
 
 
 DEFAULT_DISTRIBUTION = Distribution()
+UNMODELLED_DISTRIBUTION = Distribution(unmodelled=DATASHEET_RANGES)  # the env's unmodelled_effects=True
 
 
 def paper_scenario(template: Scenario, t_end: float | None = None) -> Scenario:
@@ -145,8 +155,9 @@ def sample_scenario(scenario_seed: int, template: Scenario, episode_seconds: flo
     else:
         noise = (0.0, 0.0, 0.0, 0.0)
     noise_seed = int(rng.integers(0, 2**52))
+    unmodelled = NONE if dist.unmodelled is None else draw_unmodelled(int(scenario_seed), dist.unmodelled)
     return template.replace(reference=ref, friction=tuple(events), plant=plant, model=nominal, noise_std=noise,
-                            seed=noise_seed, t_end=T)
+                            seed=noise_seed, t_end=T, unmodelled=unmodelled)
 
 
 def heldout_scenarios(count: int, template: Scenario, episode_seconds: float | None = None,
@@ -179,6 +190,7 @@ def describe(sc: Scenario) -> dict:
         "noise_std": tuple(sc.noise_std),
         "noise_seed": int(sc.seed),
         "t_end": sc.t_end,
+        "unmodelled": asdict(sc.unmodelled),
     }
 
 
@@ -188,5 +200,6 @@ def controller_mismatch(sc: Scenario, template: Scenario) -> list[str]:
     return [f.name for f in fields(Scenario) if f.name not in phys and getattr(sc, f.name) != getattr(template, f.name)]
 
 
-__all__ = ["Distribution", "DEFAULT_DISTRIBUTION", "paper_scenario", "sample_scenario", "heldout_scenarios",
+__all__ = ["Distribution", "DEFAULT_DISTRIBUTION", "UNMODELLED_DISTRIBUTION",
+           "paper_scenario", "sample_scenario", "heldout_scenarios",
            "describe", "controller_mismatch", "TRAIN_SEED_LIMIT", "HELDOUT_SEED_BASE", "PHYSICAL_FIELDS"]

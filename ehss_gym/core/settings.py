@@ -26,6 +26,7 @@ from .filters import butterworth_coefficients
 from .params import PlantParams
 from .registry import ESTIMATORS, LAWS, REFERENCE_FAMILIES, code, entry, names
 from .signals import Reference, paper_reference
+from .unmodelled import Unmodelled
 from .validate import check_bool, check_choice, check_even_n, check_finite, check_positive
 
 TASKS = {"velocity": 3, "position": 4}  # task -> relative degree m of its output
@@ -33,7 +34,8 @@ UNITS = {"velocity": "rad/s", "position": "rad"}  # task -> unit of its output y
 PAPER_FRICTION = ((1.8, 8.0, 10.0),)
 LAYER_GAIN_MAX = 100.0  # largest adaptive boundary-layer gain accepted (w_eff = gain * noise std of s)
 # Scenario fields an episode (not the controller) sets; the rest are the loop settings.
-PHYSICAL_FIELDS = ("reference", "friction", "plant", "model", "noise_std", "seed", "t_end", "log_interval")
+PHYSICAL_FIELDS = ("reference", "friction", "plant", "model", "noise_std", "seed", "t_end", "log_interval",
+                   "unmodelled")
 
 # --- The controller row (one per run): the loop settings as the kernels read them -----------------------
 C_ORDER = 0  # relative degree m: 3 velocity, 4 position
@@ -60,7 +62,13 @@ C_REF_ACCEL = 20  # acceleration bound of the reference shaper [rad/s^2] (positi
 C_PDOMAIN = 21  # the model is evaluated at |x3| <= C_PDOMAIN * P_s (of the model); inf = at the measured x3 as is
 C_ANALOG = 22  # 1: the estimator's filters and the reference model are continuous, integrated with the plant
 C_DOB_GAIN = 23  # disturbance observer: its filter gain per period, 1 - exp(-2 pi dob_hz h) [-]; 0 = off
-N_CTRL = 24
+# The effects the law's model leaves out (ehss_gym.core.unmodelled; physical: the episode's, not a loop setting)
+C_THRESHOLD = 24  # servo-valve threshold (dead band) th [mA]; 0 = off
+C_HYSTERESIS = 25  # servo-valve hysteresis, the play operator's total width h [mA]; 0 = off
+C_DELAY = 26  # sensor delay [control samples] (integer stored as float); 0 = off
+C_POS_STEP = 27  # encoder count of the measured x1 [rad]; 0 = not quantised
+C_VEL_STEP = 28  # quantisation step of the measured x2 [rad/s]; 0 = not quantised
+N_CTRL = 29
 
 
 def check_friction(events) -> tuple[tuple[float, float, float], ...]:
@@ -112,6 +120,10 @@ class Scenario:
     """the controller's model of the plant; None = the plant (no mismatch)"""
     noise_std: tuple = (0.0, 0.0, 0.0, 0.0)
     """measurement noise std of (x1 [rad], x2 [rad/s], x3 [Pa], x4 [m^2])"""
+    unmodelled: Unmodelled = field(default_factory=Unmodelled)
+    """the servo valve's threshold and hysteresis, the sensor delay and the encoder quantisation, which the law's
+    model leaves out (:class:`ehss_gym.core.unmodelled.Unmodelled`); default all off. See docs/MODEL.md, "Unmodelled
+    valve and sensors"."""
     seed: int = 0
     """noise seed (integer >= 0)"""
     ref_model_hz: float = 20.0
@@ -220,6 +232,9 @@ class Scenario:
                 raise ValueError(f"{name} must be a PlantParams (use make_plant_params), got {type(v).__name__}")
         if self.lost_track is not None:
             object.__setattr__(self, "lost_track", check_positive("lost_track", self.lost_track))
+        if not isinstance(self.unmodelled, Unmodelled):
+            raise ValueError(f"unmodelled must be an ehss_gym.core.unmodelled.Unmodelled, got "
+                             f"{type(self.unmodelled).__name__}")
 
     @property
     def order(self) -> int:
@@ -282,7 +297,17 @@ def ctrl_row(sc: Scenario) -> np.ndarray:
     row[C_REF_ACCEL] = sc.ref_accel
     row[C_PDOMAIN] = math.inf if sc.pressure_domain is None else sc.pressure_domain
     row[C_DOB_GAIN] = dob_gain(sc.dob_hz, sc.control_period)
+    unmodelled_slots(sc.unmodelled, row)
     return row
+
+
+def unmodelled_slots(um: Unmodelled, row: np.ndarray) -> None:
+    """Write the unmodelled effects ``um`` into their slots of controller row ``row`` (C_THRESHOLD .. C_VEL_STEP)."""
+    row[C_THRESHOLD] = um.threshold_current
+    row[C_HYSTERESIS] = um.hysteresis_current
+    row[C_DELAY] = um.delay
+    row[C_POS_STEP] = um.position_step
+    row[C_VEL_STEP] = um.velocity_step
 
 
 def dob_gain(dob_hz: float, control_period: float) -> float:
@@ -296,4 +321,4 @@ def dob_gain(dob_hz: float, control_period: float) -> float:
 
 
 __all__ = ["Scenario", "TASKS", "UNITS", "PAPER_FRICTION", "LAYER_GAIN_MAX", "PHYSICAL_FIELDS", "LOOP_SETTINGS",
-           "check_friction", "lambdas", "ctrl_row", "dob_gain", "N_CTRL"]
+           "check_friction", "lambdas", "ctrl_row", "unmodelled_slots", "dob_gain", "N_CTRL"]

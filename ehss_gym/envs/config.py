@@ -20,7 +20,7 @@ import numpy as np
 from ehss_gym.core.registry import LAWS, names
 from ehss_gym.core.scenarios import controller_mismatch, paper_scenario
 from ehss_gym.core.settings import LOOP_SETTINGS, PHYSICAL_FIELDS, TASKS, Scenario
-from ehss_gym.core.validate import check_choice, check_finite, check_int, check_positive
+from ehss_gym.core.validate import check_bool, check_choice, check_finite, check_int, check_positive
 
 # The bumpless start (the reference model starts at the measured output and its estimated derivatives, as servo
 # drives do) is the default of both tasks because of the evaluation's ruler, not the noise study: with the paper's
@@ -144,6 +144,8 @@ class EnvDefaults:
         reward_weights: track, effort, rate, tv, tv_u, divergence weights.
         lost_track: lost-track bound as a multiple of the reference's amplitude (see ``Scenario.lost_track``).
         terminate_on_lost_track: end an episode (``terminated=True``) once it has lost track.
+        unmodelled_effects: "random" episodes draw the valve and sensor effects the law's model leaves out
+            (:data:`ehss_gym.core.scenarios.UNMODELLED_DISTRIBUTION`).
         velocity, position: per-task defaults.
     """
 
@@ -161,6 +163,7 @@ class EnvDefaults:
                              ("divergence", 10.0))
     lost_track: float = 1.0
     terminate_on_lost_track: bool = False
+    unmodelled_effects: bool = False
     # Per task, the noise study's choice (reports/noise/recommended.json; tests/test_noise.py checks it): velocity the
     # paper's SVF with Sontag, position the 1 kHz observer with Sontag and the 100 rad/s^2 reference shaper. The law's
     # sigma, f_r, smoothing and boundary layer are the baselines' tuning (LAW_DEFAULTS). The bumpless start is the
@@ -183,10 +186,11 @@ FIXED_LOOP = ("ref_model_hz", "omega_max", "pressure_bound")
 # The env's settings: the loop settings it exposes, then its own.
 LOOP_KEYS = tuple(k for k in LOOP_SETTINGS if k not in FIXED_LOOP)
 ENV_KEYS = ("mode", "residual_scale", "agent_period", "scenario", "reward_weights", "error_scale", "episode_seconds",
-            "terminate_on_lost_track")
+            "terminate_on_lost_track", "unmodelled_effects")
 # What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends.
 POLICY_KEYS = tuple(k for k in LOOP_KEYS + ENV_KEYS
-                    if k not in ("scenario", "episode_seconds", "lost_track", "terminate_on_lost_track"))
+                    if k not in ("scenario", "episode_seconds", "lost_track", "terminate_on_lost_track",
+                                 "unmodelled_effects"))
 # Settings whose default depends on the task (residual_scale: on the current limit, sigma: on the law too); None
 # selects that default.
 TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_by_law") + ("residual_scale",)
@@ -225,6 +229,7 @@ class EnvConfig:
     error_scale: float
     episode_seconds: float | None
     terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track
+    unmodelled_effects: bool = DEFAULTS.unmodelled_effects
 
     KEYS = LOOP_KEYS + ENV_KEYS
 
@@ -327,8 +332,9 @@ def _episode_settings(kwargs: dict, td: TaskDefaults, d: EnvDefaults, agent_dt: 
     stop_lost = kwargs.get("terminate_on_lost_track", d.terminate_on_lost_track)
     if not isinstance(stop_lost, (bool, np.bool_)):
         raise ValueError(f"terminate_on_lost_track must be True or False, got {stop_lost!r}")
+    unmodelled = check_bool("unmodelled_effects", kwargs.get("unmodelled_effects", d.unmodelled_effects))
     return {"scenario": scenario, "reward_weights": rw, "error_scale": err, "episode_seconds": eps,
-            "terminate_on_lost_track": bool(stop_lost)}
+            "terminate_on_lost_track": bool(stop_lost), "unmodelled_effects": unmodelled}
 
 
 # The unit of each setting in the defaults table (U = the task's output unit: rad/s velocity, rad position; "" for a
@@ -341,7 +347,7 @@ SETTING_UNITS = {
     "lost_track": "x reference amplitude", "dob_hz": "Hz (0: off)",
     "mode": "", "residual_scale": "mA", "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
-    "terminate_on_lost_track": "",
+    "terminate_on_lost_track": "", "unmodelled_effects": "",
 }
 
 

@@ -167,6 +167,7 @@ class EHSSTrackingEnv(gym.Env):
     | `error_scale` | 0.01 | 0.01 | U |
     | `episode_seconds` | None | None | s (None: 2 s random, 20 s paper) |
     | `terminate_on_lost_track` | False | False |  |
+    | `unmodelled_effects` | False | False |  |
     | `sigma` with `law="lin-sontag"` | 3e6 | 1e7 | unit of s |
     | `fr` with `n=4` | 134.634 | 60 | Hz |
     | `sigma` with `n=4` | 1.654817e5 | 1.036633e4 | unit of s |
@@ -229,6 +230,10 @@ class EHSSTrackingEnv(gym.Env):
             Reported every step as ``info["lost_track"]``.
         terminate_on_lost_track: end the episode (``terminated=True``, ``info["lost_track"]=True``,
             ``info["diverged"]=False``, no divergence penalty) at the end of the step in which it lost track.
+        unmodelled_effects: with "random", each episode also draws the servo valve's threshold and hysteresis, a
+            sensor delay and the encoder quantisation that the law's model leaves out, at datasheet sizes
+            (:data:`ehss_gym.core.unmodelled.DATASHEET_RANGES`; docs/MODEL.md, "Unmodelled valve and sensors");
+            False (the default): none.
         render_mode: None or "rgb_array" (a dashboard: raw reference r, filtered y_d and output y; error; the
             applied current on a linear axis with its limit and its min/max envelope over each agent step;
             friction).
@@ -266,7 +271,8 @@ class EHSSTrackingEnv(gym.Env):
                  residual_scale: float | None = None, scenario: str | Scenario = DEFAULTS.scenario,
                  reward_weights: dict | None = None, error_scale: float | None = None,
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,
-                 terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track, render_mode: str | None = None,
+                 terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track,
+                 unmodelled_effects: bool = DEFAULTS.unmodelled_effects, render_mode: str | None = None,
                  **unknown):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got "

@@ -36,11 +36,22 @@ from ehss_gym.core.scenarios import (
     DEFAULT_DISTRIBUTION,
     PHYSICAL_FIELDS,
     TRAIN_SEED_LIMIT,
+    UNMODELLED_DISTRIBUTION,
     describe,
     paper_scenario,
     sample_scenario,
 )
-from ehss_gym.core.settings import C_BASE, C_NOISE_THETA, C_OMEGA_MAX, C_P_BOUND, C_SEED, N_CTRL, Scenario, ctrl_row
+from ehss_gym.core.settings import (
+    C_BASE,
+    C_NOISE_THETA,
+    C_OMEGA_MAX,
+    C_P_BOUND,
+    C_SEED,
+    N_CTRL,
+    Scenario,
+    ctrl_row,
+    unmodelled_slots,
+)
 
 from .buffers import (
     BB_ACT,
@@ -185,6 +196,7 @@ class Lanes:
         row[C_NOISE_THETA:C_NOISE_THETA + 4] = sc.noise_std
         row[C_OMEGA_MAX] = sc.omega_max
         row[C_P_BOUND] = sc.pressure_bound
+        unmodelled_slots(sc.unmodelled, row)
         self.ref[b] = sc.reference.spec
         self.events[b, :, :] = 0.0
         self.events[b, :, EV_START] = self.events[b, :, EV_END] = math.inf
@@ -266,7 +278,8 @@ class Lanes:
             info["scenario_name"] = "paper"
         elif choice == "random":
             seed = int(rng.integers(0, TRAIN_SEED_LIMIT))
-            sc = sample_scenario(seed, tmpl, cfg.episode_seconds, DEFAULT_DISTRIBUTION)
+            sc = sample_scenario(seed, tmpl, cfg.episode_seconds,
+                                 UNMODELLED_DISTRIBUTION if cfg.unmodelled_effects else DEFAULT_DISTRIBUTION)
             info["scenario_name"] = "random"
             info["scenario_seed"] = seed
         else:

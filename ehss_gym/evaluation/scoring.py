@@ -52,7 +52,8 @@ CLASS_METRICS = {
 }
 FLOORS = (("errors and IAEs", ERROR_FLOOR, "output unit (* s)"), ("control TV", TV_FLOOR, "mA/s"),
           ("RMS current", CURRENT_FLOOR, "mA"))
-FIGURE_SUITES = ("paper", "heldout", "robustness")  # the suites with the summary figure (step: its own table)
+# the suites with the summary figure (step: its own table)
+FIGURE_SUITES = ("paper", "heldout", "robustness", "unmodelled")
 STEP_KEYS = ("step_rise_time", "step_overshoot", "step_settling_time")  # step-suite extras, with iae_r
 
 # (key, label, unit ("U" = output unit), definition) of every reported metric; keys of metrics.summarize_acc

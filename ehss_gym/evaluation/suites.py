@@ -13,6 +13,11 @@ Per task (the physical episodes come from :mod:`ehss_gym.core.scenarios`):
 - ``step``: the start-up/step suite: from rest (plant, reference model and estimator at rest, r = 0 before
   the step) a step of each amplitude of ``EvalConfig.step_amplitudes`` at :data:`STEP_TIME`, lasting
   :data:`STEP_SECONDS` of the task; no friction, no noise, plant = model.
+- ``unmodelled``: ``K`` episodes of the held-out distribution (seeds at ``HELDOUT_SEED_BASE +``
+  :data:`UNMODELLED_SEED_START` ``+ i``, disjoint from the other suites' and every training seed) with the valve and
+  sensor effects the law's model leaves out drawn at datasheet sizes
+  (:data:`ehss_gym.core.scenarios.UNMODELLED_DISTRIBUTION`: valve threshold and hysteresis, sensor delay, encoder
+  quantisation; docs/MODEL.md, "Unmodelled valve and sensors").
 
 The paper suite keeps the paper's start (:data:`SUITE_ENV`: the reference model at its steady state for r(0));
 the others run at the env's default, the bumpless start.
@@ -26,18 +31,25 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ehss_gym.core.params import PlantParams
-from ehss_gym.core.scenarios import HELDOUT_SEED_BASE, PHYSICAL_FIELDS, heldout_scenarios, paper_scenario
+from ehss_gym.core.scenarios import (
+    HELDOUT_SEED_BASE,
+    PHYSICAL_FIELDS,
+    UNMODELLED_DISTRIBUTION,
+    heldout_scenarios,
+    paper_scenario,
+)
 from ehss_gym.core.settings import UNITS  # task -> unit of its output y (re-exported: the report's tables use it)
 from ehss_gym.core.signals import step
 from ehss_gym.envs import EnvConfig
 
 TASKS = ("velocity", "position")
-SUITES = ("paper", "heldout", "robustness", "step")
+SUITES = ("paper", "heldout", "robustness", "step", "unmodelled")
 SUITE_ENV = {"paper": {"bumpless": False}}  # env settings a suite fixes for every policy (the paper's start)
 STEP_TIME = 0.1  # [s] when the step-suite reference steps from 0
 STEP_AMPLITUDES = (0.2, -0.2, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5)  # [output unit] the step suite's steps
 STEP_SECONDS = {"velocity": 1.0, "position": 1.5}  # [s] duration of a step-suite episode per task
 ROBUST_SEED_START = 1_000_000  # held-out seed offset of the robustness episodes (the heldout suite uses 0..K-1)
+UNMODELLED_SEED_START = 2_000_000  # held-out seed offset of the unmodelled suite's episodes
 SWEEP_WINDOW = (0.8, 1.4)  # [s] friction event of the robustness sweeps (in 2 s episodes)
 SWEEP_MISMATCH_FRICTION = 1.8  # [N*m] friction amplitude during the mismatch sweep (the paper's)
 MISMATCH_PARAMS = ("beta", "J", "B", "c_sm", "P_s")
@@ -49,9 +61,10 @@ class EvalConfig:
     """Sizes and seeds of an evaluation.
 
     Attributes:
-        suites: any of "paper", "heldout", "robustness".
+        suites: any of "paper", "heldout", "robustness", "step", "unmodelled".
         tasks: any of "velocity", "position".
-        heldout_episodes: randomised held-out episodes per task (K).
+        heldout_episodes: randomised held-out episodes per task (K), in the heldout suite and in the unmodelled
+            suite each.
         episode_seconds: duration of held-out and robustness episodes [s].
         paper_seconds: duration of the paper run [s] (the paper: 20).
         friction_levels: friction amplitudes of the sweep [N*m] (0: an event of amplitude 0).
@@ -122,7 +135,7 @@ class Episode:
     """One pinned episode: its physical fields (:data:`ehss_gym.core.settings.PHYSICAL_FIELDS`) and labels.
 
     Attributes:
-        suite: "paper", "heldout", "robustness" or "step".
+        suite: "paper", "heldout", "robustness", "step" or "unmodelled".
         task: "velocity" or "position".
         episode_id: unique within the suite and task (e.g. "heldout-3", "friction=1.8#0").
         physical: the scenario's physical fields (reference, friction, plant, model, noise, seed, t_end, ...).
@@ -207,9 +220,14 @@ def build_episodes(cfg: EvalConfig) -> list[Episode]:
             out += _robustness_episodes(cfg, task, tmpl)
         if "step" in cfg.suites:
             out += _step_episodes(cfg, task, tmpl)
+        if "unmodelled" in cfg.suites:
+            scs = heldout_scenarios(cfg.heldout_episodes, tmpl, cfg.episode_seconds, UNMODELLED_DISTRIBUTION,
+                                    start=UNMODELLED_SEED_START)
+            out += [Episode("unmodelled", task, f"unmodelled-{i}", _physical(sc),
+                            scenario_seed=HELDOUT_SEED_BASE + UNMODELLED_SEED_START + i) for i, sc in enumerate(scs)]
     return out
 
 
 __all__ = ["TASKS", "SUITES", "SUITE_ENV", "STEP_TIME", "STEP_AMPLITUDES", "STEP_SECONDS", "step_of", "UNITS",
-           "ROBUST_SEED_START", "SWEEP_WINDOW", "SWEEP_MISMATCH_FRICTION", "MISMATCH_PARAMS", "EvalConfig", "Episode",
-           "build_episodes"]
+           "ROBUST_SEED_START", "UNMODELLED_SEED_START", "SWEEP_WINDOW", "SWEEP_MISMATCH_FRICTION", "MISMATCH_PARAMS",
+           "EvalConfig", "Episode", "build_episodes"]

@@ -17,6 +17,7 @@ from collections.abc import Sequence
 
 from ehss_gym._version import __version__
 from ehss_gym.core.params import PlantParams
+from ehss_gym.core.unmodelled import DATASHEET_RANGES
 from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.harness import Results
 from ehss_gym.evaluation.scoring import (
@@ -41,6 +42,7 @@ from ehss_gym.evaluation.suites import (
     SWEEP_WINDOW,
     TASKS,
     UNITS,
+    UNMODELLED_SEED_START,
 )
 from ehss_gym.infra.fmt import fmt_cell
 from ehss_gym.infra.util import atomic_write_text
@@ -332,6 +334,7 @@ def report_context(res: Results, figs: dict, steps: list[dict], with_bound: bool
         "policy_rows": _policy_rows(res), "env_rows": _env_rows(res), "classes": CLASSES,
         "reference": REFERENCE_POLICY, "floors": FLOORS, "saturation_gate": SATURATION_GATE,
         "robust_seed_start": ROBUST_SEED_START, "sweep_window": SWEEP_WINDOW,
+        "unmodelled_seed_start": UNMODELLED_SEED_START, "unmodelled_ranges": DATASHEET_RANGES,
         "mismatch_friction": SWEEP_MISMATCH_FRICTION, "step_time": STEP_TIME, "step_seconds": STEP_SECONDS,
         "metric_rows": [[f"{_md(label)} (`{key}`)", unit, _md(text)] for key, label, unit, text in METRICS],
         "first": _first_screen(res), "blocks": _detail_blocks(res), "earlier_rows": earlier_rows(res),
