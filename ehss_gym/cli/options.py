@@ -550,8 +550,9 @@ COMMANDS = (
             add_noise, "noise"),
     Command("evaluate", "compare CLF n=2/4/6, PID and learned policies on the same scenarios",
             "Measure scripted and learned policies against the reference law (clf-n2) by metric class (tracking, "
-            "disturbance, effort, chatter) on the paper scenario, a held-out randomised suite, robustness sweeps and a "
-            "step suite; write REPORT.md, CSVs and figures.", add_evaluate, "evaluate"),
+            "disturbance, effort, chatter) on the paper scenario, a held-out randomised suite, robustness sweeps, a "
+            "step suite and a suite with the valve and sensor effects the law's model leaves out; write REPORT.md, "
+            "CSVs and figures.", add_evaluate, "evaluate"),
     Command("factors", "the ruler's factor table: each metric class with friction, mismatch and noise removed",
             "The default law on the held-out suite with friction, model mismatch and sensor noise removed one at a "
             "time and all together: each metric class's level; writes FACTORS.md and factors.csv.", add_factors,

@@ -3,7 +3,7 @@
 Modules, bottom to top:
 
 - :mod:`~ehss_gym.evaluation.suites`: :class:`EvalConfig`, :class:`Episode`, :func:`build_episodes` (the paper
-  run, the held-out suite, the robustness sweeps, the step suite).
+  run, the held-out suite, the robustness sweeps, the step suite, the unmodelled suite).
 - :mod:`~ehss_gym.evaluation.loading`: a spec's run (model file, scripted-law description, object) as an object
   with ``predict``; each model loaded once per process.
 - :mod:`~ehss_gym.evaluation.specs`: :class:`PolicySpec` and its sources (:func:`parse_policy`,
