@@ -335,7 +335,7 @@ def test_cli_quick_writes_the_report(tmp_path, capsys):
     rc = main(["evaluate", "--quick", "--out", str(out), "--store", str(tmp_path / "jobs"), "--no-progress"])
     assert rc == 0
     for f in ("REPORT.md", "episodes.csv", "summary.csv", "steps.csv", "figures/pareto_heldout.png",
-              "figures/pareto_paper.png", "figures/pareto_robustness.png",
+              "figures/pareto_paper.png", "figures/pareto_robustness.png", "figures/pareto_unmodelled.png",
               "figures/paper_traces_velocity.png", "figures/paper_traces_position.png",
               "figures/robustness_velocity.png", "figures/metrics_heldout_velocity.png"):
         assert (out / f).is_file(), f
@@ -353,15 +353,16 @@ def test_cli_quick_writes_the_report(tmp_path, capsys):
     cfg = ev.EvalConfig.quick()
     n_specs = len(ev.default_specs())
     rows = _csv_rows(out / "episodes.csv")
-    per_task = (1 + cfg.heldout_episodes + cfg.sweep_episodes * (len(cfg.friction_levels) + len(cfg.mismatch_levels))
-                + len(cfg.step_amplitudes))
+    per_task = (1 + 2 * cfg.heldout_episodes  # the heldout and the unmodelled suite
+                + cfg.sweep_episodes * (len(cfg.friction_levels) + len(cfg.mismatch_levels)) + len(cfg.step_amplitudes))
     scripted = len(ev.SCRIPTED_DEFAULT)
     assert len(rows) >= scripted * 2 * per_task
     assert len(rows) <= n_specs * 2 * per_task * 10  # learned models add at most a few seeds per task
     ref = [r for r in rows if r["policy"] == ev.REFERENCE_POLICY and r["suite"] != "step"]
     assert all(float(r["q_overall"]) == 1.0 for r in ref)
     summary = _csv_rows(out / "summary.csv")
-    assert {r["suite"] for r in summary} == {"paper", "heldout", "robustness"}  # the step suite: its own table
+    # the step suite: its own table
+    assert {r["suite"] for r in summary} == {"paper", "heldout", "robustness", "unmodelled"}
     steps = _csv_rows(out / "steps.csv")
     assert len({(r["task"], r["amplitude"]) for r in steps}) == 2 * len(cfg.step_amplitudes)
     assert all(0 < float(r["step_rise_time"]) < 0.5 for r in steps if r["policy"] == ev.REFERENCE_POLICY)

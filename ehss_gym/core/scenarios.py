@@ -101,7 +101,8 @@ def paper_scenario(template: Scenario, t_end: float | None = None) -> Scenario:
         t_end: duration [s]; None = the paper's 20 s.
     """
     return template.replace(reference=paper_reference(), friction=PAPER_FRICTION, plant=PlantParams(), model=None,
-                            noise_std=(0.0, 0.0, 0.0, 0.0), seed=0, t_end=PAPER_T_END if t_end is None else t_end)
+                            noise_std=(0.0, 0.0, 0.0, 0.0), seed=0, t_end=PAPER_T_END if t_end is None else t_end,
+                            unmodelled=NONE)
 
 
 def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
