@@ -293,6 +293,7 @@ LOOP_TYPES = {
     "ref_accel": finite("--ref-accel", 0.0, low_open=False),
     "dob_hz": finite("--dob-hz", 0.0, low_open=False),
     "pressure_domain": or_none("--pressure-domain", finite("--pressure-domain", 0.0)),
+    "lyapunov_kappa": or_none("--lyapunov-kappa", finite("--lyapunov-kappa", 0.0, low_open=False)),
     "lost_track": or_none("--lost-track", finite("--lost-track", 0.0)),
 }
 LOOP_CHOICES = {"estimator": ESTIMATORS, "law": LAWS}

@@ -16,7 +16,7 @@ import math
 
 from .estimators import advance_filters, estimate_derivatives, filter_outputs
 from .jit import jit_inline, jit_noalloc
-from .laws import base_current, clf_value
+from .laws import base_current, clf_value, decrease_clip
 from .layout import (
     FB_VEC,
     FB_VEC2,
@@ -65,6 +65,7 @@ from .settings import (
     C_LAM0,
     C_LAW,
     C_LAYER_GAIN,
+    C_LYAP_KAPPA,
     C_N,
     C_NOISE_THETA,
     C_ORDER,
@@ -242,6 +243,7 @@ def controller_apply(z, info, ctrl, u_base, u_res):
     compares the next sample with: this sample's s and its prediction psi + G u_app of s' (the applied current, so a
     clipped command does not wind the estimate up).
     """
+    u_res = lyapunov_residual(info, ctrl[C_LYAP_KAPPA], ctrl[C_BASE] * u_base, u_res)
     u_cmd = ctrl[C_BASE] * u_base + u_res
     ulim = ctrl[C_ULIM]
     sat = 0.0
@@ -261,6 +263,46 @@ def controller_apply(z, info, ctrl, u_base, u_res):
         z[Z_DOB + 2] = info[I_PSI] + info[I_G] * u_app
     return u_app
 
+
+@jit_inline
+def lyapunov_residual(info, kappa, u0, u_res):
+    r"""The residual [mA] of the Lyapunov-constrained mode: ``u_res`` clipped so that V' <= kappa * the law's decrease.
+
+    Derivation, in the law's own terms (:mod:`ehss_gym.core.laws`). With s' = psi + G u and V = (s/sigma)^n / n,
+    V' = a + b u with a = q psi / sigma, b = q G / sigma, q = (s/sigma)^(n-1). n is even, so q has the sign of s and
+    |q| / sigma > 0 wherever s != 0; dividing by it,
+
+        V' <= kappa D   <=>   a' + b' u <= kappa D',   a' = sign(s) psi,  b' = sign(s) G,  D' = a' + b' u_law,
+
+    D = (|q| / sigma) D' the law's own decrease V' at its current u_law (the base current without the disturbance
+    observer's). For the plain Sontag law D = -sqrt(a^2 + b^4), i.e. D' = -|G| hypot(psi/G, |q| |G| / sigma); the
+    smoothed law's is |sgn_w(s)| times that and Lin-Sontag's its own, all read off u_law, so no power of s is formed
+    and neither n nor sigma enters. Where D' < 0 (the law makes V decrease) the residual is the nearest to ``u_res``
+    with a' + b' (u0 + r) <= kappa D' (:func:`ehss_gym.core.laws.decrease_clip`); since kappa < 1 and D' < 0, the
+    law's current alone qualifies (r = 0 with the observer off): the clip never asks more than doing nothing. Elsewhere
+    (s = 0, or a law that cannot make V decrease there) the residual is left as commanded. The current limit applied
+    afterwards keeps the condition wherever some current within the limit meets it (a clip onto an interval keeps a
+    point of a half-line in it when they meet). With the observer on, its current is part of u0 and counts against
+    the same bound.
+
+    Args:
+        info: the sample's info (layout I_*): s, psi, G, the base current and the observer's part.
+        kappa: the share of the law's decrease kept, in [0, 1); < 0 = off (``u_res`` returned as is).
+        u0: the current the residual is added to [mA] (C_BASE times the base current).
+        u_res: the commanded residual [mA].
+    """
+    if kappa < 0.0:
+        return u_res
+    s = info[I_S]
+    if s == 0.0:
+        return u_res
+    sg = 1.0 if s > 0.0 else -1.0
+    a = sg * info[I_PSI]
+    b = sg * info[I_G]
+    decrease = a + b * (info[I_UBASE] - info[I_UDOB])
+    if not decrease < 0.0:
+        return u_res
+    return decrease_clip(a, b, u0, u_res, kappa * decrease)
 
 
 @jit_inline
@@ -317,5 +359,5 @@ def _sgn(x):
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
 
-__all__ = ["controller_update", "controller_sense", "controller_apply", "dob_current", "shape_reference", "fhan",
-           "NOISE_TAU"]
+__all__ = ["controller_update", "controller_sense", "controller_apply", "dob_current", "lyapunov_residual",
+           "shape_reference", "fhan", "NOISE_TAU"]

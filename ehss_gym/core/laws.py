@@ -186,6 +186,38 @@ def min_norm(psi, G, s):
     return 0.0
 
 
+EPS = 2.220446049250313e-16  # the float64 machine epsilon
+
+
+@jit
+def decrease_clip(a, b, u0, r, bound):
+    r"""The residual nearest to ``r`` [mA] with which a + b (u0 + r) <= ``bound``: the Lyapunov-constrained clip.
+
+    V' = a + b u is affine in the current u = u0 + r, so the residuals that keep V' <= bound form a half-line:
+    r <= r* for b > 0, r >= r* for b < 0, with r* = (bound - a)/b - u0. Its nearest point to r (the smallest
+    change) is r itself inside and r* outside. With b = 0 (or b not finite) V' does not depend on r: r is returned.
+    r* is moved into the half-line by a margin of 8 eps times the magnitudes it is formed from (|bound/b|, |a/b|,
+    |u0|, |r*|), more than the rounding of r* and of the sum u0 + r, so the rounded current u0 + r meets the
+    condition in exact arithmetic; a residual changes by at most that margin more than the exact projection would.
+
+    Args:
+        a: the drift term of V' (V' at u = 0).
+        b: the input term of V' (per mA).
+        u0: the current the residual is added to [mA].
+        r: the residual [mA].
+        bound: the largest V' allowed, in the unit of a.
+    """
+    if b == 0.0 or not math.isfinite(b):
+        return r
+    r_star = (bound - a) / b - u0
+    margin = 8.0 * EPS * (abs(bound / b) + abs(a / b) + abs(u0) + abs(r_star))
+    if b > 0.0:
+        lim = r_star - margin
+        return r if r <= lim else lim
+    lim = r_star + margin
+    return r if r >= lim else lim
+
+
 @jit
 def _int_power(x, k):
     """x^k for an integer k >= 0 by repeated multiplication (k = n - 1 is small in practice).
@@ -213,4 +245,4 @@ base_current = dispatch(
     [globals()[row.kernel] for row in LAWS], __name__, code="law",
     doc="The base current [mA] of law code ``law`` (its index in LAWS); NaN for an unknown code.")
 
-__all__ = ["base_current", "sontag", "lin_sontag", "smooth_sign", "switching_gain", "clf_value"]
+__all__ = ["base_current", "sontag", "lin_sontag", "smooth_sign", "switching_gain", "clf_value", "decrease_clip", "EPS"]

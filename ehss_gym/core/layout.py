@@ -153,7 +153,8 @@ M_DST_MAX = 38
 M_TRK_STEPS = 39  # tracking window
 M_TRK_SUM_E2 = 40
 M_TRK_SUM_ABS = 41
-N_METRICS = 42
+M_N_VMODEL_DEC = 42  # steps on which the model's V' at the applied current is < 0 (sign(s) (psi + G u_app) < 0)
+N_METRICS = 43
 LOST_TRACK_WINDOW = 0.1  # [s] time constant of the windowed (exponential moving) RMS of e
 
 DIV_NONE = 0

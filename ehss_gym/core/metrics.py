@@ -47,6 +47,9 @@ control period, T the simulated time):
 - ``peak_u``: max |commanded u|; ``peak_u_applied``; ``rms_u`` [mA].
 - ``saturation``: share of steps on which the current limit was active.
 - ``v_decrease``: share of steps on which V fell from the previous step.
+- ``v_model_decrease``: share of steps on which the model's V' = a + b u at the applied current is negative
+  (sign(s) (psi + G u) < 0, :func:`model_v_decreasing`): what the Lyapunov-constrained residual keeps
+  (``Scenario.lyapunov_kappa``) wherever the law itself makes V decrease within the current limit.
 - with a step reference, ``step_rise_time``, ``step_settling_time``, ``step_overshoot``, ``step_peak_time`` and
   ``step_steady_state_error`` (:func:`step_summary`).
 """
@@ -67,6 +70,9 @@ from .layout import (
     I_E,
     I_E_R,
     I_E_TRUE,
+    I_G,
+    I_PSI,
+    I_S,
     I_SAT,
     I_T,
     I_UAPP,
@@ -87,6 +93,7 @@ from .layout import (
     M_MAX_E_FRIC_TRUE,
     M_N_SAT,
     M_N_VDEC,
+    M_N_VMODEL_DEC,
     M_PEAK_UAPP,
     M_PEAK_UCMD,
     M_STEPS,
@@ -230,6 +237,19 @@ def accumulate(acc, info, h, k, events):
         acc[M_PEAK_UAPP] = abs(u)
     acc[M_SUM_U2] += u * u
     acc[M_N_SAT] += info[I_SAT]
+    acc[M_N_VMODEL_DEC] += model_v_decreasing(info)
+
+
+@jit_inline
+def model_v_decreasing(info):
+    """1.0 if the model's V' at the sample's applied current is negative, else 0.0.
+
+    V' = (s/sigma)^(n-1) (psi + G u) / sigma with n even has the sign of s (psi + G u), taken by signs (a product of
+    tiny values could underflow to 0).
+    """
+    s = info[I_S]
+    x = info[I_PSI] + info[I_G] * info[I_UAPP]
+    return 1.0 if (s > 0.0 and x < 0.0) or (s < 0.0 and x > 0.0) else 0.0
 
 
 # --- The summary, from the accumulator and the logged trajectory ---------------------------------------
@@ -321,6 +341,7 @@ def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray 
         "rms_u": math.sqrt(a[M_SUM_U2] / steps),
         "saturation": float(a[M_N_SAT] / steps),
         "v_decrease": float(a[M_N_VDEC] / max(steps - 1.0, 1.0)),
+        "v_model_decrease": float(a[M_N_VMODEL_DEC] / steps),
         "steps": int(steps),
         "iae_r": float(a[M_SUM_ABS_ER]),
     }

@@ -68,7 +68,8 @@ C_HYSTERESIS = 25  # servo-valve hysteresis, the play operator's total width h [
 C_DELAY = 26  # sensor delay [control samples] (integer stored as float); 0 = off
 C_POS_STEP = 27  # encoder count of the measured x1 [rad]; 0 = not quantised
 C_VEL_STEP = 28  # quantisation step of the measured x2 [rad/s]; 0 = not quantised
-N_CTRL = 29
+C_LYAP_KAPPA = 29  # Lyapunov-constrained residual: kappa in [0, 1); -1 = off (the residual as commanded)
+N_CTRL = 30
 
 
 def check_friction(events) -> tuple[tuple[float, float, float], ...]:
@@ -163,6 +164,11 @@ class Scenario:
     s' = psi + G u + d (friction, model mismatch) with a first-order filter of cutoff f_d and adds -d_hat/G (clipped
     to +-current_limit) to the law's current; in [0, 1/(2 control_period)) (below the Nyquist frequency of the control
     period); 0 = off (the paper's loop). See docs/MODEL.md, "Disturbance observer"."""
+    lyapunov_kappa: float | None = None
+    """Lyapunov-constrained residual: the residual current is clipped, each control period, to the nearest value with
+    which the model's V' = a + b u of the law's CLF is at most kappa times the law's own decrease (Sontag's
+    -sqrt(a^2 + b^4) for the plain law), wherever the law makes V decrease; kappa in [0, 1); None = off (the residual
+    as commanded). See docs/MODEL.md, "Lyapunov-constrained residual"."""
     omega_max: float = 1e3
     """divergence bound on |x2| [rad/s]"""
     pressure_bound: float = 1.5
@@ -196,6 +202,9 @@ class Scenario:
                              f"Nyquist frequency 1/(2 control_period) of the control period {self.control_period:g} s, "
                              f"got {self.dob_hz!r}") from None
         object.__setattr__(self, "dob_hz", dob)
+        if self.lyapunov_kappa is not None:
+            object.__setattr__(self, "lyapunov_kappa", check_finite("lyapunov_kappa", self.lyapunov_kappa, low=0.0,
+                                                                    high=1.0, high_open=True))
         if self.pressure_domain is not None:
             object.__setattr__(self, "pressure_domain", check_finite("pressure_domain", self.pressure_domain, low=0.0,
                                                                      high=1.0, low_open=True))
@@ -298,6 +307,7 @@ def ctrl_row(sc: Scenario) -> np.ndarray:
     row[C_PDOMAIN] = math.inf if sc.pressure_domain is None else sc.pressure_domain
     row[C_DOB_GAIN] = dob_gain(sc.dob_hz, sc.control_period)
     unmodelled_slots(sc.unmodelled, row)
+    row[C_LYAP_KAPPA] = -1.0 if sc.lyapunov_kappa is None else sc.lyapunov_kappa
     return row
 
 

@@ -203,7 +203,7 @@ NONE_IS_A_VALUE = tuple(f.name for f in fields(Scenario) if f.name in LOOP_KEYS 
 # reproduce the loop before them. A policy whose recorded settings lack them was trained in that loop and acts in it
 # (:func:`in_legacy_loop`).
 LEGACY_LOOP = {"law": "sontag", "layer_gain": 0.0, "bumpless": False, "ref_accel": 0.0, "pressure_domain": None,
-               "dob_hz": 0.0}
+               "dob_hz": 0.0, "lyapunov_kappa": None}
 
 
 def in_legacy_loop(env_kwargs: dict) -> dict:
@@ -345,6 +345,7 @@ SETTING_UNITS = {
     "observer_hz": "Hz",
     "law": "", "layer_gain": "-", "bumpless": "", "ref_accel": "rad/s^2 (0: none)", "pressure_domain": "x P_s",
     "lost_track": "x reference amplitude", "dob_hz": "Hz (0: off)",
+    "lyapunov_kappa": "- (None: off)",
     "mode": "", "residual_scale": "mA", "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
     "terminate_on_lost_track": "", "unmodelled_effects": "",

@@ -153,6 +153,7 @@ class EHSSTrackingEnv(gym.Env):
     | `ref_accel` | 0 | 100 | rad/s^2 (0: none) |
     | `pressure_domain` | 0.95 | 0.95 | x P_s |
     | `dob_hz` | 0 | 0 | Hz (0: off) |
+    | `lyapunov_kappa` | None | None | - (None: off) |
     | `lost_track` | 1 | 1 | x reference amplitude |
     | `mode` | `"residual"` | `"residual"` |  |
     | `residual_scale` | 10 | 10 | mA |
@@ -216,6 +217,11 @@ class EHSSTrackingEnv(gym.Env):
             it estimates the lumped disturbance d of s' = psi + G u + d (friction, model mismatch) and adds
             -d_hat/G, clipped to the current limit, to the base current (0: off; the scripted policy ``dob-n<k>``
             turns it on). See docs/MODEL.md, "Disturbance observer".
+        lyapunov_kappa: the Lyapunov-constrained residual: each control period the residual is clipped to the
+            nearest current with which the model's V' of the law's CLF is at most kappa times the law's own decrease
+            (Sontag's -sqrt(a^2 + b^4) for the plain law), wherever the law makes V decrease; kappa in [0, 1), None
+            = off. ``info["metrics"]["v_model_decrease"]`` is the episode's share of control periods with the model's
+            V' < 0. See docs/MODEL.md, "Lyapunov-constrained residual".
         scenario: "random" (the training distribution of :mod:`ehss_gym.core.scenarios`), "paper",
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
@@ -267,6 +273,7 @@ class EHSSTrackingEnv(gym.Env):
                  estimator_hz: float | None = None, observer_hz: float | None = None, law: str | None = None,
                  layer_gain: float | None = None, bumpless: bool | None = None, ref_accel: float | None = None,
                  pressure_domain: float | None = DEFAULTS.pressure_domain, dob_hz: float = DEFAULTS.dob_hz,
+                 lyapunov_kappa: float | None = None,
                  agent_period: int = DEFAULTS.agent_period,
                  residual_scale: float | None = None, scenario: str | Scenario = DEFAULTS.scenario,
                  reward_weights: dict | None = None, error_scale: float | None = None,
