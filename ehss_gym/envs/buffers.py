@@ -12,9 +12,21 @@ from ehss_gym.core.settings import N_CTRL
 S_SUM_E2, S_N, S_SAT, S_TV0 = 0, 1, 2, 3  # S_TV0: the lane's accumulated control TV when the step began
 S_UMIN, S_UMAX = 4, 5  # smallest and largest applied current [mA] over the step's control periods
 S_SATF = 6  # share of the step's control periods at the current limit (0 if none ran)
-N_STATS = 7
+# the metric-class sums of the accumulator when the step began (the class reward's differences): tracking sum e^2 and
+# sum |e| h, disturbance sum |e| h and max |e|, sum u^2 (S_TV0 holds the TV)
+S_TRK_E2, S_TRK_ABS, S_DST_ABS, S_DST_MAX, S_U2 = 7, 8, 9, 10, 11
+N_STATS = 12
 W_TRACK, W_EFFORT, W_RATE, W_TV, W_TVU, W_DIV, W_INV_E2, W_INV_SCALE = range(8)
-N_WEIGHTS = 8
+# the class reward's weight and the saturation weight; the memory filter: decay and gain per agent step, and its clip
+W_CLASS, W_SAT, W_MEM_DECAY, W_MEM_GAIN, W_MEM_CLIP = range(8, 13)
+N_WEIGHTS = 13
+# The class reward's coefficients per lane (set at load from the base law's run of the episode): tracking sum e^2,
+# tracking sum |e| h, disturbance sum |e| h, disturbance max |e|, control TV, sum u^2.
+R_TRK_E2, R_TRK_ABS, R_DST_ABS, R_DST_MAX, R_TV, R_U2 = range(6)
+N_RCLS = 6
+# The memory features per lane: the filtered error integral [output unit * s], the action of the step before last.
+MEM_EINT, MEM_APREV2 = 0, 1
+N_MEM = 2
 
 # Per-lane float64 buffer F (B, N_F): column blocks, so one kernel argument carries them all (numba's
 # dispatch costs ~0.1 us per array argument, a large share of a 15 us step).
@@ -33,7 +45,9 @@ F_STATS = F_ZPREV + N_LOOP  # per-agent-step statistics (N_STATS)
 F_URES = F_STATS + N_STATS  # residual current [mA]
 F_REW = F_URES + 1  # reward of the last step
 F_APREV = F_REW + 1  # previous normalised action
-N_F = F_APREV + 1
+F_RCLS = F_APREV + 1  # the class reward's coefficients (N_RCLS; 0 = off)
+F_MEM = F_RCLS + N_RCLS  # the memory features (N_MEM)
+N_F = F_MEM + N_MEM
 # Per-lane int64 buffer: step index k, agent steps taken, group id (scratch).
 IB_K, IB_NSTEP, IB_GID = 0, 1, 2
 N_IB = 3
@@ -41,6 +55,7 @@ N_IB = 3
 # the controller's view at the lane's next period (set by the look-ahead, cleared when used or reloaded).
 BB_RUN, BB_ACT, BB_PRE = 0, 1, 2
 N_BB = 3
-# Observation layout rows (3, D): info index, scale, flags (1 = symlog squash, 2 = from the last period).
+# Observation layout rows (3, D): info index, scale, flags (1 = symlog squash, 2 = from the last period, 4 = from the
+# lane's memory block F_MEM, the index then into it).
 LAY_SRC, LAY_SCALE, LAY_FLAGS = 0, 1, 2
-FLAG_SQUASH, FLAG_LAST = 1, 2
+FLAG_SQUASH, FLAG_LAST, FLAG_MEM = 1, 2, 4

@@ -141,7 +141,9 @@ class EnvDefaults:
         pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (None = anywhere).
         dob_hz: cutoff of the disturbance observer on the combined error [Hz]; 0 = off.
         scenario: "random" or "paper".
-        reward_weights: track, effort, rate, tv, tv_u, divergence weights.
+        reward_weights: track, effort, rate, tv, tv_u, divergence, class, saturation weights.
+        memory_tau: time constant [s] of the observation's filtered error integral (with the action of the step
+            before last: the memory features); None = no memory features (the observation as before).
         lost_track: lost-track bound as a multiple of the reference's amplitude (see ``Scenario.lost_track``).
         terminate_on_lost_track: end an episode (``terminated=True``) once it has lost track.
         unmodelled_effects: "random" episodes draw the valve and sensor effects the law's model leaves out
@@ -160,7 +162,8 @@ class EnvDefaults:
     dob_hz: float = 0.0
     scenario: str = "random"
     reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("tv_u", 0.0),
-                             ("divergence", 10.0))
+                             ("divergence", 10.0), ("class", 0.0), ("saturation", 0.0))
+    memory_tau: float | None = None
     lost_track: float = 1.0
     terminate_on_lost_track: bool = False
     unmodelled_effects: bool = False
@@ -180,13 +183,13 @@ class EnvDefaults:
 DEFAULTS = EnvDefaults()
 MODES = ("residual", "direct")
 SCENARIOS = ("random", "paper")
-REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence")
+REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence", "class", "saturation")
 # Loop settings the env keeps at the Scenario's defaults (not keyword arguments of the env).
 FIXED_LOOP = ("ref_model_hz", "omega_max", "pressure_bound")
 # The env's settings: the loop settings it exposes, then its own.
 LOOP_KEYS = tuple(k for k in LOOP_SETTINGS if k not in FIXED_LOOP)
 ENV_KEYS = ("mode", "residual_scale", "agent_period", "scenario", "reward_weights", "error_scale", "episode_seconds",
-            "terminate_on_lost_track", "unmodelled_effects")
+            "terminate_on_lost_track", "unmodelled_effects", "memory_tau")
 # What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends.
 POLICY_KEYS = tuple(k for k in LOOP_KEYS + ENV_KEYS
                     if k not in ("scenario", "episode_seconds", "lost_track", "terminate_on_lost_track",
@@ -197,7 +200,7 @@ TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_
 # Settings for which None is a value (no current limit, the model at the measured pressure, no lost-track detection,
 # the episode's own duration); for the others a keyword argument None selects the default.
 NONE_IS_A_VALUE = tuple(f.name for f in fields(Scenario) if f.name in LOOP_KEYS and "None" in str(f.type)) + (
-    "episode_seconds",)
+    "episode_seconds", "memory_tau")
 # The loop of the first policies of release 0.1: the settings added since (the law, the adaptive boundary layer, the
 # bumpless start, the reference shaper, the model's pressure domain, the disturbance observer) at the values that
 # reproduce the loop before them. A policy whose recorded settings lack them was trained in that loop and acts in it
@@ -230,6 +233,7 @@ class EnvConfig:
     episode_seconds: float | None
     terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track
     unmodelled_effects: bool = DEFAULTS.unmodelled_effects
+    memory_tau: float | None = DEFAULTS.memory_tau
 
     KEYS = LOOP_KEYS + ENV_KEYS
 
@@ -333,8 +337,11 @@ def _episode_settings(kwargs: dict, td: TaskDefaults, d: EnvDefaults, agent_dt: 
     if not isinstance(stop_lost, (bool, np.bool_)):
         raise ValueError(f"terminate_on_lost_track must be True or False, got {stop_lost!r}")
     unmodelled = check_bool("unmodelled_effects", kwargs.get("unmodelled_effects", d.unmodelled_effects))
+    tau = kwargs.get("memory_tau", d.memory_tau)
+    if tau is not None:
+        tau = check_finite("memory_tau", tau, low=agent_dt)
     return {"scenario": scenario, "reward_weights": rw, "error_scale": err, "episode_seconds": eps,
-            "terminate_on_lost_track": bool(stop_lost), "unmodelled_effects": unmodelled}
+            "terminate_on_lost_track": bool(stop_lost), "unmodelled_effects": unmodelled, "memory_tau": tau}
 
 
 # The unit of each setting in the defaults table (U = the task's output unit: rad/s velocity, rad position; "" for a
@@ -348,7 +355,7 @@ SETTING_UNITS = {
     "lyapunov_kappa": "- (None: off)",
     "mode": "", "residual_scale": "mA", "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
-    "terminate_on_lost_track": "", "unmodelled_effects": "",
+    "terminate_on_lost_track": "", "unmodelled_effects": "", "memory_tau": "s (None: no memory features)",
 }
 
 

@@ -165,10 +165,13 @@ class EHSSTrackingEnv(gym.Env):
     | `reward_weights["tv"]` | 0 | 0 | - |
     | `reward_weights["tv_u"]` | 0 | 0 | - |
     | `reward_weights["divergence"]` | 10 | 10 | - |
+    | `reward_weights["class"]` | 0 | 0 | - |
+    | `reward_weights["saturation"]` | 0 | 0 | - |
     | `error_scale` | 0.01 | 0.01 | U |
     | `episode_seconds` | None | None | s (None: 2 s random, 20 s paper) |
     | `terminate_on_lost_track` | False | False |  |
     | `unmodelled_effects` | False | False |  |
+    | `memory_tau` | None | None | s (None: no memory features) |
     | `sigma` with `law="lin-sontag"` | 3e6 | 1e7 | unit of s |
     | `fr` with `n=4` | 134.634 | 60 | Hz |
     | `sigma` with `n=4` | 1.654817e5 | 1.036633e4 | unit of s |
@@ -226,7 +229,8 @@ class EHSSTrackingEnv(gym.Env):
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
             overrides it for one episode (also accepting a dict of physical fields).
-        reward_weights: dict overriding any of track, effort, rate, tv, tv_u, divergence.
+        reward_weights: dict overriding any of track, effort, rate, tv, tv_u, divergence, class, saturation (the
+            class reward: see the reward above and docs/RL.md, "Class reward").
         error_scale: error scale of reward and observation [output unit].
         episode_seconds: episode duration [s] for "random" and "paper" (None: 2 s random, 20 s paper; a pinned
             Scenario keeps its t_end).
@@ -240,6 +244,11 @@ class EHSSTrackingEnv(gym.Env):
             sensor delay and the encoder quantisation that the law's model leaves out, at datasheet sizes
             (:data:`ehss_gym.core.unmodelled.DATASHEET_RANGES`; docs/MODEL.md, "Unmodelled valve and sensors");
             False (the default): none.
+        memory_tau: the memory features, for rejecting what one observation cannot show (a friction step, a dead
+            band): two entries appended to the observation, the filtered error integral ``e_int`` (x' = e - x/tau
+            at the agent step with the step's last measured error held, |x| clipped to 10 error_scale tau against
+            windup; scale error_scale tau) and the action of the step before last ``prev_action`` [-]; tau [s] >=
+            one agent step; None = none (the observation as without them). See docs/RL.md, "Memory".
         render_mode: None or "rgb_array" (a dashboard: raw reference r, filtered y_d and output y; error; the
             applied current on a linear axis with its limit and its min/max envelope over each agent step;
             friction).
@@ -280,6 +289,7 @@ class EHSSTrackingEnv(gym.Env):
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,
                  terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track,
                  unmodelled_effects: bool = DEFAULTS.unmodelled_effects, render_mode: str | None = None,
+                 memory_tau: float | None = DEFAULTS.memory_tau, render_mode: str | None = None,
                  **unknown):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got "

@@ -12,7 +12,22 @@ import numpy as np
 
 from ehss_gym.core.controller import controller_update
 from ehss_gym.core.jit import jit, jit_noalloc
-from ehss_gym.core.layout import I_E, I_SAT, I_UAPP, M_TV_U, N_INFO, N_LOOP, N_METRICS, N_PARAM, N_REF
+from ehss_gym.core.layout import (
+    I_E,
+    I_SAT,
+    I_UAPP,
+    M_DST_MAX,
+    M_DST_SUM_ABS,
+    M_SUM_U2,
+    M_TRK_SUM_ABS,
+    M_TRK_SUM_E2,
+    M_TV_U,
+    N_INFO,
+    N_LOOP,
+    N_METRICS,
+    N_PARAM,
+    N_REF,
+)
 from ehss_gym.core.loop import lanes_period
 from ehss_gym.core.settings import N_CTRL
 
@@ -25,10 +40,12 @@ from .buffers import (
     F_CTRL,
     F_INFO,
     F_INFO_OK,
+    F_MEM,
     F_MODEL,
     F_PEEK,
     F_PEEKZ,
     F_PLANT,
+    F_RCLS,
     F_REF,
     F_REW,
     F_STATS,
@@ -36,6 +53,7 @@ from .buffers import (
     F_Z,
     F_ZPREV,
     FLAG_LAST,
+    FLAG_MEM,
     FLAG_SQUASH,
     IB_GID,
     IB_K,
@@ -43,20 +61,40 @@ from .buffers import (
     LAY_FLAGS,
     LAY_SCALE,
     LAY_SRC,
+    MEM_APREV2,
+    MEM_EINT,
+    N_MEM,
+    N_RCLS,
     N_STATS,
     N_WEIGHTS,
+    R_DST_ABS,
+    R_DST_MAX,
+    R_TRK_ABS,
+    R_TRK_E2,
+    R_TV,
+    R_U2,
+    S_DST_ABS,
+    S_DST_MAX,
     S_N,
     S_SAT,
     S_SATF,
     S_SUM_E2,
+    S_TRK_ABS,
+    S_TRK_E2,
     S_TV0,
+    S_U2,
     S_UMAX,
     S_UMIN,
+    W_CLASS,
     W_DIV,
     W_EFFORT,
     W_INV_E2,
     W_INV_SCALE,
+    W_MEM_CLIP,
+    W_MEM_DECAY,
+    W_MEM_GAIN,
     W_RATE,
+    W_SAT,
     W_TRACK,
     W_TV,
     W_TVU,
@@ -65,16 +103,18 @@ from .observation import OBS_BOUND
 
 
 @jit
-def _write_obs(obs_row, peek_row, last_row, lay):
+def _write_obs(obs_row, peek_row, last_row, mem_row, lay):
     """Observation of one lane: symlog(x / scale), clipped, finite.
 
     x is read from ``peek_row`` (what the controller sees at the next sample) or, for entries flagged
-    FLAG_LAST, from ``last_row`` (the last control period actually run: applied current, residual).
+    FLAG_LAST, from ``last_row`` (the last control period actually run: applied current, residual), or for entries
+    flagged FLAG_MEM from ``mem_row`` (the lane's memory features, layout MEM_*).
     """
     for i in range(lay.shape[1]):
         j = int(lay[LAY_SRC, i])
         fl = int(lay[LAY_FLAGS, i])
-        v = (last_row[j] if fl & FLAG_LAST else peek_row[j]) / lay[LAY_SCALE, i]
+        x = mem_row[j] if fl & FLAG_MEM else (last_row[j] if fl & FLAG_LAST else peek_row[j])
+        v = x / lay[LAY_SCALE, i]
         if not math.isfinite(v):
             v = OBS_BOUND if v > 0.0 else (-OBS_BOUND if v < 0.0 else 0.0)
         if fl & FLAG_SQUASH:
@@ -113,24 +153,36 @@ def observe(h, F, IB, BB, events, filt, work, obs, lay):
             continue
         F[b, F_INFO_OK:F_INFO_OK + N_INFO] = 0.0
         _peek(F, BB, b, IB[b, IB_K], h, events, filt, work)
-        _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], F[b, F_INFO_OK:F_INFO_OK + N_INFO], lay)
+        _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], F[b, F_INFO_OK:F_INFO_OK + N_INFO], F[b, F_MEM:F_MEM + N_MEM],
+                   lay)
 
 
-def reward_weights(weights: dict, error_scale: float, residual_scale: float) -> np.ndarray:
-    """The ``wts`` vector :func:`agent_reward` reads (W_* slots), from the env's reward weights.
+def reward_weights(weights: dict, error_scale: float, residual_scale: float, memory_tau: float | None = None,
+                   agent_dt: float = 1.0) -> np.ndarray:
+    """The ``wts`` vector :func:`agent_reward` and :func:`class_reward` read (W_* slots), from the env's settings.
 
     Args:
-        weights: the env's ``reward_weights`` (track, effort, rate, tv, tv_u, divergence) [-].
+        weights: the env's ``reward_weights`` (track, effort, rate, tv, tv_u, divergence, class, saturation) [-].
         error_scale: the tracking error that costs 1 per step [output unit].
         residual_scale: the current of a unit action [mA].
+        memory_tau: time constant of the memory's filtered error integral [s]; None = no memory features.
+        agent_dt: the agent step [s] (the memory filter's step).
     """
     wts = np.zeros(N_WEIGHTS)
     for slot, key in ((W_TRACK, "track"), (W_EFFORT, "effort"), (W_RATE, "rate"), (W_TV, "tv"), (W_TVU, "tv_u"),
-                      (W_DIV, "divergence")):
-        wts[slot] = weights[key]
+                      (W_DIV, "divergence"), (W_CLASS, "class"), (W_SAT, "saturation")):
+        wts[slot] = weights.get(key, 0.0)
     wts[W_INV_E2] = 1.0 / error_scale**2
     wts[W_INV_SCALE] = 1.0 / residual_scale
+    if memory_tau is not None:  # x' = e - x/tau over the step, e held: exact decay and gain; |x| <= 10 error_scale tau
+        decay = np.exp(-agent_dt / memory_tau)
+        wts[W_MEM_DECAY] = decay
+        wts[W_MEM_GAIN] = -memory_tau * np.expm1(-agent_dt / memory_tau)
+        wts[W_MEM_CLIP] = MEM_CLIP * error_scale * memory_tau
     return wts
+
+
+MEM_CLIP = 10.0  # anti-windup: the filtered integral is clipped to +-MEM_CLIP * error_scale * memory_tau
 
 
 @jit
@@ -154,6 +206,55 @@ def agent_reward(a, a_prev, n, sum_e2, tv_added, diverged, wts):
     elif n > 0.0:
         r += wts[W_TRACK] / (1.0 + sum_e2 / n * wts[W_INV_E2])
     return r
+
+
+@jit
+def snapshot_classes(st, acc):
+    """Record in a lane's step statistics ``st`` (S_*) the accumulator's class sums as the step begins."""
+    st[S_TV0] = acc[M_TV_U]
+    st[S_TRK_E2] = acc[M_TRK_SUM_E2]
+    st[S_TRK_ABS] = acc[M_TRK_SUM_ABS]
+    st[S_DST_ABS] = acc[M_DST_SUM_ABS]
+    st[S_DST_MAX] = acc[M_DST_MAX]
+    st[S_U2] = acc[M_SUM_U2]
+
+
+@jit
+def class_reward(st, acc, rc, diverged, wts):
+    """The class reward of one agent step: w_class - (the step's share of the ruler's linearised log figure), minus
+    w_saturation times the step's share of periods at the current limit; 0 on divergence (the penalty is
+    :func:`agent_reward`'s).
+
+    The cost is sum_p rc[p] * (the step's increment of the accumulator's class sum p): the tracking window's sum e^2
+    and sum |e| h, the disturbance windows' sum |e| h and their running max |e| (whose increments add up to the peak),
+    the control TV and sum u^2. ``rc`` (R_*, per lane) holds the coefficients set from the base law's run of the same
+    episode (:meth:`ehss_gym.envs.lanes.Lanes.class_coefficients`), so the base law pays w_class / 2 per step on
+    average and a policy's return differs from the base law's by the first-order expansion of its overall log figure.
+
+    Args:
+        st: the lane's step statistics (S_*: the sums when the step began, the saturation share).
+        acc: the lane's metrics accumulator (M_*).
+        rc: the lane's coefficients (R_*).
+        diverged: the loop diverged in the step.
+        wts: reward weights (W_CLASS, W_SAT).
+    """
+    if diverged:
+        return 0.0
+    cost = (rc[R_TRK_E2] * (acc[M_TRK_SUM_E2] - st[S_TRK_E2]) + rc[R_TRK_ABS] * (acc[M_TRK_SUM_ABS] - st[S_TRK_ABS])
+            + rc[R_DST_ABS] * (acc[M_DST_SUM_ABS] - st[S_DST_ABS]) + rc[R_DST_MAX] * (acc[M_DST_MAX] - st[S_DST_MAX])
+            + rc[R_TV] * (acc[M_TV_U] - st[S_TV0]) + rc[R_U2] * (acc[M_SUM_U2] - st[S_U2]))
+    return wts[W_CLASS] - cost - wts[W_SAT] * st[S_SATF]
+
+
+@jit
+def memory_update(mem, e, a_prev, wts):
+    """Advance a lane's memory features (MEM_*) over one agent step: the filtered error integral x' = e - x/tau with
+    the step's last error ``e`` [output unit] held (exact for a held e), clipped to +-W_MEM_CLIP (anti-windup), and the
+    previous step's action ``a_prev`` [-] kept as the action of the step before last."""
+    x = wts[W_MEM_DECAY] * mem[MEM_EINT] + wts[W_MEM_GAIN] * e
+    lim = wts[W_MEM_CLIP]
+    mem[MEM_EINT] = lim if x > lim else (-lim if x < -lim else x)
+    mem[MEM_APREV2] = a_prev
 
 
 @jit_noalloc
@@ -207,7 +308,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             act[b] = member
             if member:
                 IB[b, IB_GID] = g
-                F[b, F_STATS + S_TV0] = acc[b, M_TV_U]
+                snapshot_classes(F[b, F_STATS:F_STATS + N_STATS], acc[b])
         for j in range(n_per):
             # Periods alternate between the F_INFO and F_INFO_OK blocks, so the last finite period's info
             # survives a divergence in the next one without a per-period copy (lanes only ever stop).
@@ -243,13 +344,18 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             a = u_res[b] * wts[W_INV_SCALE]
             F[b, F_REW] = agent_reward(a, F[b, F_APREV], F[b, F_STATS + S_N], F[b, F_STATS + S_SUM_E2],
                                        acc[b, M_TV_U] - F[b, F_STATS + S_TV0], diverged, wts)
+            if wts[W_CLASS] > 0.0 or wts[W_SAT] > 0.0:
+                F[b, F_REW] += class_reward(F[b, F_STATS:F_STATS + N_STATS], acc[b], F[b, F_RCLS:F_RCLS + N_RCLS],
+                                            diverged, wts)
+            if wts[W_MEM_GAIN] > 0.0:
+                memory_update(F[b, F_MEM:F_MEM + N_MEM], info_ok[b, I_E], F[b, F_APREV], wts)
             F[b, F_APREV] = a
             j = IB[b, IB_NSTEP]
             if j < elog.shape[1]:
                 elog[b, j] = info_ok[b, I_E]
             IB[b, IB_NSTEP] = j + 1
             _peek(F, BB, b, kk + n_per, h, events, filt, work)
-            _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], info_ok[b], lay)
+            _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_MEM], lay)
         g += 1
 
 

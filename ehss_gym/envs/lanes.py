@@ -20,6 +20,14 @@ from ehss_gym.core.layout import (
     I_UBASE,
     I_URES,
     I_V,
+    M_DST_MAX,
+    M_DST_STEPS,
+    M_DST_SUM_ABS,
+    M_SUM_U2,
+    M_TRK_STEPS,
+    M_TRK_SUM_ABS,
+    M_TRK_SUM_E2,
+    M_TV_U,
     N_INFO,
     N_LOOP,
     N_METRICS,
@@ -62,12 +70,14 @@ from .buffers import (
     F_INFO_OK,
     F_MODEL,
     F_PLANT,
+    F_RCLS,
     F_REF,
     F_REW,
     F_STATS,
     F_URES,
     F_Z,
     FLAG_LAST,
+    FLAG_MEM,
     FLAG_SQUASH,
     IB_K,
     IB_NSTEP,
@@ -77,7 +87,14 @@ from .buffers import (
     N_BB,
     N_F,
     N_IB,
+    N_RCLS,
     N_STATS,
+    R_DST_ABS,
+    R_DST_MAX,
+    R_TRK_ABS,
+    R_TRK_E2,
+    R_TV,
+    R_U2,
     S_SATF,
 )
 from .config import SCENARIOS, EnvConfig
@@ -85,6 +102,38 @@ from .kernels import advance, advance_chunks, observe, reward_weights
 from .observation import observation_layout
 
 MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
+# The class reward's parts: (slot R_*, accumulator sum M_*, its weight in the class's log figure, the class).
+# log q_trk = 1/4 log(sum e^2 ratio) + 1/2 log(IAE ratio) (the RMSE is a square root), log q_dst = 1/2 log(peak
+# ratio) + 1/2 log(IAE ratio), log q_eff = 1/2 log(TV ratio) + 1/4 log(sum u^2 ratio).
+CLASS_PARTS = ((R_TRK_E2, M_TRK_SUM_E2, 0.25, "tracking"), (R_TRK_ABS, M_TRK_SUM_ABS, 0.5, "tracking"),
+               (R_DST_ABS, M_DST_SUM_ABS, 0.5, "disturbance"), (R_DST_MAX, M_DST_MAX, 0.5, "disturbance"),
+               (R_TV, M_TV_U, 0.5, "effort"), (R_U2, M_SUM_U2, 0.25, "effort"))
+CLASS_FLOOR = 1e-300  # a base-law total below it (none in practice) is taken as it: no division by 0
+
+
+def class_coefficients(sc: Scenario, weight: float, agent_period: int) -> np.ndarray:
+    """The class reward's coefficients (R_*) of an episode, from the base law's run of it (zero residual, the
+    disturbance observer off: the law alone, which a residual or the observer is measured against).
+
+    Each part p of a class c present on the episode (tracking and disturbance if the episode has samples in their
+    windows, effort always) gets ``weight`` * K * w_p / (2 |C| s * B_p): K agent steps, w_p the part's weight in the
+    class's log figure, |C| the classes present, s the mean over them of their parts' weights, B_p the base law's
+    total of the part (floored). The base law then pays ``weight`` * K / 2 over the episode, and a policy's cost
+    differs from it by ``weight`` K / (2 s) times the first-order expansion of its overall log figure.
+    """
+    from ehss_gym.core.sim import simulate_batch  # the base law's run (the env module stays light)
+
+    K = sc.n_steps // agent_period
+    law = sc.replace(t_end=K * agent_period * sc.control_period, log_interval=sc.t_end, dob_hz=0.0)
+    base = simulate_batch([law])[0].acc
+    present = {"tracking": base[M_TRK_STEPS] > 0, "disturbance": base[M_DST_STEPS] > 0, "effort": True}
+    parts = [p for p in CLASS_PARTS if present[p[3]]]
+    n_cls = sum(present.values())
+    s = sum(p[2] for p in parts) / n_cls
+    out = np.zeros(N_RCLS)
+    for slot, m, w, _ in parts:
+        out[slot] = weight * K * w / (2.0 * n_cls * s * max(float(base[m]), CLASS_FLOOR))
+    return out
 
 
 def step_info(i, st, clipped, n_clipped, diverged, lost_track) -> dict:
@@ -157,11 +206,14 @@ class Lanes:
             self.lay[LAY_SRC, i] = src
             self.lay[LAY_SCALE, i] = scale
             last = src in (I_UAPP, I_URES)  # the applied/residual current of the last period, not a peek
-            self.lay[LAY_FLAGS, i] = (FLAG_SQUASH if squash else 0) + (FLAG_LAST if last else 0)
+            mem = src < 0  # a memory feature (observation_layout: -1 - its index in F_MEM)
+            self.lay[LAY_SRC, i] = -1 - src if mem else src
+            self.lay[LAY_FLAGS, i] = (FLAG_SQUASH if squash else 0) + (FLAG_LAST if last else 0) + (
+                FLAG_MEM if mem else 0)
         self.obs = np.zeros((B, len(self.layout)), dtype=np.float32)
         self.obs0 = self.obs[0]
         rw = cfg.reward_weights
-        self.wts = reward_weights(rw, cfg.error_scale, cfg.residual_scale)
+        self.wts = reward_weights(rw, cfg.error_scale, cfg.residual_scale, cfg.memory_tau, cfg.agent_dt)
         self.elog = np.zeros((B, 1), dtype=np.float32)
         self.T = np.zeros(B, dtype=np.int64)  # agent steps in each lane's episode
         self.scenarios: list[Scenario | None] = [None] * B
@@ -206,6 +258,8 @@ class Lanes:
         lane_constants(self.plant[b:b + 1].copy(), self.tmp_c)
         self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
         init_accumulator(self.acc[b], sc.lost_track_bound)
+        if rw_class := cfg.reward_weights.get("class", 0.0):
+            self.F[b, F_RCLS:F_RCLS + N_RCLS] = class_coefficients(sc, rw_class, cfg.agent_period)
         self.IB[b] = 0
         self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
         self.run[b] = True

@@ -10,6 +10,7 @@ from ehss_gym.core.layout import I_E, I_S, I_UAPP, I_UBASE, I_URES, I_XM, I_YD
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.settings import UNITS
 
+from .buffers import MEM_APREV2, MEM_EINT
 from .config import EnvConfig
 
 # Observation normalisation (see the class docstring).
@@ -38,6 +39,9 @@ def observation_layout(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]
     out.append(("u_applied", I_UAPP, U_SCALE, True, "mA"))
     out.append(("u_base", I_UBASE, U_SCALE, True, "mA"))
     out.append(("last_action", I_URES, cfg.residual_scale, False, "-"))
+    if cfg.memory_tau is not None:  # memory features: source -1 - index into the lane's memory block (MEM_*)
+        out.append(("e_int", -1 - MEM_EINT, cfg.error_scale * cfg.memory_tau, True, f"{unit}*s"))
+        out.append(("prev_action", -1 - MEM_APREV2, 1.0, False, "-"))
     return out
 
 
