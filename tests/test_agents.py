@@ -79,7 +79,8 @@ def test_policy_class_is_mlppolicy_with_a_zeroed_action_net():
     spec = get_spec("residual-ppo", n_envs=1, n_steps=64, batch_size=64)
     venv = make_env({**env_kwargs_for(spec, "velocity", 2), **SHORT}, 1, spec.gamma, spec.norm_reward)
     ours = make_agent(spec, venv, seed=4).policy.state_dict()
-    kw = {"net_arch": {"pi": [64, 64], "vf": [64, 64]}, "activation_fn": torch.nn.Tanh, "log_std_init": -1.0}
+    kw = {"net_arch": {"pi": [64, 64], "vf": [64, 64]}, "activation_fn": torch.nn.Tanh,
+          "log_std_init": spec.log_std_init}
     sb3 = PPO("MlpPolicy", venv, seed=4, device="cpu", policy_kwargs=kw).policy.state_dict()
     assert sorted(ours) == sorted(sb3)
     for k in ours:

@@ -113,8 +113,8 @@ def test_the_zoo_model_acts_on_observations_normalised_as_in_training(zoo_run):
 
 
 def test_ehss_evaluate_scores_the_zoo_model_and_its_run_folder(zoo_run, tmp_path, capsys):
-    """``ehss evaluate --quick`` on the .zip and on the folder: the same policy, scored in the loop it trained in and
-    marked as such where that loop is not the env's default."""
+    """``ehss evaluate --quick`` on the .zip and on the folder: the same policy, scored in the loop it trained in (the
+    recipe's is today's default loop: ranked with today's laws)."""
     want, default = trained_loop(zoo_run), EnvConfig.from_kwargs({"task": "velocity"})
     differ = [k for k in CONTROLLER_KEYS if getattr(want, k) != getattr(default, k)]
     scores = {}
@@ -127,9 +127,9 @@ def test_ehss_evaluate_scores_the_zoo_model_and_its_run_folder(zoo_run, tmp_path
             rows = {r["policy"]: r for r in csv.DictReader(f)}
         name = f"sb3:{ENV_ID}_1 (residual)"
         assert name in rows and np.isfinite(float(rows[name]["figure"]))
-        # the recipe trains at smoothing 0 (settings it leaves out at today's defaults): scored in its own loop, listed
-        # apart from today's laws (marked, not ranked), and no law at other settings added
-        assert differ == ["smoothing"] and not [p for p in rows if "@" in p] and rows[name]["earlier_loop"] == "True"
+        # the recipe sets no law or loop setting: it trains and is scored in today's loop, ranked with today's laws,
+        # and no law at other settings is added
+        assert differ == [] and not [p for p in rows if "@" in p] and rows[name]["earlier_loop"] == "False"
         scores[form] = rows[name]["figure"]
     assert len(set(scores.values())) == 1  # one model, one loop: the same episodes
     assert os.listdir(tmp_path / "jobs")
