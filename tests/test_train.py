@@ -145,6 +145,7 @@ def test_training_smoke(tmp_path):
     assert cfg["agent_spec"]["n_steps"] == 64 and cfg["env_kwargs"]["mode"] == "residual"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["timesteps"] == 256 and summary["wall_s"] > 0
+    assert summary["best_is_untrained"] == (summary["best_step"] == 0)
     hist = json.loads((out / "evaluations.json").read_text())
     assert [r["step"] for r in hist] == [0, 128, 256]
     # step 0 is exactly the base law: every class figure against it is 1, and it passes the gate
@@ -296,6 +297,20 @@ VAL = {"figure": 1.0, "failed": False, "n_failed": 0, "rel_tracking": 1.0, "rel_
        "rel_chatter": 1.0}
 
 
+def test_run_summary_prints_the_best_and_the_final_policy_and_flags_an_untrained_best():
+    from ehss_gym.train.loop import describe
+
+    worse = {**VAL, "figure": 5.3, "rel_effort": 12.0, "step": 20480}
+    s = {"run_name": "r", "run_dir": "d", "timesteps": 20480, "wall_s": 60.0, "best_step": 0,
+         "best_validation": {**VAL, "step": 0}, "best_is_untrained": True, "base_validation": VAL,
+         "final_validation": worse}
+    text = describe(s)
+    assert "best  (step 0): validation figure 1.0000" in text and "final (step 20480): validation figure 5.3000" in text
+    assert "effort x12.000" in text and "the best is the untrained step-0 policy" in text
+    assert "untrained" not in describe({**s, "best_is_untrained": False, "best_step": 20480,
+                                        "best_validation": worse})
+
+
 @pytest.mark.slow
 def test_multi_seed_real(tmp_path):
     rc = cli_main(["train", "--seeds", "0-1", "--out", str(tmp_path), "--timesteps", "128", "--eval-freq", "128",
@@ -357,11 +372,15 @@ def test_bad_option_values_name_the_option(argv, match):
         config_from_args(build_parser().parse_args(argv))
 
 
-def test_run_names_are_stable():
-    """The names of the shipped runs follow from their settings as before (resume and the reports rely on it)."""
+def test_run_names_are_stable(monkeypatch):
+    """The names of the shipped runs follow from their settings as before (resume and the reports rely on it): with
+    the recipe they were trained with (recorded in their metadata) the name is theirs."""
+    from ehss_gym.agents import specs
     from ehss_gym.agents.safeweights import load_policy, shipped_models
 
     meta = load_policy(shipped_models()["residual-ppo-velocity-n2-seed1"]).metadata
+    recorded = {**meta["agent_spec"], "net_arch": tuple(meta["agent_spec"]["net_arch"])}
+    monkeypatch.setitem(specs.AGENTS, "residual-ppo", specs.AgentSpec(**recorded))
     cfg = Config(agent="residual-ppo", task="velocity", n=2, timesteps=meta["timesteps"], seed=1, eval_freq=50_000,
                  eval_episodes=24, out="elsewhere", progress=False)
     assert cfg.run_name() == meta["run_name"] == "residual-ppo_velocity_n2_s1_23a16e78"

@@ -221,6 +221,7 @@ def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wa
     summary = {"run_name": cfg.run_name(), "run_dir": run_dir, "agent": cfg.agent, "task": cfg.task, "n": cfg.n,
                "seed": cfg.seed, "timesteps": int(model.num_timesteps), "wall_s": round(wall_s, 2),
                "best_step": evaluator.best_step, "best_validation": best,
+               "best_is_untrained": evaluator.best_step == evaluator.history[0]["step"] == 0,
                "base_validation": relative_scores(base, base, reference),
                "final_validation": evaluator.history[-1]}
     atomic_write_text(os.path.join(run_dir, "summary.json"), json.dumps(summary, indent=1) + "\n")
@@ -228,16 +229,24 @@ def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wa
 
 
 def describe(summary: dict) -> str:
-    """Two lines on a finished run: the kept policy's validation scores against the base law, the run folder."""
-    b = summary["best_validation"]
-    gate = f", FAILED the gate on {b['n_failed']} scenario(s)" if b["failed"] else ""
-    classes = ", ".join(f"{c} x{fmt_num(b[f'rel_{c}'], '.3f')}"
-                        for c in ("tracking", "disturbance", "effort", "chatter"))
-    return (f"{summary['run_name']}: {summary['timesteps']} steps in {summary['wall_s']:.0f} s; best at step "
-            f"{summary['best_step']}: validation figure {fmt_num(b['figure'], '.4f')} (base law "
-            f"{fmt_num(summary['base_validation']['figure'], '.4f')}; lower is better{gate}), {classes} of the base "
-            "law\n"
-            f"run folder: {summary['run_dir']} (best/policy.json + .safetensors: safe weights)")
+    """A few lines on a finished run: the best and the final policy's validation scores against the base law (both
+    are exported, ``best/`` and ``final/``), whether the best is the untrained step-0 policy, the run folder."""
+    def scores(row: dict) -> str:
+        gate = f", FAILED the gate on {row['n_failed']} scenario(s)" if row["failed"] else ""
+        classes = ", ".join(f"{c} x{fmt_num(row[f'rel_{c}'], '.3f')}"
+                            for c in ("tracking", "disturbance", "effort", "chatter"))
+        return f"validation figure {fmt_num(row['figure'], '.4f')}{gate}; {classes} of the base law"
+
+    b, f = summary["best_validation"], summary["final_validation"]
+    lines = [f"{summary['run_name']}: {summary['timesteps']} steps in {summary['wall_s']:.0f} s; base law "
+             f"{fmt_num(summary['base_validation']['figure'], '.4f')} (lower is better)",
+             f"  best  (step {summary['best_step']}): {scores(b)}",
+             f"  final (step {f['step']}): {scores(f)}"]
+    if summary.get("best_is_untrained"):
+        lines.append("  note: the best is the untrained step-0 policy (a zero-initialised residual: the base law "
+                     "itself); no later evaluation beat it, so best/ holds no training")
+    lines.append(f"run folder: {summary['run_dir']} (best/ and final/policy.json + .safetensors: safe weights)")
+    return "\n".join(lines)
 
 
 def main(argv=None, prog: str = "python -m ehss_gym.train.loop") -> int:
