@@ -1,4 +1,5 @@
-"""The SB3 model of an agent spec: PPO with the policy class :class:`AgentMlpPolicy` (torch at import).
+"""The SB3 model of an agent spec: PPO with the policy class :class:`AgentMlpPolicy`, or SAC (the comparison
+algorithm) with SB3's MlpPolicy (torch at import).
 
 Only training imports this module (``ehss train``, rl-zoo3 through the generated ``agents/hyperparams``, the
 benchmarks); loading a shipped policy needs :mod:`ehss_gym.agents.safeweights` alone.
@@ -6,12 +7,14 @@ benchmarks); loading a shipped policy needs :mod:`ehss_gym.agents.safeweights` a
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
-from stable_baselines3 import PPO
+from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.policies import ActorCriticPolicy
 
-from .specs import AgentSpec, LinearSchedule, ppo_kwargs
+from .specs import AgentSpec, LinearSchedule, ppo_kwargs, sac_kwargs
 
 ACTIVATIONS = {"tanh": torch.nn.Tanh, "relu": torch.nn.ReLU}
 POLICY_PATH = "ehss_gym.agents.factory.AgentMlpPolicy"  # how rl-zoo3 names the class (``policy:`` in ppo.yml)
@@ -67,8 +70,8 @@ def learning_rate(spec: AgentSpec):
     return spec.learning_rate if spec.lr_schedule == "constant" else LinearSchedule(spec.learning_rate)
 
 
-def make_agent(spec: AgentSpec, venv, seed: int, tensorboard_log: str | None = None, verbose: int = 0) -> PPO:
-    """Build the SB3 PPO model of ``spec`` on the (VecNormalize-wrapped) vector env ``venv``.
+def make_agent(spec: AgentSpec, venv, seed: int, tensorboard_log: str | None = None, verbose: int = 0):
+    """Build the SB3 model of ``spec`` (PPO, or SAC: :func:`make_sac`) on the (VecNormalize-wrapped) vector env.
 
     Args:
         spec: the agent's hyperparameters.
@@ -77,9 +80,34 @@ def make_agent(spec: AgentSpec, venv, seed: int, tensorboard_log: str | None = N
         tensorboard_log: TensorBoard folder or None.
         verbose: SB3 verbosity.
     """
+    if spec.algo == "sac":
+        return make_sac(spec, venv, seed, tensorboard_log, verbose)
     return PPO(AgentMlpPolicy, venv, learning_rate=learning_rate(spec), **ppo_kwargs(spec),
                policy_kwargs=policy_kwargs(spec), tensorboard_log=tensorboard_log, seed=seed, device="cpu",
                verbose=verbose)
+
+
+def make_sac(spec: AgentSpec, venv, seed: int, tensorboard_log: str | None = None, verbose: int = 0) -> SAC:
+    """SB3's SAC for ``spec``: MlpPolicy with the spec's hidden sizes and activation; with ``zero_init_action`` the
+    actor's mean layer zeroed (a squashed mean of exactly 0: the base law) and its state-dependent log-std layer set
+    to the constant ``log_std_init``; the entropy temperature tuned to the initial Gaussian's entropy per action
+    dimension, log_std_init + log(2 pi e)/2 (so the auto-tuning holds the initial exploration rather than widening
+    it to SB3's default target)."""
+    if spec.activation not in ACTIVATIONS:
+        raise ValueError(f"activation must be one of {sorted(ACTIVATIONS)}, got {spec.activation!r}")
+    act_dim = int(np.prod(venv.action_space.shape))
+    model = SAC("MlpPolicy", venv, learning_rate=learning_rate(spec), **sac_kwargs(spec), ent_coef="auto",
+                target_entropy=act_dim * (spec.log_std_init + 0.5 * math.log(2.0 * math.pi * math.e)),
+                policy_kwargs={"net_arch": list(spec.net_arch), "activation_fn": ACTIVATIONS[spec.activation]},
+                tensorboard_log=tensorboard_log, seed=seed, device="cpu", verbose=verbose)
+    if spec.zero_init_action:
+        with torch.no_grad():
+            actor = model.policy.actor
+            actor.mu.weight.zero_()
+            actor.mu.bias.zero_()
+            actor.log_std.weight.zero_()
+            actor.log_std.bias.fill_(spec.log_std_init)
+    return model
 
 
 def initial_mean_abs(model, obs: np.ndarray) -> float:
@@ -90,4 +118,4 @@ def initial_mean_abs(model, obs: np.ndarray) -> float:
 
 
 __all__ = ["ACTIVATIONS", "POLICY_PATH", "AgentMlpPolicy", "zero_action_net", "policy_kwargs", "learning_rate",
-           "make_agent", "initial_mean_abs"]
+           "make_agent", "make_sac", "initial_mean_abs"]

@@ -53,6 +53,14 @@ class AgentSpec:
         log_std_init: initial log standard deviation of the Gaussian action noise (action units).
         zero_init_action: zero the action net's weights and bias, so the initial mean action is exactly 0.
         norm_reward: normalise rewards by VecNormalize's running return std.
+        algo: the algorithm, "ppo" (the agents' own) or "sac" (soft actor-critic, Haarnoja et al. 2018: the comparison
+            algorithm; of the fields above it reads n_envs, batch_size, learning_rate, lr_schedule, gamma, net_arch,
+            activation, log_std_init, zero_init_action and norm_reward, and the next five).
+        buffer_size: SAC's replay buffer [transitions].
+        learning_starts: SAC's steps of the initial policy before the first update.
+        train_freq: SAC's env steps (per env) between updates.
+        gradient_steps: SAC's gradient steps per update.
+        tau: SAC's target-network averaging rate.
     """
 
     name: str
@@ -76,12 +84,18 @@ class AgentSpec:
     log_std_init: float = -2.0
     zero_init_action: bool = False
     norm_reward: bool = True
+    algo: str = "ppo"
+    buffer_size: int = 200_000
+    learning_starts: int = 2_000
+    train_freq: int = 8
+    gradient_steps: int = 8
+    tau: float = 0.005
 
     def __post_init__(self):
         def bad(name, what):
             raise ValueError(f"{name} must be {what}, got {getattr(self, name)!r}")
 
-        for name in ("n_envs", "n_steps", "batch_size", "n_epochs"):
+        for name in ("n_envs", "n_steps", "batch_size", "n_epochs", "buffer_size", "train_freq", "gradient_steps"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 bad(name, "an integer >= 1")
@@ -109,13 +123,24 @@ class AgentSpec:
             bad("log_std_init", "a finite number")
         if self.mode not in ("residual", "direct"):
             bad("mode", "'residual' or 'direct'")
+        if self.algo not in ALGOS:
+            bad("algo", f"one of {list(ALGOS)}")
+        ls = self.learning_starts
+        if isinstance(ls, bool) or not isinstance(ls, int) or ls < 0:
+            bad("learning_starts", "an integer >= 0")
+        if isinstance(self.tau, bool) or not isinstance(self.tau, (int, float)) or not 0.0 < self.tau <= 1.0:
+            bad("tau", "a number in (0, 1]")
         if not isinstance(self.env_kwargs, dict) or {"task", "n", "mode"} & set(self.env_kwargs):
             bad("env_kwargs", "a dict of EHSSTracking-v0 keyword arguments other than task, n and mode")
 
     def as_dict(self) -> dict:
-        """The spec as JSON values (``net_arch`` a list): what a run's ``config.json`` records."""
+        """The spec as JSON values (``net_arch`` a list): what a run's ``config.json`` records. A PPO spec leaves out
+        ``algo`` and SAC's fields (so a PPO run's record, and its run name, are what they were before them)."""
         d = asdict(self)
         d["net_arch"] = list(self.net_arch)
+        if self.algo == "ppo":
+            for k in ("algo", *SAC_KEYS):
+                d.pop(k)
         return d
 
 
@@ -145,6 +170,9 @@ RESIDUAL_ENV = {**COMMON_ENV, "residual_scale": 10.0, "memory_tau": 0.1,
 # defaults cannot silently change the loop a shipped policy acts in: every setting a policy acts in.
 PINNED_ENV_KEYS = POLICY_KEYS
 
+ALGOS = ("ppo", "sac")
+# AgentSpec fields that are keyword arguments of SB3's SAC under the same name, as they are (with batch_size, gamma)
+SAC_KEYS = ("buffer_size", "learning_starts", "train_freq", "gradient_steps", "tau")
 # AgentSpec fields that are keyword arguments of SB3's PPO under the same name, as they are
 PPO_KEYS = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "clip_range", "ent_coef", "vf_coef",
             "max_grad_norm", "target_kl")
@@ -167,6 +195,15 @@ AGENTS: dict[str, AgentSpec] = {
     # std of exp(-1) = 0.37 (3.7 mA): it must discover tracking from scratch, so it needs to explore.
     # Its reward keeps the first recipe's rate weight 1.0 (the class reward's base-law normaliser means little to a
     # policy that starts without the law).
+    # Residual SAC, the comparison algorithm: the residual agent's env, mean zero at the start (the actor's mean layer
+    # zeroed: the base law) and the same initial std 0.50 mA (its log-std layer zeroed with bias -3); the entropy
+    # temperature is tuned to hold the initial Gaussian's entropy (target log_std_init + log(2 pi e)/2 per action).
+    # Off-policy: 8 gradient steps per 8 env steps of each of the 8 envs (one update per 64 transitions), batch 256,
+    # a 200k-transition buffer, 2000 steps of the initial (base-law) policy first; lr 3e-4 constant (SAC's default).
+    # Not tuned: a comparison at SB3's defaults where the residual recipe has no reason to differ.
+    "residual-sac": AgentSpec(name="residual-sac", mode="residual", env_kwargs=dict(RESIDUAL_ENV), algo="sac",
+                              log_std_init=-3.0, zero_init_action=True, lr_schedule="constant", net_arch=(64, 64),
+                              activation="relu"),
     "ppo": AgentSpec(name="ppo", mode="direct", env_kwargs={**COMMON_ENV, "reward_weights": {"rate": 1.0}},
                      log_std_init=-1.0, zero_init_action=False),
 }
@@ -192,7 +229,7 @@ def get_spec(name: str, **overrides) -> AgentSpec:
     if name not in AGENTS:
         raise ValueError(f"agent must be one of {agent_names()}, got {name!r}")
     spec = AGENTS[name]
-    valid = sorted(set(AgentSpec.__dataclass_fields__) - {"name", "mode"})
+    valid = sorted(set(AgentSpec.__dataclass_fields__) - {"name", "mode", "algo"})
     bad = sorted(set(overrides) - set(valid))
     if bad:
         raise ValueError(f"unknown or fixed agent hyperparameter(s) {bad}; valid: {valid}")
@@ -223,6 +260,11 @@ def resolved_env_kwargs(env_kwargs: dict) -> dict:
     return out
 
 
+def sac_kwargs(spec: AgentSpec) -> dict:
+    """The keyword arguments of SB3's ``SAC`` that are plain numbers in ``spec`` (names as in SB3)."""
+    return {"batch_size": spec.batch_size, "gamma": spec.gamma, **{k: getattr(spec, k) for k in SAC_KEYS}}
+
+
 def ppo_kwargs(spec: AgentSpec) -> dict:
     """The keyword arguments of SB3's ``PPO`` that are plain numbers in ``spec`` (names as in SB3).
 
@@ -232,5 +274,6 @@ def ppo_kwargs(spec: AgentSpec) -> dict:
     return {k: getattr(spec, k) for k in PPO_KEYS}
 
 
-__all__ = ["AgentSpec", "AGENTS", "COMMON_ENV", "RESIDUAL_ENV", "PINNED_ENV_KEYS", "PPO_KEYS", "LinearSchedule",
-           "agent_names", "get_spec", "env_kwargs_for", "resolved_env_kwargs", "ppo_kwargs"]
+__all__ = ["AgentSpec", "AGENTS", "ALGOS", "COMMON_ENV", "RESIDUAL_ENV", "PINNED_ENV_KEYS", "PPO_KEYS", "SAC_KEYS",
+           "LinearSchedule", "agent_names", "get_spec", "env_kwargs_for", "resolved_env_kwargs", "ppo_kwargs",
+           "sac_kwargs"]

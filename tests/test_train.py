@@ -68,7 +68,7 @@ def test_run_name_reproducible_and_sensitive():
 
 
 @pytest.mark.parametrize("argv, match", [
-    (["--agent", "sac"], r"argument --agent: invalid choice: 'sac' \(choose from 'ppo', 'residual-ppo'\)"),
+    (["--agent", "sac"], r"argument --agent: invalid choice: 'sac' \(choose from 'ppo', 'residual-ppo', 'residual-sac'\)"),
     (["--seeds", "4-0"], "--seeds range '4-0' has start > end"),
     (["--seeds", "x"], "--seeds must be like"),
     (["--seed", "1", "--seeds", "0-1"], "either --seed or --seeds"),
@@ -275,7 +275,8 @@ def test_multi_seed_makes_one_job_per_seed(tmp_path, monkeypatch, capsys):
         self.computed += len(jobs)
         return [{"summary": {"run_dir": j.config["out"], "run_name": os.path.basename(j.config["out"]),
                              "timesteps": 64, "wall_s": 0.0, "best_step": 0, "best_validation": VAL,
-                             "base_validation": VAL}, "weights": {}} for j in jobs]
+                             "base_validation": VAL, "final_validation": {**VAL, "step": 64}}, "weights": {}}
+                for j in jobs]
 
     monkeypatch.setattr(launch.Executor, "map", fake_map)
     assert cli_main(["train", "--seeds", "0-2", "--workers", "2", "--out", str(tmp_path), "--timesteps", "64",
@@ -295,6 +296,33 @@ def test_multi_seed_makes_one_job_per_seed(tmp_path, monkeypatch, capsys):
 
 VAL = {"figure": 1.0, "failed": False, "n_failed": 0, "rel_tracking": 1.0, "rel_disturbance": 1.0, "rel_effort": 1.0,
        "rel_chatter": 1.0}
+
+
+def test_residual_sac_smoke(tmp_path, capsys):
+    """The comparison algorithm through the same ``ehss train``: SAC starts as the base law (figure 1 at step 0),
+    exports its SB3 files with every env setting (model.json), and is scored in today's loop."""
+    from stable_baselines3 import SAC
+
+    from ehss_gym.evaluation.scoring import is_earlier_loop
+    from ehss_gym.evaluation.specs import parse_policy
+
+    out = tmp_path / "sac"
+    rc = cli_main(["train", "--agent", "residual-sac", "--timesteps", "256", "--eval-freq", "128", "--out", str(out),
+                   "--n-envs", "2", "--hp", "learning_starts=64", "--hp", "batch_size=32", "--hp", "buffer_size=1000",
+                   "--eval-episodes", "1", "--eval-seconds", "0.6", "--no-progress"])
+    assert rc == 0
+    printed = capsys.readouterr().out
+    assert "best  (step" in printed and "final (step 256)" in printed and "sb3:<folder>/model.zip" in printed
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["algo"] == "sac" and summary["timesteps"] == 256
+    hist = json.loads((out / "evaluations.json").read_text())
+    rel = [hist[0][f"rel_{c}"] for c in ("tracking", "disturbance", "effort", "chatter")]
+    assert set(rel) <= {1.0, None} and 1.0 in rel  # step 0: the base law exactly
+    model = SAC.load(str(out / "final" / "model.zip"), device="cpu")
+    assert model.num_timesteps == 256
+    kw = json.loads((out / "final" / "model.json").read_text())["env_kwargs"]
+    assert kw["memory_tau"] == 0.1 and kw["reward_weights"]["class"] == 1.0 and kw["bumpless"] is True
+    assert not is_earlier_loop(parse_policy(f"sb3:{out}/final/model.zip"), "velocity")
 
 
 def test_run_summary_prints_the_best_and_the_final_policy_and_flags_an_untrained_best():

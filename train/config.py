@@ -32,7 +32,8 @@ class Config:
     """Everything a training run depends on (the flags of ``python -m ehss_gym.train.loop`` are these fields)."""
 
     agent: str = "residual-ppo"
-    """agent name: residual-ppo (PPO residual on the Sontag law) or ppo (pure PPO, env mode direct)"""
+    """agent name: residual-ppo (PPO residual on the Sontag law), ppo (pure PPO, env mode direct) or residual-sac (SAC
+    residual, the comparison algorithm)"""
     task: str = "velocity"
     """tracking task: velocity (output x2) or position (output x1)"""
     n: int = 2

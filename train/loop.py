@@ -1,4 +1,5 @@
-"""Train residual PPO (or pure PPO) on EHSSTracking-v0. Reads top to bottom, like a CleanRL script.
+"""Train residual PPO (or pure PPO, or residual SAC for comparison) on EHSSTracking-v0. Reads top to bottom, like a
+CleanRL script.
 
     python -m ehss_gym.train.loop --agent residual-ppo --task velocity --n 2 --timesteps 300000 --seed 0
     ehss train --agent residual-ppo --seeds 0-4          # several seeds, one process each (ehss_gym.train.launch)
@@ -10,8 +11,10 @@
 3. the agent comes from :mod:`ehss_gym.agents.factory` (hyperparameters in :mod:`ehss_gym.agents.specs`);
 4. custom behaviour (progress bar, held-out evaluation and best model, checkpoints, wall time) is in
    SB3 callbacks (:mod:`ehss_gym.train.callbacks`);
-5. the end: the best and the final model, each as an SB3 ``.zip`` + VecNormalize ``.pkl`` and as safe
-   weights (``policy.safetensors`` + ``policy.json``, :mod:`ehss_gym.agents.export`), and ``summary.json``.
+5. the end: the best and the final model, each as an SB3 ``.zip`` + VecNormalize ``.pkl`` and (PPO) as safe
+   weights (``policy.safetensors`` + ``policy.json``, :mod:`ehss_gym.agents.export`; SAC's squashed actor is not
+   that format: score it as ``sb3:<run>/best/model.zip``), and ``summary.json``. A resumed SAC run restarts with an
+   empty replay buffer (checkpoints hold the model, not the buffer).
 
 Run folder ``<out>`` (default ``runs/<run name>``): ``config.json`` (the full config, agent
 hyperparameters and env kwargs), ``tb/`` (TensorBoard), ``checkpoints/``, ``evaluations.csv``,
@@ -33,7 +36,7 @@ from collections.abc import Callable
 
 import gymnasium as gym
 import torch
-from stable_baselines3 import PPO
+from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.callbacks import CallbackList
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -53,6 +56,7 @@ from .config import NOT_HASHED, Config, build_parser, config_from_args
 from .vec_env import NativeVecEnv
 
 CLIP_OBS = 10.0  # VecNormalize's clip of the normalised observations [std]
+ALGO_CLASSES = {"ppo": PPO, "sac": SAC}  # AgentSpec.algo -> the SB3 class that saves and loads its models
 
 
 # --- the env --------------------------------------------------------------------------------------------
@@ -110,13 +114,19 @@ def open_run(cfg: Config) -> dict | None:
 
 
 def export_model(model, vecnormalize, folder: str, cfg: Config, extra: dict) -> None:
-    """SB3 files (model.zip, vecnormalize.pkl) and safe weights (policy.safetensors/.json) in ``folder``."""
+    """SB3 files (model.zip, vecnormalize.pkl, and model.json: every env setting the model acts in, so that
+    ``ehss evaluate --policies sb3:<folder>/model.zip`` scores it in its own loop) and (PPO) safe weights
+    (policy.safetensors/.json) in ``folder``."""
     os.makedirs(folder, exist_ok=True)
     atomic_write(os.path.join(folder, "model.zip"), lambda f: model.save(f))
     atomic_write(os.path.join(folder, "vecnormalize.pkl"), lambda f: pickle.dump(vecnormalize, f))
     full = cfg.full()
+    env_kwargs = resolved_env_kwargs(full["env_kwargs"])
+    atomic_write_text(os.path.join(folder, "model.json"), json.dumps({"env_kwargs": env_kwargs}, indent=1) + "\n")
+    if not isinstance(model, PPO):  # the safe-weights format is PPO's Gaussian MLP policy
+        return
     export_policy(model, os.path.join(folder, "policy"), vecnormalize=vecnormalize, name=cfg.run_name(),
-                  env_kwargs=resolved_env_kwargs(full["env_kwargs"]), metadata={"config": full, **extra})
+                  env_kwargs=env_kwargs, metadata={"config": full, **extra})
 
 
 # --- validation -------------------------------------------------------------------------------------------
@@ -141,8 +151,8 @@ def validation(cfg: Config, env_kwargs: dict) -> tuple[list, list[dict], list[di
 def rollout_note(timesteps: int, start: int, rollout: int) -> str | None:
     """What a run of ``--timesteps`` from step ``start`` will really do, when that is not what was asked.
 
-    PPO collects whole rollouts (``rollout`` = n_envs * n_steps agent steps), so it stops at the first rollout
-    boundary at or past ``timesteps``; a resumed run already at or past it trains nothing.
+    PPO collects whole rollouts (``rollout`` = n_envs * n_steps agent steps; SAC n_envs * train_freq), so it stops at
+    the first rollout boundary at or past ``timesteps``; a resumed run already at or past it trains nothing.
     """
     if start >= timesteps:
         return (f"the run is already at step {start} (--timesteps {timesteps}); nothing to train, the final and "
@@ -150,7 +160,7 @@ def rollout_note(timesteps: int, start: int, rollout: int) -> str | None:
     end = start + -(-(timesteps - start) // rollout) * rollout
     if end != timesteps:
         return (f"--timesteps {timesteps} is not a whole number of rollouts ({rollout} agent steps = n_envs x "
-                f"n_steps) from step {start}; training runs to step {end}")
+                f"n_steps, or SAC's n_envs x train_freq) from step {start}; training runs to step {end}")
     return None
 
 
@@ -175,7 +185,8 @@ def train(cfg: Config, on_eval: Callable[[dict], None] | None = None) -> dict:
         model = make_agent(spec, venv, seed=cfg.seed, tensorboard_log=tb, verbose=cfg.verbose)
     else:
         venv = VecNormalize.load(manifest["vecnormalize"], venv.venv)
-        model = PPO.load(manifest["model"], env=venv, device="cpu", tensorboard_log=tb, verbose=cfg.verbose)
+        model = ALGO_CLASSES[spec.algo].load(manifest["model"], env=venv, device="cpu", tensorboard_log=tb,
+                                             verbose=cfg.verbose)
 
     # --- callbacks: wall clock, progress, held-out validation (best model), checkpoints ----------------
     scenarios, base, reference = validation(cfg, env_kwargs)
@@ -193,12 +204,13 @@ def train(cfg: Config, on_eval: Callable[[dict], None] | None = None) -> dict:
 
     # --- learn -------------------------------------------------------------------------------------------
     remaining = cfg.timesteps - model.num_timesteps
-    note = rollout_note(cfg.timesteps, int(model.num_timesteps), spec.n_envs * spec.n_steps)
+    note = rollout_note(cfg.timesteps, int(model.num_timesteps),
+                        spec.n_envs * (spec.n_steps if spec.algo == "ppo" else spec.train_freq))
     if note:
         print(f"note: {note}", file=sys.stderr)
     if remaining > 0:
         model.learn(total_timesteps=remaining, callback=CallbackList([wall, progress, evaluator, checkpoint]),
-                    reset_num_timesteps=manifest is None, tb_log_name="PPO", progress_bar=False)
+                    reset_num_timesteps=manifest is None, tb_log_name=spec.algo.upper(), progress_bar=False)
         checkpoint.init_callback(model)
         checkpoint.save()  # a finished run can be extended with --resume --timesteps LARGER
 
@@ -214,11 +226,12 @@ def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wa
     best = evaluator.history[[r["step"] for r in evaluator.history].index(evaluator.best_step)]
     export_model(model, venv, os.path.join(run_dir, "final"), cfg,
                  {"step": int(model.num_timesteps), "validation": evaluator.history[-1]})
-    best_model = PPO.load(os.path.join(evaluator.best_dir(), "model.zip"), device="cpu")
+    best_model = ALGO_CLASSES[cfg.spec().algo].load(os.path.join(evaluator.best_dir(), "model.zip"), device="cpu")
     best_vn = VecNormalize.load(os.path.join(evaluator.best_dir(), "vecnormalize.pkl"), venv.venv)
     export_model(best_model, best_vn, os.path.join(run_dir, "best"), cfg,
                  {"step": int(evaluator.best_step), "validation": best})
-    summary = {"run_name": cfg.run_name(), "run_dir": run_dir, "agent": cfg.agent, "task": cfg.task, "n": cfg.n,
+    summary = {"run_name": cfg.run_name(), "run_dir": run_dir, "agent": cfg.agent, "algo": cfg.spec().algo,
+               "task": cfg.task, "n": cfg.n,
                "seed": cfg.seed, "timesteps": int(model.num_timesteps), "wall_s": round(wall_s, 2),
                "best_step": evaluator.best_step, "best_validation": best,
                "best_is_untrained": evaluator.best_step == evaluator.history[0]["step"] == 0,
@@ -245,7 +258,9 @@ def describe(summary: dict) -> str:
     if summary.get("best_is_untrained"):
         lines.append("  note: the best is the untrained step-0 policy (a zero-initialised residual: the base law "
                      "itself); no later evaluation beat it, so best/ holds no training")
-    lines.append(f"run folder: {summary['run_dir']} (best/ and final/policy.json + .safetensors: safe weights)")
+    files = ("policy.json + .safetensors: safe weights" if summary.get("algo", "ppo") == "ppo" else
+             "model.zip + vecnormalize.pkl: score with sb3:<folder>/model.zip")
+    lines.append(f"run folder: {summary['run_dir']} (best/ and final/{files})")
     return "\n".join(lines)
 
 

@@ -564,9 +564,9 @@ COMMANDS = (
             "default law before tuning, with the failure gate. Writes tuned.json, BASELINES.md and convergence "
             "figures, and applies the written defaults rule (which n is each task's default).", add_baselines,
             "baselines"),
-    Command("train", "train residual PPO or pure PPO (checkpoints, resume, held-out evaluation)",
-            "Train residual PPO (or pure PPO) on EHSSTracking-v0: one seed, or several (--seeds) in parallel "
-            "processes or on Ray.", add_train, "train"),
+    Command("train", "train residual PPO, pure PPO or residual SAC (checkpoints, resume, held-out evaluation)",
+            "Train residual PPO (or pure PPO, or residual SAC for comparison) on EHSSTracking-v0: one seed, or "
+            "several (--seeds) in parallel processes or on Ray.", add_train, "train"),
     Command("training-report", "evaluate finished training runs and write reports/training",
             "Training cost, learning curves and held-out results of the runs that ehss train wrote; optionally "
             "ship the chosen residual policies.", add_training_report, "training_report"),

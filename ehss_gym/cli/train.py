@@ -1,6 +1,7 @@
-"""``ehss train``: train residual PPO or pure PPO on EHSSTracking-v0 (one seed, or several in parallel).
+"""``ehss train``: train residual PPO, pure PPO or residual SAC on EHSSTracking-v0 (one seed, or several in parallel).
 
-    ehss train --agent {residual-ppo,ppo} --task velocity --n 2 --timesteps T --seed S [--out runs/NAME] [--resume]
+    ehss train --agent {residual-ppo,ppo,residual-sac} --task velocity --n 2 --timesteps T --seed S
+        [--out runs/NAME] [--resume]
     ehss train --seeds 0-4 [--workers W] [...]   # one process per usable core; runs go to <out or runs>/<run name>
 
 The options are the fields of :class:`ehss_gym.train.config.Config` and :class:`~ehss_gym.train.config.Launch`;
