@@ -157,10 +157,9 @@ COMMON_ENV = {"agent_period": 20}
 # The residual agent's reward and memory (docs/RL.md, "Class reward" and "Memory"):
 # - the class reward (weight 1) instead of the default terms (track, effort, rate 0): the default tracking term
 #   saturates once the error is well below error_scale and ranked a chattering residual and the disturbance
-#   observer against the ruler on fixed episodes (docs/RL.md); the class reward's return differs from the base
-#   law's by the first-order expansion of the ruler's overall log figure. Saturation weight 1: the ruler's gate fails
-#   a mean saturation share above 10 %. Divergence 10 as before (a diverged episode also loses its remaining steps,
-#   worth 1/2 each for the base law).
+#   observer against the ruler on fixed episodes (docs/RL.md); the class reward's return is minus the ruler's overall
+#   log figure of the episode. Saturation weight 1: the ruler's gate fails a mean saturation share above 10 %.
+#   Divergence 10 as before (the gate fails a diverged episode; 10 is the log figure of a 2e4-fold worse one).
 # - memory_tau 0.1 s: the filtered error integral and the action before last, so that a friction step (0.3-2 s in
 #   the training distribution) is visible; a recurrent policy or a frame stack would cost more per step.
 RESIDUAL_ENV = {**COMMON_ENV, "residual_scale": 10.0, "memory_tau": 0.1,

@@ -20,10 +20,16 @@ W_TRACK, W_EFFORT, W_RATE, W_TV, W_TVU, W_DIV, W_INV_E2, W_INV_SCALE = range(8)
 # the class reward's weight and the saturation weight; the memory filter: decay and gain per agent step, and its clip
 W_CLASS, W_SAT, W_MEM_DECAY, W_MEM_GAIN, W_MEM_CLIP = range(8, 13)
 N_WEIGHTS = 13
-# The class reward's coefficients per lane (set at load from the base law's run of the episode): tracking sum e^2,
-# tracking sum |e| h, disturbance sum |e| h, disturbance max |e|, control TV, sum u^2.
+# The class reward's constants per lane (set at load from the base law's run of the episode), for its parts: tracking
+# sum e^2, tracking sum |e| h, disturbance sum |e| h, disturbance max |e|, control TV, sum u^2 (N_PARTS). Block
+# R_W: each part's weight (0 for a class the episode lacks); R_B: the base law's total of each part; R_K: the episode's
+# agent steps.
 R_TRK_E2, R_TRK_ABS, R_DST_ABS, R_DST_MAX, R_TV, R_U2 = range(6)
-N_RCLS = 6
+N_PARTS = 6
+R_W = 0
+R_B = N_PARTS
+R_K = 2 * N_PARTS
+N_RCLS = 2 * N_PARTS + 1
 # The memory features per lane: the filtered error integral [output unit * s], the action of the step before last.
 MEM_EINT, MEM_APREV2 = 0, 1
 N_MEM = 2

@@ -114,6 +114,15 @@ class EHSSTrackingEnv(gym.Env):
     [-(w_effort + w_rate + w_tv + 2 w_tv_u current_limit/residual_scale + w_divergence), w_track]; with
     the default weights (1, 0.05, 0.05, 0, 0, 10): [-10.1, 1].
 
+    The **class reward** (weights ``class`` and ``saturation``, 0 by default) is the evaluation's ruler spread over
+    the steps: each step pays w_class times the step's change of the episode's running log figure against the base
+    law (the tracking window's sum e^2 and IAE, the disturbance windows' IAE and peak |e|, the control TV and sum u^2,
+    on the true error as the ruler has them, each against the base law's total on the same episode pro rata,
+    offset by 1 % of it; weighted as in the overall log figure), and w_saturation times the step's share of periods
+    at the limit. Over an episode it sums to minus w_class times the episode's overall log figure (0 for the base
+    law; :func:`ehss_gym.envs.kernels.class_reward`). The base law's totals come from its run of the episode at reset
+    (one simulation more per episode).
+
     **Termination and truncation.** Divergence (non-finite value, |x2| > omega_max, |x3| > 1.5 P_s;
     see :mod:`ehss_gym.core.sim`) ends the episode with ``terminated=True``, ``info["diverged"]=True`` and
     ``info["divergence_reason"]``; the observation and info show the last finite state. With

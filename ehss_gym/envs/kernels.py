@@ -64,15 +64,18 @@ from .buffers import (
     MEM_APREV2,
     MEM_EINT,
     N_MEM,
+    N_PARTS,
     N_RCLS,
     N_STATS,
     N_WEIGHTS,
+    R_B,
     R_DST_ABS,
     R_DST_MAX,
+    R_K,
     R_TRK_ABS,
     R_TRK_E2,
     R_TV,
-    R_U2,
+    R_W,
     S_DST_ABS,
     S_DST_MAX,
     S_N,
@@ -219,31 +222,65 @@ def snapshot_classes(st, acc):
     st[S_U2] = acc[M_SUM_U2]
 
 
-@jit
-def class_reward(st, acc, rc, diverged, wts):
-    """The class reward of one agent step: w_class - (the step's share of the ruler's linearised log figure), minus
-    w_saturation times the step's share of periods at the current limit; 0 on divergence (the penalty is
-    :func:`agent_reward`'s).
+CLASS_EPS = 1e-2  # the class reward's offset, as a share of the base law's total of each part
 
-    The cost is sum_p rc[p] * (the step's increment of the accumulator's class sum p): the tracking window's sum e^2
-    and sum |e| h, the disturbance windows' sum |e| h and their running max |e| (whose increments add up to the peak),
-    the control TV and sum u^2. ``rc`` (R_*, per lane) holds the coefficients set from the base law's run of the same
-    episode (:meth:`ehss_gym.envs.lanes.Lanes.class_coefficients`), so the base law pays w_class / 2 per step on
-    average and a policy's return differs from the base law's by the first-order expansion of its overall log figure.
+
+@jit
+def class_reward(st, acc, rc, j, diverged, wts):
+    """The class reward of one agent step (step ``j`` of the episode, from 0): minus the step's change of the
+    episode's running log figure against the base law, minus w_saturation times the step's share of periods at the
+    current limit; 0 on divergence (the penalty is :func:`agent_reward`'s).
+
+    For each part p of the ruler's classes (the tracking window's sum e^2 and sum |e| h, the disturbance windows'
+    sum |e| h and running max |e|, the control TV and sum u^2: the accumulator's sums S_p) the running log ratio is
+    L_p(j) = log((S_p(j) + eps_p) / (B_p j / K + eps_p)): B_p the base law's total over the episode's K steps,
+    eps_p = CLASS_EPS B_p. The step pays -w_class sum_p w_p (L_p(j+1) - L_p(j)) with w_p (``rc[R_W + p]``) the part's
+    weight in its class's log figure over the number of classes the episode has. The sum over an episode telescopes to
+    -w_class sum_p w_p log((S_p(K) + eps_p) / (B_p + eps_p)): minus w_class times the ruler's log figure of the
+    episode (to within the offset), 0 for the base law, and bounded by the logarithm as the ruler is.
 
     Args:
         st: the lane's step statistics (S_*: the sums when the step began, the saturation share).
         acc: the lane's metrics accumulator (M_*).
-        rc: the lane's coefficients (R_*).
+        rc: the lane's constants (R_*).
+        j: the agent steps the episode had taken before this one.
         diverged: the loop diverged in the step.
         wts: reward weights (W_CLASS, W_SAT).
     """
     if diverged:
         return 0.0
-    cost = (rc[R_TRK_E2] * (acc[M_TRK_SUM_E2] - st[S_TRK_E2]) + rc[R_TRK_ABS] * (acc[M_TRK_SUM_ABS] - st[S_TRK_ABS])
-            + rc[R_DST_ABS] * (acc[M_DST_SUM_ABS] - st[S_DST_ABS]) + rc[R_DST_MAX] * (acc[M_DST_MAX] - st[S_DST_MAX])
-            + rc[R_TV] * (acc[M_TV_U] - st[S_TV0]) + rc[R_U2] * (acc[M_SUM_U2] - st[S_U2]))
-    return wts[W_CLASS] - cost - wts[W_SAT] * st[S_SATF]
+    r = -wts[W_SAT] * st[S_SATF]
+    if wts[W_CLASS] <= 0.0:
+        return r
+    k = rc[R_K]
+    for p in range(N_PARTS):
+        w = rc[R_W + p]
+        if w == 0.0:
+            continue
+        b = rc[R_B + p]
+        eps = CLASS_EPS * b
+        before = _class_sum(st, acc, p, False)
+        after = _class_sum(st, acc, p, True)
+        num = (after + eps) / (before + eps)
+        den = (b * (j + 1.0) / k + eps) / (b * j / k + eps)
+        r -= wts[W_CLASS] * w * math.log(num / den)
+    return r
+
+
+@jit
+def _class_sum(st, acc, p, now):
+    """Part p's sum (R_* order) now (the accumulator) or when the step began (the step statistics)."""
+    if p == R_TRK_E2:
+        return acc[M_TRK_SUM_E2] if now else st[S_TRK_E2]
+    if p == R_TRK_ABS:
+        return acc[M_TRK_SUM_ABS] if now else st[S_TRK_ABS]
+    if p == R_DST_ABS:
+        return acc[M_DST_SUM_ABS] if now else st[S_DST_ABS]
+    if p == R_DST_MAX:
+        return acc[M_DST_MAX] if now else st[S_DST_MAX]
+    if p == R_TV:
+        return acc[M_TV_U] if now else st[S_TV0]
+    return acc[M_SUM_U2] if now else st[S_U2]
 
 
 @jit
@@ -346,7 +383,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
                                        acc[b, M_TV_U] - F[b, F_STATS + S_TV0], diverged, wts)
             if wts[W_CLASS] > 0.0 or wts[W_SAT] > 0.0:
                 F[b, F_REW] += class_reward(F[b, F_STATS:F_STATS + N_STATS], acc[b], F[b, F_RCLS:F_RCLS + N_RCLS],
-                                            diverged, wts)
+                                            IB[b, IB_NSTEP], diverged, wts)
             if wts[W_MEM_GAIN] > 0.0:
                 memory_update(F[b, F_MEM:F_MEM + N_MEM], info_ok[b, I_E], F[b, F_APREV], wts)
             F[b, F_APREV] = a

@@ -89,12 +89,15 @@ from .buffers import (
     N_IB,
     N_RCLS,
     N_STATS,
+    R_B,
     R_DST_ABS,
     R_DST_MAX,
+    R_K,
     R_TRK_ABS,
     R_TRK_E2,
     R_TV,
     R_U2,
+    R_W,
     S_SATF,
 )
 from .config import SCENARIOS, EnvConfig
@@ -108,18 +111,16 @@ MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
 CLASS_PARTS = ((R_TRK_E2, M_TRK_SUM_E2, 0.25, "tracking"), (R_TRK_ABS, M_TRK_SUM_ABS, 0.5, "tracking"),
                (R_DST_ABS, M_DST_SUM_ABS, 0.5, "disturbance"), (R_DST_MAX, M_DST_MAX, 0.5, "disturbance"),
                (R_TV, M_TV_U, 0.5, "effort"), (R_U2, M_SUM_U2, 0.25, "effort"))
-CLASS_FLOOR = 1e-300  # a base-law total below it (none in practice) is taken as it: no division by 0
 
 
-def class_coefficients(sc: Scenario, weight: float, agent_period: int) -> np.ndarray:
-    """The class reward's coefficients (R_*) of an episode, from the base law's run of it (zero residual, the
+def class_coefficients(sc: Scenario, agent_period: int) -> np.ndarray:
+    """The class reward's constants (R_*) of an episode, from the base law's run of it (zero residual, the
     disturbance observer off: the law alone, which a residual or the observer is measured against).
 
-    Each part p of a class c present on the episode (tracking and disturbance if the episode has samples in their
-    windows, effort always) gets ``weight`` * K * w_p / (2 |C| s * B_p): K agent steps, w_p the part's weight in the
-    class's log figure, |C| the classes present, s the mean over them of their parts' weights, B_p the base law's
-    total of the part (floored). The base law then pays ``weight`` * K / 2 over the episode, and a policy's cost
-    differs from it by ``weight`` K / (2 s) times the first-order expansion of its overall log figure.
+    A part of a class the episode has (tracking and disturbance if it has samples in their windows, effort always)
+    gets its weight in the class's log figure over the number of such classes (the ruler's mean over classes), the
+    others 0; the base law's totals and the episode's agent steps K complete them (see
+    :func:`ehss_gym.envs.kernels.class_reward`). A part whose base total is 0 (no sample moved it) is left out.
     """
     from ehss_gym.core.sim import simulate_batch  # the base law's run (the env module stays light)
 
@@ -127,12 +128,13 @@ def class_coefficients(sc: Scenario, weight: float, agent_period: int) -> np.nda
     law = sc.replace(t_end=K * agent_period * sc.control_period, log_interval=sc.t_end, dob_hz=0.0)
     base = simulate_batch([law])[0].acc
     present = {"tracking": base[M_TRK_STEPS] > 0, "disturbance": base[M_DST_STEPS] > 0, "effort": True}
-    parts = [p for p in CLASS_PARTS if present[p[3]]]
     n_cls = sum(present.values())
-    s = sum(p[2] for p in parts) / n_cls
     out = np.zeros(N_RCLS)
-    for slot, m, w, _ in parts:
-        out[slot] = weight * K * w / (2.0 * n_cls * s * max(float(base[m]), CLASS_FLOOR))
+    for slot, m, w, cls in CLASS_PARTS:
+        if present[cls] and base[m] > 0.0:
+            out[R_W + slot] = w / n_cls
+            out[R_B + slot] = base[m]
+    out[R_K] = K
     return out
 
 
@@ -258,8 +260,8 @@ class Lanes:
         lane_constants(self.plant[b:b + 1].copy(), self.tmp_c)
         self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
         init_accumulator(self.acc[b], sc.lost_track_bound)
-        if rw_class := cfg.reward_weights.get("class", 0.0):
-            self.F[b, F_RCLS:F_RCLS + N_RCLS] = class_coefficients(sc, rw_class, cfg.agent_period)
+        if cfg.reward_weights.get("class", 0.0) > 0.0:
+            self.F[b, F_RCLS:F_RCLS + N_RCLS] = class_coefficients(sc, cfg.agent_period)
         self.IB[b] = 0
         self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
         self.run[b] = True
