@@ -60,6 +60,7 @@ from ehss_gym.core.settings import (
     ctrl_row,
     unmodelled_slots,
 )
+from ehss_gym.core.sim import simulate_batch
 
 from .buffers import (
     BB_ACT,
@@ -122,8 +123,6 @@ def class_coefficients(sc: Scenario, agent_period: int) -> np.ndarray:
     others 0; the base law's totals and the episode's agent steps K complete them (see
     :func:`ehss_gym.envs.kernels.class_reward`). A part whose base total is 0 (no sample moved it) is left out.
     """
-    from ehss_gym.core.sim import simulate_batch  # the base law's run (the env module stays light)
-
     K = sc.n_steps // agent_period
     law = sc.replace(t_end=K * agent_period * sc.control_period, log_interval=sc.t_end, dob_hz=0.0)
     base = simulate_batch([law])[0].acc
