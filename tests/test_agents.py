@@ -98,7 +98,7 @@ def test_policy_class_round_trips_through_sb3_save(residual, tmp_path):
 
 
 def test_bad_agent_input():
-    with pytest.raises(ValueError, match=r"agent must be one of \['ppo', 'residual-ppo'\]"):
+    with pytest.raises(ValueError, match=r"agent must be one of \['ppo', 'residual-ppo', 'residual-sac'\]"):
         get_spec("sac")
     with pytest.raises(ValueError, match=r"unknown or fixed agent hyperparameter\(s\) \['mode'\]"):
         get_spec("residual-ppo", mode="direct")

@@ -32,7 +32,7 @@ def test_the_time_scales_are_the_envs():
     assert f"halves after {half:.0f} steps = {half * dt * 1e3:.0f} ms" in DOC
     spec = AGENTS["residual-ppo"]
     env_kw = spec.env_kwargs
-    agent_dt = env_kw["agent_period"] * env_kw["control_period"]
+    agent_dt = EnvConfig.from_kwargs(env_kw).agent_dt  # the recipe's agent period at the env's control period
     assert f"act every {agent_dt * 1e3:g} ms" in DOC and f"{round(2.0 / agent_dt):,} steps an episode" in DOC
     steps = 1 / (1 - spec.gamma)
     assert f"gamma {spec.gamma:g} ({steps:.0f} steps = {steps * agent_dt * 1e3:.0f} ms)" in DOC
