@@ -297,7 +297,7 @@ class EHSSTrackingEnv(gym.Env):
                  reward_weights: dict | None = None, error_scale: float | None = None,
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,
                  terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track,
-                 unmodelled_effects: bool = DEFAULTS.unmodelled_effects, render_mode: str | None = None,
+                 unmodelled_effects: bool = DEFAULTS.unmodelled_effects,
                  memory_tau: float | None = DEFAULTS.memory_tau, render_mode: str | None = None,
                  **unknown):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
