@@ -459,6 +459,22 @@ def add_factors(p) -> None:
     add_quick(p, "6 held-out episodes per task")
 
 
+def add_headroom(p) -> None:
+    p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
+                   help="episodes per task and suite at most; a larger suite is subsampled evenly (default 32; "
+                        "--quick 2)")
+    p.add_argument("--task", type=task_list, default=tuple(TASKS),
+                   help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
+    p.add_argument("--n-boot", type=int_at_least("--n-boot", 100), default=None,
+                   help="bootstrap replicates (default 2000; --quick 500)")
+    add_workers(p)
+    add_out(p, "output folder", os.path.join("reports", "headroom"))
+    add_quick(p, "2 episodes per suite, short suites, agent periods 5 and 20, small searches (CI smoke run; numbers "
+                 "not meaningful)")
+    add_progress(p)
+    add_backend_arguments(p)
+
+
 def add_baselines(p) -> None:
     p.add_argument("--budget", type=int_at_least("--budget", 1), default=None,
                    help="evaluations per baseline (default 64; --quick 6)")
@@ -564,6 +580,12 @@ COMMANDS = (
             "default law before tuning, with the failure gate. Writes tuned.json, BASELINES.md and convergence "
             "figures, and applies the written defaults rule (which n is each task's default).", add_baselines,
             "baselines"),
+    Command("headroom", "the headroom table: what a residual on the n=2 law could gain, and what it must observe",
+            "For each task, suite of ehss evaluate and metric class: the base law, the disturbance-observer residual "
+            "and oracles (the true plant as the model, friction feed-forward knowing the events, the per-episode best "
+            "constant current and boundary-layer width) at agent periods 1, 5 and 20, with 95 % CIs, and the rule "
+            "that reads headroom off them; writes HEADROOM.md, headroom.csv and headroom.png.", add_headroom,
+            "headroom"),
     Command("train", "train residual PPO, pure PPO or residual SAC (checkpoints, resume, held-out evaluation)",
             "Train residual PPO (or pure PPO, or residual SAC for comparison) on EHSSTracking-v0: one seed, or "
             "several (--seeds) in parallel processes or on Ray.", add_train, "train"),

@@ -38,13 +38,14 @@ Every policy here has ``predict(observation, state=None, episode_start=None, det
   current doublet centred on each friction edge, sized so that G * int int u = Delta T_f / J cancels
   the torque step (G from the model's Lie derivatives at the measured state). It exists to show that
   the residual channel has authority (the env's residual-authority check), not as a controller.
+- :class:`ConstantResidualPolicy`: a constant residual current per episode (the headroom study's best-bias oracle).
 """
 
 from .base import ScriptedPolicy
 from .clf import DOB_HZ, SCRIPTED_FORMS, CLFPolicy, parse_scripted
-from .feedforward import FrictionFeedforwardPolicy
+from .feedforward import ConstantResidualPolicy, FrictionFeedforwardPolicy
 from .pid import PID_GAINS, PID_RELAY, PID_RELAY_GAINS, RULES, PIDPolicy, default_pid_gains, relay_experiment, tune_pid
 
 __all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "DOB_HZ", "PIDPolicy",
-           "FrictionFeedforwardPolicy", "tune_pid", "relay_experiment", "PID_GAINS", "PID_RELAY_GAINS", "PID_RELAY",
-           "RULES", "default_pid_gains"]
+           "FrictionFeedforwardPolicy", "ConstantResidualPolicy", "tune_pid", "relay_experiment", "PID_GAINS",
+           "PID_RELAY_GAINS", "PID_RELAY", "RULES", "default_pid_gains"]

@@ -241,7 +241,7 @@ def _log_ci(stat_logs, cfg: EvalConfig, seed: int, over: str) -> tuple[float, fl
     return math.exp(lo), math.exp(hi)
 
 
-def _figure_statistics(blk: Block, name: str, k: int, cfg: EvalConfig) -> dict:
+def figure_statistics(blk: Block, name: str, k: int, cfg: EvalConfig) -> dict:
     """A policy's class and overall figures with bootstrap CIs (over episodes; with several runs also over seeds and
     both), and the IQM of its per-episode overall ratios; ``k`` = its place in the block (the seeds differ)."""
     g, gc = blk.figure(name)
@@ -297,7 +297,7 @@ def _block_summary(rows: list, blk: Block, specs: Sequence[PolicySpec], suite: s
         failed, n_failed = failure(sel)
         d = {"suite": suite, "task": task, "policy": n, "rank": 0, "failed": failed, "n_failed": n_failed,
              "earlier_loop": is_earlier_loop(spec, task)}
-        d.update(_figure_statistics(blk, n, k, cfg))
+        d.update(figure_statistics(blk, n, k, cfg))
         d.update(_mean_metrics(sel))
         block.append(d)
     ranked = sorted((d for d in block if not d["earlier_loop"]),
@@ -396,4 +396,5 @@ def summarize(rows: list, specs: Sequence[PolicySpec], cfg: EvalConfig) -> tuple
 
 __all__ = ["CLASSES", "CLASS_METRICS", "FLOORS", "ERROR_FLOOR", "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE",
            "METRICS", "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios",
-           "failure", "figure_of", "rank_key", "ratio_rows", "matrix", "is_earlier_loop", "summarize"]
+           "failure", "figure_of", "rank_key", "ratio_rows", "matrix", "Block", "figure_statistics", "is_earlier_loop",
+           "summarize"]

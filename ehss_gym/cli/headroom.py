@@ -1,0 +1,52 @@
+"""``ehss headroom``: the headroom table (:mod:`ehss_gym.study.headroom`), written by
+:mod:`ehss_gym.reporting.headroom`. Its options: :func:`ehss_gym.cli.options.add_headroom`."""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+
+from ehss_gym.infra.execution import ExecutionError, Executor
+from ehss_gym.infra.util import report_folder
+from ehss_gym.reporting.headroom import DEFAULT_OUT, write_report
+from ehss_gym.study.headroom import PROG, HeadroomConfig
+from ehss_gym.study.headroom import run as measure
+
+from .common import backend_from_args, check_out_folder, store_from_args
+
+
+def settings(args) -> HeadroomConfig:
+    """The study's sizes from the options (--quick's smaller form, then any option given)."""
+    base = HeadroomConfig.quick_config() if args.quick else HeadroomConfig()
+    changes = {"tasks": tuple(args.task)}
+    if args.episodes:
+        changes["episodes"] = args.episodes
+    if args.n_boot:
+        changes["n_boot"] = args.n_boot
+    return replace(base, **changes)
+
+
+def run(args) -> int:
+    """Measure, write the report and print each task's largest overall headroom; 2 for a bad setting."""
+    out = report_folder(args.out, args.quick, DEFAULT_OUT)
+    if not check_out_folder(PROG, out):
+        return 2
+    cmd = " ".join([PROG] + [a for a in getattr(args, "argv", [])[1:]])
+    try:
+        with Executor(backend_from_args(args, args.workers), store_from_args(args),
+                      progress=not args.no_progress) as executor:
+            res = measure(settings(args), executor)
+    except ExecutionError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    path = write_report(res, out, cmd)
+    for b in res["blocks"]:
+        h = b["headroom"].get("overall")
+        if h is not None:
+            print(f"{b['task']} / {b['suite']}: best oracle overall {h['ratio']:.3g} [{h['lo']:.3g}, {h['hi']:.3g}] "
+                  f"({h['oracle']})", file=sys.stderr)
+    print(f"wrote {path} ({res['computed']} job(s) computed, {res['skipped']} from the store, {res['wall_s']:.0f} s)")
+    return 0
+
+
+__all__ = ["run", "settings"]
