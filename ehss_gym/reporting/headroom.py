@@ -30,6 +30,7 @@ from .render import render  # noqa: E402
 
 DEFAULT_OUT = os.path.join("reports", "headroom")
 KEYS = tuple(CLASSES) + ("figure",)  # the class figures, then the overall figure
+DOB = f"dob-n2 @{BASE_PERIOD}"  # the scripted residual's row, shown beside the best oracle
 COLUMNS = (("task", "suite", "policy", "variant", "kind", "agent_period", "failed", "n_failed", "n_used")
            + tuple(f"{k}{s}" for k in KEYS for s in ("", "_lo", "_hi")) + ("value_median", "value_moved", "observes"))
 
@@ -81,7 +82,11 @@ def _largest(blocks: list, task: str) -> list[list[str]]:
             continue
         suite, h = min(cands, key=lambda c: c[1]["ratio"])
         verdict = "material" if h["material"] else ("has headroom" if h["has"] else "none")
-        out.append([key, suite, _headroom_cell(h), verdict, h["observes"] if h["ratio"] < 1.0 else "-"])
+        fig = "figure" if key == "overall" else key
+        dob = [_ci(d.get(fig, math.nan), d.get(f"{fig}_lo"), d.get(f"{fig}_hi")) for b in blocks
+               if b["task"] == task and b["suite"] == suite for d in b["stats"] if d["policy"] == DOB]
+        out.append([key, suite, _headroom_cell(h), verdict, h["observes"] if h["ratio"] < 1.0 else "-",
+                    dob[0] if dob else "n/a"])
     return out
 
 
@@ -141,7 +146,7 @@ def write_report(res: dict, out: str, command: str) -> str:
         head = [[b["suite"], str(b["episodes"])] + [_headroom_cell(b["headroom"].get(k)) for k in
                                                     tuple(CLASSES) + ("overall",)] for b in tb]
         dob = [[b["suite"]] + [_ci(d.get(k, math.nan), d.get(f"{k}_lo"), d.get(f"{k}_hi")) for k in KEYS]
-               for b in tb for d in b["stats"] if d["policy"] == f"dob-n2 @{BASE_PERIOD}"]
+               for b in tb for d in b["stats"] if d["policy"] == DOB]
         details = [{"suite": b["suite"], "episodes": b["episodes"], "classes": b["classes"], "rows": _detail_rows(b)}
                    for b in tb]
         tasks.append({"task": task, "head": head, "dob": dob, "largest": _largest(blocks, task), "details": details})

@@ -30,7 +30,8 @@ figure G of one oracle (the geometric mean of its classes). A class **has headro
 observe to gain it (:attr:`Variant.observes`): the friction events' timing (ahead of the edge, or at it), the
 plant-model mismatch, or the whole episode in hindsight (its best constant current or width; the causal counterparts
 are integral action and a scheduling action). The best is picked among several oracles on the same episodes, so its
-CI is that oracle's own, not adjusted for the pick.
+CI is that oracle's own, not adjusted for the pick. The oracles are not bounds on what a residual can reach: each
+knows one thing and uses it in one fixed way (the report shows ``dob-n2`` beside the best oracle).
 """
 
 from __future__ import annotations
@@ -98,7 +99,7 @@ class Search1D:
 
     def describe(self) -> str:
         """The search in words."""
-        pts = ", ".join(f"{v:g}" for v in self.grid)
+        pts = ", ".join(f"{v:.3g}" for v in self.grid)
         return (f"grid {{{pts}}} {self.unit}, then {self.rounds} refinement round(s) from a {self.step:g}-decade step, "
                 f"magnitude within [{self.lo:g}, {self.hi:g}] {self.unit}")
 
