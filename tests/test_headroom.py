@@ -114,9 +114,10 @@ def test_quick_headroom_report(tmp_path):
               and r["disturbance"] not in ("", "nan")]
         assert ff and min(ff) < 1.0, task
     # the base law and the observer act every control period: the agent period changes nothing, to the last bit
-    assert text.count("/ base law at agent periods") == len(blocks)
-    assert "base law at agent periods 5, 20, 200: the same to the last bit" in text
-    assert "dob-n2 at agent periods 5, 20: the same to the last bit" in text
+    lines = text.splitlines()
+    assert sum(1 for ln in lines if "| base law |" in ln and ln.endswith("| the same to the last bit |")) == len(blocks)
+    assert sum(1 for ln in lines if "| heldout | base law | 5, 20, 200 | the same to the last bit |" in ln) == 2
+    assert sum(1 for ln in lines if "| heldout | dob-n2 | 5, 20 | the same to the last bit |" in ln) == 2
     for cls in CLASSES:
         assert any(r[cls] not in ("", "nan") and math.isfinite(float(r[cls])) for r in rows), cls
     assert np.isfinite([float(r["figure_hi"]) for r in rows]).all()
