@@ -17,6 +17,7 @@ from importlib.metadata import version
 
 import gymnasium as gym
 import numba
+import numpy as np
 
 import ehss_gym  # noqa: F401  (registers EHSSTracking-v0 with gymnasium)
 from ehss_gym.core.loop import MAX_LANES
@@ -31,6 +32,7 @@ OURS, PENDULUM = "EHSSTracking-v0 (ours)", "Pendulum-v1"  # their rows in the si
 VEC_SIZES = (1, 16, 256, 1024)
 VEC_TARGET = 20.0  # sub-env steps/s of the vector env at VEC_TARGET_SIZE sub-envs over the single env's steps/s
 VEC_TARGET_SIZE = 256
+COMPILED_NS_TARGET = 150.0  # ns of the vector env's compiled call per lane and control period at VEC_TARGET_SIZE
 BLOCK = MAX_LANES  # lanes of the vectorised plant and core-loop blocks timed for the vector env
 STRIP = ("site-packages/", repo_root() + "/")  # profile file names are shown relative to these
 
@@ -176,9 +178,15 @@ def run(quick: bool) -> Section:
         vtab, vec = vector_rates(quick, n_steps, reps if quick else 3)
         sec.tables.append(vtab)
         sec.targets.append(Target(vector_target, vec["ratio"], VEC_TARGET))
+        vec["compiled_ns"] = compiled_ns_per_period(quick)
+        sec.targets.append(Target(f"compiled step per lane and control period, {VEC_TARGET_SIZE} sub-envs",
+                                  vec["compiled_ns"], COMPILED_NS_TARGET, unit="ns", lower_is_better=True,
+                                  note="one thread, the vector env's compiled call alone"))
         if vec["ratio"] < VEC_TARGET:
             v_profile = vector_profile(vec["steps"])
     sec.context = report_context(n_steps, reps, (gem, described, profiles), kc, rates, v_status, vec, v_profile)
+    log("env: machine code of the control period's stages")
+    sec.context["control_mix"] = kernel_profile.control_period_mix()
     return sec
 
 
@@ -202,7 +210,7 @@ def report_context(n_steps: int, reps: int, peers: tuple[dict, list, dict], kc: 
     return {"n_steps": n_steps, "reps": reps, "gem_id": GEM_ID, "block": BLOCK, "vector_size": VEC_TARGET_SIZE,
             "gem": gem, "described": described, "profiles": profiles,
             "pendulum_miss": None if kc is None else pendulum_miss(kc, ours, pend, profiles["ours"]["rows"]),
-            "vector_status": v_status, "vector_profile": v_profile,
+            "vector_status": v_status, "vector_profile": v_profile, "control_mix": None,  # run() measures it
             "vector_miss": None if kc is None or v_profile is None else vector_miss(kc, vec, v_profile)}
 
 
@@ -390,6 +398,30 @@ def _vector_table(vt: dict, vsteps: dict, n_steps: int, threads: int) -> tuple[T
     vtab.add(n, 1, vsteps[n], t_1t, rate_1t, rate_1t / single_rate)
     return vtab, {"single": single_rate, "rate": vrate, "rate_1t": rate_1t, "steps": vsteps, "threads": threads,
                   "ratio": vrate[VEC_TARGET_SIZE] / single_rate}
+
+
+def compiled_ns_per_period(quick: bool) -> float:
+    """The vector env's compiled call alone (``Lanes.step``, one thread) at VEC_TARGET_SIZE sub-envs [ns per lane and
+    control period]: the best of many short bursts of a few calls (on shared cores a long run is mostly time spent
+    waiting for the core; the best short burst is the call's own cost). The lanes are stepped with seeded random
+    residuals first, so they run mid-episode with their noise and friction as a training loop sees them."""
+    from ehss_gym.envs.vector import EHSSTrackingVectorEnv
+
+    v = EHSSTrackingVectorEnv(VEC_TARGET_SIZE)
+    v.reset(seed=0)
+    acts = np.random.default_rng(0).uniform(-1.0, 1.0, (64, VEC_TARGET_SIZE, 1))
+    for a in acts:
+        v.step(a)
+    lanes = v._lanes
+    calls, bursts = 4, (10 if quick else 60)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        best = _best_calls(lambda: lanes.step(), (), calls, repeats=bursts)
+    finally:
+        numba.set_num_threads(threads)
+        v.close()
+    return best / calls / (VEC_TARGET_SIZE * v.config.agent_period) * 1e9
 
 
 def vector_profile(vsteps: dict) -> list:

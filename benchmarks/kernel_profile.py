@@ -13,7 +13,8 @@ separately with small compiled drivers that call the core's own kernels:
 
 and reads the machine code numba generated for the plant right-hand side
 (vector width and the count of square roots and divisions, the expensive
-instructions of Eq. 1).
+instructions of Eq. 1) and for each stage of the control period (:func:`control_period_mix`: packed and scalar
+instructions, and the libm calls that keep a stage scalar).
 """
 
 from __future__ import annotations
@@ -220,3 +221,51 @@ def rhs_instruction_mix(lanes: int = MAX_LANES) -> dict:
     res["packed_on_ymm"] = sum("ymm" in p and "zmm" not in p for p in packed)
     res["vector_width"] = 8 if res["packed_on_zmm"] else 4 if res["packed_on_ymm"] else 1
     return res
+
+
+LIBM = ("log", "log1p", "exp", "cos", "sin", "hypot", "pow", "atan2")  # libm's functions, called one value at a time
+
+
+def _mix(asm: str) -> dict:
+    """Packed (ymm/zmm) and scalar double instructions and the libm functions called in one function's machine code."""
+    packed = re.findall(r"^\s*v\w+pd\s+(.*)$", asm, re.M)
+    calls = set(re.findall(r"movabsq\s+\$(\w+),", asm)) & set(LIBM)
+    return {"packed_zmm": sum("zmm" in p for p in packed), "packed_ymm": sum("ymm" in p and "zmm" not in p
+                                                                              for p in packed),
+            "scalar_sd": len(re.findall(r"^\s*v\w+sd\s", asm, re.M)), "libm": sorted(calls)}
+
+
+def control_period_mix(lanes: int = 16) -> dict:
+    """Instruction mix of each stage of the env's control period, compiled afresh here (no cache) on a vector env's
+    arrays of ``lanes`` lanes: the controller's lane stages (``sense_lanes``: noise variates, sensors, the model at
+    the measured states), the rest of the controller per lane (``controller_law``), the loop around them
+    (``lanes_period``: checks, metrics, copies), the plant right-hand side (``lane_rhs``) and the env's step
+    (``advance``: grouping, statistics, reward, observation). Each entry: packed_zmm, packed_ymm, scalar_sd (static
+    counts) and the libm functions the stage calls (scalar: numba has no vector libm here, and one would change the
+    last bits)."""
+    from ehss_gym.core.controller import controller_law, sense_lanes
+    from ehss_gym.core.loop import lanes_period
+    from ehss_gym.envs.kernels import advance
+    from ehss_gym.envs.vector import EHSSTrackingVectorEnv
+
+    v = EHSSTrackingVectorEnv(lanes)
+    v.reset(seed=0)
+    L = v._lanes
+    k, h, substeps, events, filt = 1, L.cfg.control_period, L.cfg.substeps, L.events, L.filt
+    c, X, U, work, lwork = L.c[0], L.X[0], L.U[0], L.work[0], L.lwork[0]
+    fresh = {}
+    for f in (sense_lanes, controller_law, lanes_period, lane_rhs, advance):
+        opts = dict(f.targetoptions)
+        opts.pop("cache", None)
+        fresh[f.__name__] = nb.njit(**opts)(f.py_func)
+    z, ctrl, info = L.z, L.ctrl, L.info_ok
+    fresh["sense_lanes"](z, k, ctrl, c, lwork[6])
+    fresh["lane_rhs"](X, lwork[5, 0], U, c, lwork[0], X.shape[1])
+    fresh["controller_law"](z[0].copy(), k, h, 0.0, 1.0, 0.0, ctrl[0], L.ref[0], filt[0], np.zeros(N_INFO),
+                            work.copy())
+    act = np.zeros(L.B, dtype=np.bool_)  # no lane active: compiled, nothing advanced
+    fresh["lanes_period"](z, k, h, substeps, L.plant, L.model, ctrl, L.ref, events, filt, L.u_res, act, info, L.acc,
+                          c, X, U, L.F[:, :z.shape[1]].copy(), work, lwork, act.copy(), L.F[:, :N_INFO + z.shape[1]])
+    fresh["advance"](*L._args)
+    v.close()
+    return {name: _mix(next(iter(f.inspect_asm().values()))) for name, f in fresh.items()}

@@ -13,8 +13,9 @@ import pytest
 from ehss_gym import Scenario, simulate, simulate_batch
 from ehss_gym.cli import main
 from ehss_gym.controllers import DOB_HZ, parse_scripted
+from ehss_gym.core.controller import model_constants
 from ehss_gym.core.layout import I_DHAT, I_UDOB, L_DHAT, L_UDOB, N_INFO, N_LOOP, N_METRICS, Z_DOB
-from ehss_gym.core.loop import lanes_period, run_lanes
+from ehss_gym.core.loop import N_LWORK, lanes_period, run_lanes
 from ehss_gym.core.metrics import init_accumulator
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import N_LANE_CONST, lane_constants
@@ -186,11 +187,12 @@ def _plain_loop(sc: Scenario, residuals: np.ndarray, agent_period: int) -> tuple
     z = a.z0.copy()
     c = np.zeros((N_LANE_CONST, 1))
     lane_constants(a.plant, c)
+    model_constants(a.model, a.ctrl, c)
     X, U, u_res = np.zeros((N_LOOP, 1)), np.zeros(1), np.zeros(1)
     active, pre = np.ones(1, dtype=np.bool_), np.zeros(1, dtype=np.bool_)
     info, acc, zprev = np.zeros((1, N_INFO)), np.zeros((1, N_METRICS)), np.zeros_like(z)
     init_accumulator(acc[0], sc.lost_track_bound)
-    work, lwork, peek = np.zeros((8, 4)), np.zeros((6, N_LOOP, 1)), np.zeros((1, N_INFO + N_LOOP))
+    work, lwork, peek = np.zeros((8, 4)), np.zeros((N_LWORK, N_LOOP, 1)), np.zeros((1, N_INFO + N_LOOP))
     k = 0
     for r in residuals:
         u_res[0] = r

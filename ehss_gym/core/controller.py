@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 
 from .estimators import advance_filters, estimate_derivatives, filter_outputs
-from .jit import jit_inline, jit_noalloc
+from .jit import jit, jit_inline, jit_noalloc
 from .laws import base_current, clf_value, decrease_clip
 from .layout import (
     FB_VEC,
@@ -45,6 +45,7 @@ from .layout import (
     I_YD,
     I_YE,
     N_PLANT,
+    X_AV,
     X_OMEGA,
     X_PL,
     X_THETA,
@@ -54,7 +55,7 @@ from .layout import (
     Z_SHAPE,
 )
 from .params import P_PS
-from .physics import gaussian, lie_derivatives
+from .physics import LC_MODEL, LC_PMAX, gaussian, lie_terms, noise_uniforms, normal_from
 from .references import reference_value
 from .settings import (
     C_ANALOG,
@@ -125,28 +126,114 @@ def controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work):
     k = 0 with a bumpless start the reference model's rows are first set to the measured output and the estimated
     derivatives. The plant rows z[:4] are only read. Arguments as in :func:`controller_update`.
     """
-    t = k * h
-    m = int(ctrl[C_ORDER])
-    n = ctrl[C_N]
-    sigma = ctrl[C_SIGMA]
-    seed = int(ctrl[C_SEED])
     xm = work[5]
-    hd = work[6]
-    # the sensors (with their noise), and the model at the measured state
+    sense_plant(z, k, ctrl, xm)
+    f2, h2, F, G = model_terms(xm[X_OMEGA], xm[X_PL], xm[X_AV], model_p, 0, ctrl[C_PDOMAIN] * model_p[P_PS])
+    output_derivatives(xm[X_THETA], xm[X_OMEGA], f2, h2, ctrl[C_ORDER] == 4.0, work[6])
+    return controller_law(z, k, h, F, G, f2, ctrl, ref, filt, info, work)
+
+
+# Rows of the controller's lane-stage scratch (N_LOOP, B) (``lwork[6]`` of the loop): the measured states, the model
+# there (F, G, f2, h2: :func:`model_terms`), the noise's uniform variates (4 channels each) and which lanes sense.
+CW_XM, CW_MO, CW_U1, CW_U2, CW_TODO = 0, 4, 8, 12, 16
+
+
+@jit
+def model_constants(model, ctrl, c):
+    """Fill the controller's rows of the lane constants ``c`` (N_LANE_CONST, B): its model's parameters (LC_MODEL +
+    P_*) from the rows ``model`` (B, N_PARAM) and the bound of the model's pressure domain (LC_PMAX) [Pa]."""
+    for b in range(model.shape[0]):
+        for i in range(model.shape[1]):
+            c[LC_MODEL + i, b] = model[b, i]
+        c[LC_PMAX, b] = ctrl[b, C_PDOMAIN] * model[b, P_PS]
+
+
+@jit_inline
+def sense_plant(z, k, ctrl, xm):
+    """Stage 1 of the controller, the sensors at sample k: xm[i] = z[i] plus state i's noise (std
+    ctrl[C_NOISE_THETA + i], :func:`ehss_gym.core.physics.gaussian`) [unit of state i], then the unmodelled encoder
+    grid and sensor delay (:func:`ehss_gym.core.unmodelled_kernels.sense_unmodelled`, whose delay line is in z)."""
+    seed = int(ctrl[C_SEED])
     for i in range(N_PLANT):
         sd = ctrl[C_NOISE_THETA + i]
         xm[i] = z[i] + (sd * gaussian(seed, k, i) if sd > 0.0 else 0.0)
     sense_unmodelled(z, xm, k, ctrl)  # the encoder's grid and the sensor delay (off: nothing)
+
+
+@jit_inline
+def model_terms(x2, x3m, x4, p, o, pmax):
+    """Stage 2 of the controller, the model ``p[o + P_*]`` at the measured state with its pressure x3m clipped to
+    the model's domain +-``pmax`` [Pa] (docs/MODEL.md, "The model's pressure domain"): (f2, h2, F, G) of
+    :func:`ehss_gym.core.physics.lie_terms`. Selects, no branch: the lane stage (:func:`sense_lanes`) vectorises it."""
+    x3 = pmax if x3m > pmax else (-pmax if x3m < -pmax else x3m)
+    return lie_terms(x2, x3, x4, p, o)
+
+
+@jit_inline
+def output_derivatives(x1, x2, f2, h2, position, hd):
+    """The model's output y, y', ..., y^(m-1) at the measured state into ``hd``: (x1, x2, f2, h2) for the position
+    output (m = 4), (x2, f2, h2) for the velocity (m = 3)."""
+    hd[0] = x1 if position else x2
+    hd[1] = x2 if position else f2
+    hd[2] = f2 if position else h2
+    hd[3] = h2 if position else 0.0
+
+
+@jit_noalloc
+def sense_lanes(z, k, ctrl, c, cw):
+    """Stages 1 and 2 of the controller for the lanes of a block flagged in ``cw[CW_TODO]``, each a loop over the lanes
+    (the same arithmetic as :func:`controller_sense` does for one lane): the noise's uniform variates of every lane
+    and channel (integer arithmetic, vectorised), the sensors (libm's log and cos where a noise std is > 0), then the
+    model at every lane's measured state (vectorised; the model's rows of the lane constants ``c``,
+    :func:`model_constants`). Writes the rows CW_* of the scratch ``cw`` (N_LOOP, B)."""
+    B = z.shape[0]
+    XM = cw[CW_XM:CW_XM + 4]
+    MO = cw[CW_MO:CW_MO + 4]
+    U1 = cw[CW_U1:CW_U1 + 4]
+    U2 = cw[CW_U2:CW_U2 + 4]
+    todo = cw[CW_TODO]
+    for i in range(N_PLANT):
+        for b in range(B):
+            U1[i, b], U2[i, b] = noise_uniforms(int(ctrl[b, C_SEED]), k, i)
+    for b in range(B):
+        if todo[b] != 0.0:
+            for i in range(N_PLANT):
+                sd = ctrl[b, C_NOISE_THETA + i]
+                XM[i, b] = z[b, i] + (sd * normal_from(U1[i, b], U2[i, b]) if sd > 0.0 else 0.0)
+            sense_unmodelled(z[b], XM[:, b], k, ctrl[b])  # the encoder's grid and the sensor delay (off: nothing)
+    for b in range(B):
+        f2, h2, F, G = model_terms(XM[X_OMEGA, b], XM[X_PL, b], XM[X_AV, b], c[:, b], LC_MODEL, c[LC_PMAX, b])
+        MO[0, b] = F
+        MO[1, b] = G
+        MO[2, b] = f2
+        MO[3, b] = h2
+
+
+@jit_noalloc
+def lane_law(b, z, k, h, ctrl, ref, filt, info, work, cw):
+    """Stages 3 on of the controller for lane ``b`` after :func:`sense_lanes`: its measured state and model's output
+    derivatives into ``work[5]`` and ``work[6]``, then :func:`controller_law`; returns u_base [mA]."""
+    for i in range(N_PLANT):
+        work[5, i] = cw[CW_XM + i, b]
+    output_derivatives(cw[CW_XM, b], cw[CW_XM + 1, b], cw[CW_MO + 2, b], cw[CW_MO + 3, b], ctrl[C_ORDER] == 4.0,
+                       work[6])
+    return controller_law(z, k, h, cw[CW_MO, b], cw[CW_MO + 1, b], cw[CW_MO + 2, b], ctrl, ref, filt, info, work)
+
+
+@jit_noalloc
+def controller_law(z, k, h, F, G, am, ctrl, ref, filt, info, work):
+    """Stages 3 on of the controller at t_k, after the sensors and the model: the reference, the estimator, the
+    reference shaper and model, s, psi, the controller's memory, the law; returns u_base [mA]. ``work[5]`` holds the
+    measured state and ``work[6]`` the model's output derivatives there (``work[6]`` is scratch afterwards), F, G
+    and a_m (= f2) the model's (:func:`model_terms`). Writes ``info`` as :func:`controller_sense` says."""
+    t = k * h
+    m = int(ctrl[C_ORDER])
+    n = ctrl[C_N]
+    sigma = ctrl[C_SIGMA]
+    xm = work[5]
+    hd = work[6]
     y_meas = xm[X_THETA] if m == 4 else xm[X_OMEGA]
-    x3m = xm[X_PL]
-    pmax = ctrl[C_PDOMAIN] * model_p[P_PS]  # the model's domain (docs/MODEL.md, "The model's pressure domain")
-    if x3m > pmax:
-        xm[X_PL] = pmax
-    elif x3m < -pmax:
-        xm[X_PL] = -pmax
-    F, G = lie_derivatives(xm, model_p, m, hd)
-    xm[X_PL] = x3m
-    info[I_AM] = hd[2] if m == 4 else hd[1]  # the model's acceleration of the measured state
+    info[I_AM] = am
     # the reference, the estimated output derivatives, and the reference's shaped form that drives the model
     r = reference_value(t, ref)
     estimate_derivatives(z, m, int(ctrl[C_EST]), filt, xm, hd, y_meas, info)
@@ -359,5 +446,6 @@ def _sgn(x):
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
 
-__all__ = ["controller_update", "controller_sense", "controller_apply", "dob_current", "lyapunov_residual",
-           "shape_reference", "fhan", "NOISE_TAU"]
+__all__ = ["controller_update", "controller_sense", "controller_apply", "sense_plant", "model_terms",
+           "output_derivatives", "sense_lanes", "lane_law", "controller_law", "model_constants", "dob_current",
+           "lyapunov_residual", "shape_reference", "fhan", "NOISE_TAU", "CW_XM", "CW_MO", "CW_U1", "CW_U2", "CW_TODO"]

@@ -17,7 +17,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .controller import controller_apply, controller_update
+from .controller import CW_TODO, controller_apply, lane_law, model_constants, sense_lanes
 from .jit import jit, jit_noalloc
 from .layout import (
     DIV_CURRENT,
@@ -80,6 +80,9 @@ from .settings import C_ANALOG, C_OMEGA_MAX, C_ORDER, C_P_BOUND
 from .unmodelled_kernels import valve_input
 
 MAX_LANES = 128  # scenarios integrated in lock-step by one thread
+# lane scratch (N_LWORK, N_LOOP, B): the integrator's 6 (RK4 stages, amplitudes, noise), then the controller's lane
+# stages (rows CW_* of lwork[6])
+N_LWORK = 7
 
 
 @jit
@@ -154,9 +157,11 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
                  zprev, work, lwork, pre, peek):
     """Advance every active lane by one control period; returns the number still active.
 
-    For each lane: the controller (with residual ``u_res[b]`` [mA]) and the friction
-    torque at the sample, then the plants of all lanes integrated together, then the
-    divergence checks and the metrics. A lane that diverges is marked inactive, keeps its last finite
+    In stages over the lanes of the block: the controller's sensors and its model at the measured states for every
+    lane (:func:`ehss_gym.core.controller.sense_lanes`, reading the controller's rows of the lane constants ``c``);
+    then per lane the rest of the controller (with residual ``u_res[b]`` [mA]) and the friction torque at the sample;
+    then the plants of all lanes integrated together; then the divergence checks and the metrics. ``lwork`` is
+    scratch (N_LWORK, N_LOOP, B). A lane that diverges is marked inactive, keeps its last finite
     state, and gets its DIV_* code and time in ``acc``. ``zprev`` receives the
     state at t_k (what the logged sample shows).
 
@@ -175,21 +180,34 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
             analog = True
     nx = N_LOOP if analog else N_PLANT  # rows integrated: the plant, and with analog lanes the filters too
     ynoise = lwork[5, 1]
+    cw = lwork[6]  # the controller's lane stages (rows CW_*)
+    # stage: the state at t_k of every active lane (before the controller's sensors move the delay line in z), and
+    # which lanes the controller senses afresh (active, not pre-sensed by the env's look-ahead)
+    n_todo = 0
+    for b in range(B):
+        if active[b]:
+            for i in range(z.shape[1]):  # element loops: an array assignment may allocate (no NRT here)
+                zprev[b, i] = z[b, i]
+        sense = active[b] and not pre[b]
+        cw[CW_TODO, b] = 1.0 if sense else 0.0
+        n_todo += sense
+    # stages 1-2 of the controller, each over the lanes: the sensors, the model at the measured states (vectorised)
+    if n_todo > 0:
+        sense_lanes(z, k, ctrl, c, cw)
     for b in range(B):
         if not active[b]:
             U[b] = 0.0
             continue
-        for i in range(z.shape[1]):  # element loops: an array assignment may allocate (no NRT here)
-            zprev[b, i] = z[b, i]
         if pre[b]:
             pre[b] = False
             for i in range(N_INFO):
                 info[b, i] = peek[b, i]
             for i in range(N_PLANT, z.shape[1]):
                 z[b, i] = peek[b, N_INFO + i]
-            u = controller_apply(z[b], info[b], ctrl[b], peek[b, I_UBASE], u_res[b])
-        else:
-            u = controller_update(z[b], k, h, model[b], ctrl[b], ref[b], filt[b], u_res[b], info[b], work)
+            u_base = peek[b, I_UBASE]
+        else:  # stages 3 on of the controller, one lane at a time (the reference, estimator, law ...)
+            u_base = lane_law(b, z[b], k, h, ctrl[b], ref[b], filt[b], info[b], work, cw)
+        u = controller_apply(z[b], info[b], ctrl[b], u_base, u_res[b])
         info[b, I_TF] = friction_torque(k * h, zprev[b, X_OMEGA], events[b], plant[b, P_DF])  # the plant's, at t_k
         if not (math.isfinite(u) and math.isfinite(info[b, I_V]) and math.isfinite(info[b, I_S])):
             _diverge(acc[b], DIV_CURRENT if not math.isfinite(u) else DIV_NONFINITE, k, h)
@@ -232,13 +250,14 @@ def run_lanes(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, event
     B = z.shape[0]
     c = np.zeros((N_LANE_CONST, B))
     lane_constants(plant, c)
+    model_constants(model, ctrl, c)
     X = np.zeros((N_LOOP, B))
     U = np.zeros(B)
     u_res = np.zeros(B)
     active = np.ones(B, dtype=np.bool_)
     info = np.zeros((B, N_INFO))
     work = np.zeros((8, 4))
-    lwork = np.zeros((6, N_LOOP, B))
+    lwork = np.zeros((N_LWORK, N_LOOP, B))
     zprev = np.zeros_like(z)
     pre = np.zeros(B, dtype=np.bool_)  # no lane is pre-sensed in a plain simulation
     peek = np.zeros((B, N_INFO + N_LOOP))
@@ -273,4 +292,4 @@ def run_batch(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, event
 
 
 __all__ = ["lanes_period", "run_lanes", "run_batch", "check_state", "init_filters", "write_log", "widen_envelope",
-           "MAX_LANES"]
+           "MAX_LANES", "N_LWORK"]

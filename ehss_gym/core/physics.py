@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from .jit import jit, jit_noalloc
+from .jit import jit, jit_inline, jit_noalloc
 from .layout import (
     EV_AMP,
     EV_END,
@@ -47,6 +47,7 @@ from .layout import (
     FBV_C_REF,
     MAX_ORDER,
     N_FB,
+    N_PARAM,
     N_PLANT,
     N_REF,
     X_AV,
@@ -140,12 +141,16 @@ def plant_rhs(x, u, tf, p, dx):
 # Lane constants: per-scenario coefficients laid out (N_LANE_CONST, lanes) so the
 # inner loop over lanes reads contiguous memory and vectorises.
 LC_DMJ, LC_BJ, LC_IJ, LC_C, LC_CD, LC_PS, LC_RHO, LC_DPT2, LC_KT, LC_IT, LC_DV, LC_DF, LC_CSM, LC_DM = range(14)
-N_LANE_CONST = 14
+# The controller's rows, filled by :func:`ehss_gym.core.controller.model_constants`: its model of the plant (N_PARAM
+# rows in P_* order) and the bound of the model's pressure domain [Pa], read by its lane stages.
+LC_MODEL = 14
+LC_PMAX = LC_MODEL + N_PARAM
+N_LANE_CONST = LC_PMAX + 1
 
 
 @jit
 def lane_constants(P, out):
-    """Fill ``out`` (N_LANE_CONST, B) from plant parameter rows ``P`` (B, n_params)."""
+    """Fill the plant's rows of ``out`` (N_LANE_CONST, B) from plant parameter rows ``P`` (B, n_params)."""
     for b in range(P.shape[0]):
         p = P[b]
         out[LC_DMJ, b] = p[P_DM] / p[P_J]
@@ -181,6 +186,37 @@ def lane_rhs(X, A, U, c, D, B):
         D[3, b] = c[LC_KT, b] * U[b] - c[LC_IT, b] * x4
 
 
+@jit_inline
+def lie_terms(x2, x3, x4, p, o):
+    """The model's f2 = x2', h2 = x2'' along the friction-free drift and (F, G) at the state (x2, x3, x4), for
+    :func:`lie_derivatives` (one state) and the controller's lane stage (every lane of a block, vectorised).
+
+    ``p[o + P_*]`` are the model's parameters: o = 0 for a parameter row, LC_MODEL for a lane's column of the lane
+    constants.
+
+    Returns:
+        (f2, h2, F, G): [rad/s^2], [rad/s^3], F [output unit / s^m], G [output unit / s^m per mA].
+    """
+    J = p[o + P_J]
+    B = p[o + P_B]
+    dm = p[o + P_DM]
+    C = 4.0 * p[o + P_BETA] / p[o + P_VM]
+    sv = sigm(x4, p[o + P_DV])
+    dp = p[o + P_PS] - sv * x3
+    R = orifice_root(dp, p[o + P_RHO], p[o + P_DPT])
+    Rp = orifice_root_prime(dp, p[o + P_RHO], p[o + P_DPT])
+    Q = p[o + P_CD] * x4 * R
+    Q3 = -p[o + P_CD] * x4 * Rp * sv
+    Q4 = p[o + P_CD] * (R - x4 * Rp * dsigm(x4, p[o + P_DV]) * x3)
+    f2 = (dm * x3 - B * x2) / J
+    f3 = C * (Q - dm * x2 - p[o + P_CSM] * x3)
+    f4 = -x4 / p[o + P_TAU]
+    h2 = (dm * f3 - B * f2) / J
+    F = dm / J * C * (Q3 * f3 + Q4 * f4 - dm * f2 - p[o + P_CSM] * f3) - B / J * h2
+    G = dm / J * C * Q4 * p[o + P_K] / p[o + P_TAU]
+    return f2, h2, F, G
+
+
 @jit
 def lie_derivatives(x, p, order, h):
     """Output derivatives along the friction-free model, and the input gain.
@@ -196,25 +232,7 @@ def lie_derivatives(x, p, order, h):
         G in [output unit / s^m per mA].
     """
     x2 = x[X_OMEGA]
-    x3 = x[X_PL]
-    x4 = x[X_AV]
-    J = p[P_J]
-    B = p[P_B]
-    dm = p[P_DM]
-    C = 4.0 * p[P_BETA] / p[P_VM]
-    sv = sigm(x4, p[P_DV])
-    dp = p[P_PS] - sv * x3
-    R = orifice_root(dp, p[P_RHO], p[P_DPT])
-    Rp = orifice_root_prime(dp, p[P_RHO], p[P_DPT])
-    Q = p[P_CD] * x4 * R
-    Q3 = -p[P_CD] * x4 * Rp * sv
-    Q4 = p[P_CD] * (R - x4 * Rp * dsigm(x4, p[P_DV]) * x3)
-    f2 = (dm * x3 - B * x2) / J
-    f3 = C * (Q - dm * x2 - p[P_CSM] * x3)
-    f4 = -x4 / p[P_TAU]
-    h2 = (dm * f3 - B * f2) / J
-    F = dm / J * C * (Q3 * f3 + Q4 * f4 - dm * f2 - p[P_CSM] * f3) - B / J * h2
-    G = dm / J * C * Q4 * p[P_K] / p[P_TAU]
+    f2, h2, F, G = lie_terms(x2, x[X_PL], x[X_AV], p, 0)
     if order == 3:
         h[0] = x2
         h[1] = f2
@@ -292,7 +310,7 @@ def integrate_lanes(X, U, t0, h, substeps, c, events, work, analog, ctrl, ref, f
     n = X.shape[0] if analog else N_PLANT
     dt = h / substeps
     k1, k2, k3, k4, xt = work[0], work[1], work[2], work[3], work[4]  # the RK4 stages and the stage state
-    amp = work[5, 0]
+    amp = work[5, 0]  # the loop's LW_AMP row
     for j in range(substeps):
         ts = t0 + j * dt
         for b in range(B):
@@ -330,12 +348,26 @@ def _splitmix64(z):
     return z ^ (z >> np.uint64(31))
 
 
-@jit
-def gaussian(seed, k, channel):
-    """Standard normal sample, a pure function of (seed, step k, channel)."""
+@jit_inline
+def noise_uniforms(seed, k, channel):
+    """The two uniform variates (u1 in (0, 1], u2 in [0, 1)) of :func:`gaussian`'s sample (seed, step k, channel):
+    integer arithmetic only, so a loop over lanes vectorises it."""
     key = _splitmix64(np.uint64(seed) * np.uint64(0x100000001B3) + np.uint64(k) * np.uint64(8) + np.uint64(channel))
     a = _splitmix64(key)
     b = _splitmix64(a)
     u1 = ((a >> np.uint64(11)) + np.uint64(1)) * (1.0 / 9007199254740993.0)  # (0, 1]
     u2 = (b >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    return u1, u2
+
+
+@jit_inline
+def normal_from(u1, u2):
+    """Box-Muller: a standard normal sample from the uniforms of :func:`noise_uniforms` (libm's log and cos)."""
     return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@jit
+def gaussian(seed, k, channel):
+    """Standard normal sample, a pure function of (seed, step k, channel)."""
+    u1, u2 = noise_uniforms(seed, k, channel)
+    return normal_from(u1, u2)

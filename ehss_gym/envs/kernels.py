@@ -10,7 +10,7 @@ import math
 import numba as nb
 import numpy as np
 
-from ehss_gym.core.controller import controller_update
+from ehss_gym.core.controller import CW_TODO, controller_apply, controller_update, lane_law, sense_lanes
 from ehss_gym.core.jit import jit, jit_noalloc
 from ehss_gym.core.layout import (
     I_E,
@@ -143,6 +143,30 @@ def _peek(F, BB, b, k, h, events, filt, work):
     controller_update(zt, k, h, F[b, F_MODEL:F_MODEL + N_PARAM], F[b, F_CTRL:F_CTRL + N_CTRL],
                       F[b, F_REF:F_REF + N_REF], filt[b], F[b, F_URES], F[b, F_PEEK:F_PEEK + N_INFO], work)
     BB[b, BB_PRE] = True
+
+
+@jit_noalloc
+def peek_lanes(F, BB, IB, g, k, h, filt, c, work, cw):
+    """:func:`_peek` for every lane of group ``g`` (IB_GID) at sample k, in the controller's stages on the copies of
+    the loop states in F_PEEKZ: the sensors and model over the lanes (:func:`ehss_gym.core.controller.sense_lanes`),
+    then the rest of the controller per lane. The same arithmetic as :func:`_peek`."""
+    B = F.shape[0]
+    zt = F[:, F_PEEKZ:F_PEEKZ + N_LOOP]  # the copies, which the sensors' delay line moves on (the loop state stays)
+    ctrl = F[:, F_CTRL:F_CTRL + N_CTRL]
+    for b in range(B):
+        member = IB[b, IB_GID] == g
+        cw[CW_TODO, b] = 1.0 if member else 0.0
+        if member:
+            for i in range(N_LOOP):
+                F[b, F_PEEKZ + i] = F[b, F_Z + i]
+    sense_lanes(zt, k, ctrl, c, cw)
+    for b in range(B):
+        if IB[b, IB_GID] != g:
+            continue
+        pk = F[b, F_PEEK:F_PEEK + N_INFO]
+        u_base = lane_law(b, zt[b], k, h, ctrl[b], F[b, F_REF:F_REF + N_REF], filt[b], pk, work, cw)
+        controller_apply(zt[b], pk, ctrl[b], u_base, F[b, F_URES])
+        BB[b, BB_PRE] = True
 
 
 @jit
@@ -391,8 +415,11 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             if j < elog.shape[1]:
                 elog[b, j] = info_ok[b, I_E]
             IB[b, IB_NSTEP] = j + 1
-            _peek(F, BB, b, kk + n_per, h, events, filt, work)
-            _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_MEM], lay)
+        # the look-ahead: what each lane's controller sees at its next sample, then its observation
+        peek_lanes(F, BB, IB, g, kk + n_per, h, filt, c, work, lwork[6])
+        for b in range(B):
+            if IB[b, IB_GID] == g:
+                _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_MEM], lay)
         g += 1
 
 

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 
+from ehss_gym.core.controller import model_constants
 from ehss_gym.core.filters import filter_block
 from ehss_gym.core.layout import (
     EV_END,
@@ -34,7 +35,7 @@ from ehss_gym.core.layout import (
     N_PARAM,
     N_REF,
 )
-from ehss_gym.core.loop import init_filters
+from ehss_gym.core.loop import N_LWORK, init_filters
 from ehss_gym.core.metrics import init_accumulator, summarize_acc
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import N_LANE_CONST, lane_constants
@@ -196,11 +197,13 @@ class Lanes:
                                          cfg.estimator, cfg.observer_hz), (B, 1, 1, 1))
         self.c = np.zeros((self.n_chunks, N_LANE_CONST, self.chunk))
         for i in range(self.n_chunks):
-            lane_constants(np.ascontiguousarray(self.plant[i * self.chunk:(i + 1) * self.chunk]), self.c[i])
+            lanes = slice(i * self.chunk, (i + 1) * self.chunk)
+            lane_constants(np.ascontiguousarray(self.plant[lanes]), self.c[i])
+            model_constants(self.model[lanes], self.ctrl[lanes], self.c[i])
         self.X = np.zeros((self.n_chunks, N_LOOP, self.chunk))
         self.U = np.zeros((self.n_chunks, self.chunk))
         self.work = np.zeros((self.n_chunks, 8, 4))
-        self.lwork = np.zeros((self.n_chunks, 6, N_LOOP, self.chunk))
+        self.lwork = np.zeros((self.n_chunks, N_LWORK, N_LOOP, self.chunk))
         self.layout = observation_layout(cfg)
         self.lay = np.zeros((3, len(self.layout)))
         for i, (_, src, scale, squash, _) in enumerate(self.layout):
@@ -257,6 +260,7 @@ class Lanes:
             self.events[b, :len(sc.friction)] = sc.friction
         init_filters(self.z[b], self.filt[b], reference_value(0.0, self.ref[b]))
         lane_constants(self.plant[b:b + 1].copy(), self.tmp_c)
+        model_constants(self.model[b:b + 1], self.ctrl[b:b + 1], self.tmp_c)
         self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
         init_accumulator(self.acc[b], sc.lost_track_bound)
         if cfg.reward_weights.get("class", 0.0) > 0.0:
