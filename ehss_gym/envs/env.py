@@ -219,9 +219,9 @@ class EHSSTrackingEnv(gym.Env):
     | `action` | `"current"` | `"current"` |  |
     | `action_bound` | None | None | the action's unit (None: none) |
     | `sigma` with `law="lin-sontag"` | 3e6 | 1e7 | unit of s |
-    | `action_bound` with `action="rate"` | 2 | 2 | mA |
-    | `action_bound` with `action="filtered"` | 2 | 2 | mA |
-    | `action_bound` with `action="reference"` | 0.001 | 3e-4 | U |
+    | `action_bound` with `action="rate"` | 0.4 | 4 | mA |
+    | `action_bound` with `action="filtered"` | 0.4 | 4 | mA |
+    | `action_bound` with `action="reference"` | 8e-4 | 3e-4 | U |
     | `fr` with `n=4` | 134.634 | 60 | Hz |
     | `sigma` with `n=4` | 1.654817e5 | 1.036633e4 | unit of s |
     | `layer_gain` with `n=4` | 4.29904 | 2.89398 | - |
