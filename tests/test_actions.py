@@ -274,3 +274,20 @@ def test_bounds_default_per_task_and_are_settable():
                 action_mode(mode).default_bound(task)
     assert EnvConfig.from_kwargs({"action": "rate", "action_bound": 0.5}).action_bound == 0.5
     assert EnvConfig.from_kwargs({}).action_bound is None
+
+
+def test_validation_draws_the_unmodelled_effects_when_training_does():
+    """ehss train's held-out validation is drawn as the training env draws its episodes, and the base law's rollout
+    takes an action of the mode's size (zero)."""
+    from ehss_gym.core.unmodelled import NONE
+    from ehss_gym.evaluation.heldout import heldout_suite, run_episodes
+
+    plain = heldout_suite({"task": "position"}, 3, 0)
+    real = heldout_suite({"task": "position", "unmodelled_effects": True}, 3, 0)
+    assert all(sc.unmodelled == NONE for sc in plain) and all(sc.unmodelled != NONE for sc in real)
+    assert [sc.reference.description for sc in plain] == [sc.reference.description for sc in real]  # otherwise alike
+    kw = {"task": "position", "action": "schedule", "episode_seconds": 0.05}
+    scs = heldout_suite(kw, 2, 0, 0.05)
+    keys = ("su_rmse", "tv_u_rate", "rms_u")  # (a 0.05 s episode is all start-up)
+    got = [[m[k] for k in keys] for m in run_episodes(kw, scs)]
+    assert got == [[m[k] for k in keys] for m in run_episodes({"task": "position", "episode_seconds": 0.05}, scs)]
