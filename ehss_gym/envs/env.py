@@ -91,7 +91,7 @@ class EHSSTrackingEnv(gym.Env):
     current      1    the residual current ``residual_scale * a`` [mA], held over the agent step (the default;
                       direct mode: the whole current; ``residual_scale`` defaults to ``current_limit``)
     rate         1    the residual's rate of change a R / 10 ms [mA/s]; the residual r is integrated every control
-                      period and clipped to [-R, R] [mA]: continuous, at most R / 10 ms
+                      period and clipped to +-R [mA]: continuous, at most R / 10 ms
     filtered     1    the residual is a first-order filter (time constant 10 ms) of R a [mA]: |r| <= R
     reference    1    the law's reference shifted by delta = D a [output unit] through a copy of the reference model,
                       so its output and derivatives stay consistent: the law tracks y_d + Delta (the reward and the
