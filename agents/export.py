@@ -14,7 +14,7 @@ import torch
 import torch.nn as nn
 from gymnasium import spaces
 from safetensors.torch import save
-from stable_baselines3.common.distributions import DiagGaussianDistribution
+from stable_baselines3.common.distributions import DiagGaussianDistribution, StateDependentNoiseDistribution
 from stable_baselines3.common.torch_layers import FlattenExtractor
 
 from ehss_gym.infra.util import atomic_write, atomic_write_text
@@ -62,8 +62,13 @@ def _check_exportable(policy) -> None:
         raise SafeWeightsError(f"observation space must be a 1-D Box, got {policy.observation_space!r}")
     if not isinstance(policy.action_space, spaces.Box) or len(policy.action_space.shape) != 1:
         raise SafeWeightsError(f"action space must be a 1-D Box, got {policy.action_space!r}")
-    if not isinstance(getattr(policy, "action_dist", None), DiagGaussianDistribution):
-        raise SafeWeightsError("only a diagonal-Gaussian action distribution is supported (use_sde=False)")
+    dist = getattr(policy, "action_dist", None)
+    sde = isinstance(dist, StateDependentNoiseDistribution)
+    if not isinstance(dist, DiagGaussianDistribution) and not sde:
+        raise SafeWeightsError("only a diagonal-Gaussian or a gSDE action distribution is supported")
+    if sde and (dist.use_expln or not dist.full_std or dist.bijector is not None):
+        raise SafeWeightsError("a gSDE policy is supported with SB3's defaults only (use_expln=False, full_std=True, "
+                               "squash_output=False)")
     if getattr(policy, "squash_output", False):
         raise SafeWeightsError("squash_output=True policies are not supported")
     if not isinstance(policy.pi_features_extractor, FlattenExtractor):
@@ -105,6 +110,8 @@ def policy_tensors(model, vecnormalize=None) -> tuple[dict, dict, dict | None]:
     tensors["log_std"] = _f32(policy.log_std)
     arch = {"obs_dim": int(policy.observation_space.shape[0]), "hidden": hidden,
             "activation": act_names[0] if act_names else "identity", "act_dim": int(policy.action_space.shape[0])}
+    if isinstance(policy.action_dist, StateDependentNoiseDistribution):  # log_std: the (features, actions) matrix
+        arch["exploration"] = "gsde"
     norm = None
     if vecnormalize is not None and vecnormalize.norm_obs:
         rms = vecnormalize.obs_rms

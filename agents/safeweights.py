@@ -18,7 +18,10 @@ stripped):
   scale, used only by ``predict(..., deterministic=False)``), and, with observation normalisation,
   ``obs_mean`` / ``obs_var`` (float64, VecNormalize's running statistics).
 - ``PATH.json``: ``format`` (= :data:`FORMAT`), ``name``, ``sha256`` of the safetensors file,
-  ``architecture`` (``obs_dim``, ``hidden`` sizes, ``activation``, ``act_dim``), ``observation_space``
+  ``architecture`` (``obs_dim``, ``hidden`` sizes, ``activation``, ``act_dim``, and ``exploration`` = "gsde" for a
+  policy trained with gSDE, whose ``log_std`` is then the (last hidden size, act_dim) matrix of its noise's scales
+  and whose stochastic action adds the last hidden features times a Gaussian matrix of those scales, drawn per call),
+  ``observation_space``
   and ``action_space`` (Box low/high/shape/dtype), ``obs_normalization`` (null or ``epsilon`` and
   ``clip_obs``), ``env_id`` and ``env_kwargs`` (what ``gym.make`` needs to rebuild the training env),
   and ``metadata`` (free-form JSON: training config, scores, ...).
@@ -59,6 +62,7 @@ ACTIVATIONS = ("tanh", "relu", "elu", "leaky_relu", "silu", "gelu", "identity")
 JSON_KEYS = ("format", "name", "sha256", "architecture", "observation_space", "action_space", "obs_normalization",
              "env_id", "env_kwargs", "metadata")
 ARCH_KEYS = ("obs_dim", "hidden", "activation", "act_dim")
+EXPLORATIONS = ("gsde",)  # the optional architecture key "exploration" (absent: the diagonal Gaussian)
 SPACE_KEYS = ("type", "low", "high", "shape", "dtype")
 
 
@@ -127,8 +131,12 @@ def _check_config(cfg, js_path: str) -> None:
     if not isinstance(h, str) or len(h) != 64 or any(c not in "0123456789abcdef" for c in h):
         raise SafeWeightsError(f"{js_path}: sha256 must be 64 lowercase hex digits, got {h!r}")
     arch = cfg["architecture"]
-    if not isinstance(arch, dict) or sorted(arch) != sorted(ARCH_KEYS):
-        raise SafeWeightsError(f"{js_path}: architecture must have exactly the keys {list(ARCH_KEYS)}, got {arch!r}")
+    if not isinstance(arch, dict) or sorted(set(arch) - {"exploration"}) != sorted(ARCH_KEYS):
+        raise SafeWeightsError(f"{js_path}: architecture must have exactly the keys {list(ARCH_KEYS)} (and optionally "
+                               f"'exploration'), got {arch!r}")
+    if arch.get("exploration", "gsde") not in EXPLORATIONS:
+        raise SafeWeightsError(f"{js_path}: architecture exploration must be one of {list(EXPLORATIONS)}, got "
+                               f"{arch['exploration']!r}")
 
     def pos_int(v):
         return isinstance(v, int) and not isinstance(v, bool) and v >= 1
@@ -163,15 +171,19 @@ def expected_tensors(cfg: dict) -> dict[str, tuple[tuple[int, ...], str]]:
         last = hdim
     out["action.weight"] = ((arch["act_dim"], last), "float32")
     out["action.bias"] = ((arch["act_dim"],), "float32")
-    out["log_std"] = ((arch["act_dim"],), "float32")
+    if arch.get("exploration") == "gsde":  # the noise matrix's log scales over the last hidden features
+        out["log_std"] = (((arch["hidden"] or [arch["obs_dim"]])[-1], arch["act_dim"]), "float32")
+    else:
+        out["log_std"] = ((arch["act_dim"],), "float32")
     if cfg["obs_normalization"] is not None:
         out["obs_mean"] = ((arch["obs_dim"],), "float64")
         out["obs_var"] = ((arch["obs_dim"],), "float64")
     return out
 
 
-def _torch_forward(layers, act_name: str, head, x: np.ndarray) -> np.ndarray:
-    """[Linear -> activation] x L -> Linear in torch's float32 kernels, SB3's arithmetic bit for bit."""
+def _torch_forward(layers, act_name: str, head, x: np.ndarray, features: bool = False):
+    """[Linear -> activation] x L -> Linear in torch's float32 kernels, SB3's arithmetic bit for bit (with
+    ``features``: and the last hidden features)."""
     import torch  # the forward pass only (see the module docstring): loading a policy stays torch-free
 
     F = torch.nn.functional
@@ -181,7 +193,8 @@ def _torch_forward(layers, act_name: str, head, x: np.ndarray) -> np.ndarray:
         h = torch.as_tensor(x).float()
         for w, b in layers:
             h = act(F.linear(h, torch.from_numpy(w), torch.from_numpy(b)))
-        return F.linear(h, torch.from_numpy(head[0]), torch.from_numpy(head[1])).numpy()
+        out = F.linear(h, torch.from_numpy(head[0]), torch.from_numpy(head[1])).numpy()
+        return (out, h.numpy()) if features else out
 
 
 @dataclass
@@ -240,7 +253,8 @@ class SafePolicy:
         Args:
             observation: raw env observation(s) (normalisation is applied here).
             state, episode_start: ignored (no recurrent state); ``state`` is returned unchanged.
-            deterministic: the mean action (True, default) or a Gaussian sample with the stored log_std.
+            deterministic: the mean action (True, default) or a Gaussian sample with the stored log_std (gSDE: the
+                features times a Gaussian matrix drawn for this call).
         """
         obs = np.array(observation)
         shape = self.observation_space.shape
@@ -252,8 +266,14 @@ class SafePolicy:
             raise ValueError(f"observation must have shape {shape} or (batch, {', '.join(map(str, shape))}) for "
                              f"model {self.name!r}, got {obs.shape}")
         obs = obs.reshape((-1, *shape))
-        act = self.mean_action(self.normalize_obs(obs))
-        if not deterministic:
+        if deterministic:
+            act = self.mean_action(self.normalize_obs(obs))
+        elif self.tensors["log_std"].ndim == 2:  # gSDE: the features times a Gaussian matrix of the stored scales
+            act, phi = _torch_forward(self._layers, self.activation, self._head, self.normalize_obs(obs), True)
+            eps = np.exp(self.tensors["log_std"]) * self._rng.standard_normal(self.tensors["log_std"].shape)
+            act = (act + phi @ eps).astype(np.float32)
+        else:
+            act = self.mean_action(self.normalize_obs(obs))
             std = np.exp(self.tensors["log_std"])
             act = (act + std * self._rng.standard_normal(act.shape)).astype(np.float32)
         act = np.clip(act.reshape((-1, *self.action_space.shape)), self._low, self._high)

@@ -61,6 +61,14 @@ class AgentSpec:
         train_freq: SAC's env steps (per env) between updates.
         gradient_steps: SAC's gradient steps per update.
         tau: SAC's target-network averaging rate.
+        exploration: how PPO's rollouts sample the Gaussian: "gaussian" (white noise, SB3's), "gsde" (SB3's
+            generalised state-dependent exploration, Raffin et al. 2022: noise = the policy's last hidden features
+            times a Gaussian matrix redrawn every ``sde_sample_freq`` steps, smooth wherever the features are; its
+            matrix starts at log_std_init - ln(sqrt(hidden size)), so features of unit size give the spec's std) or
+            "pink" (the Gaussian's standard normals from a pink-noise sequence per sub-env, beta 1, one episode long:
+            Eberhard et al. 2023, :mod:`ehss_gym.agents.noise`). The deterministic policy is the same MLP in all
+            three (exported alike).
+        sde_sample_freq: gSDE's steps between redraws of its noise matrix (-1: once per rollout).
     """
 
     name: str
@@ -90,6 +98,8 @@ class AgentSpec:
     train_freq: int = 8
     gradient_steps: int = 8
     tau: float = 0.005
+    exploration: str = "gaussian"
+    sde_sample_freq: int = 16
 
     def __post_init__(self):
         def bad(name, what):
@@ -125,6 +135,11 @@ class AgentSpec:
             bad("mode", "'residual' or 'direct'")
         if self.algo not in ALGOS:
             bad("algo", f"one of {list(ALGOS)}")
+        if self.exploration not in EXPLORATIONS or (self.algo != "ppo" and self.exploration != "gaussian"):
+            bad("exploration", f"one of {list(EXPLORATIONS)} (PPO; SAC: 'gaussian')")
+        sf = self.sde_sample_freq
+        if isinstance(sf, bool) or not isinstance(sf, int) or not (sf == -1 or sf >= 1):
+            bad("sde_sample_freq", "-1 or an integer >= 1")
         ls = self.learning_starts
         if isinstance(ls, bool) or not isinstance(ls, int) or ls < 0:
             bad("learning_starts", "an integer >= 0")
@@ -140,6 +155,9 @@ class AgentSpec:
         d["net_arch"] = list(self.net_arch)
         if self.algo == "ppo":
             for k in ("algo", *SAC_KEYS):
+                d.pop(k)
+        if self.exploration == "gaussian":  # (the record of a run with SB3's white noise as before the option)
+            for k in EXPLORATION_KEYS:
                 d.pop(k)
         return d
 
@@ -170,6 +188,8 @@ RESIDUAL_ENV = {**COMMON_ENV, "residual_scale": 10.0, "memory_tau": 0.1,
 PINNED_ENV_KEYS = POLICY_KEYS
 
 ALGOS = ("ppo", "sac")
+EXPLORATIONS = ("gaussian", "gsde", "pink")
+EXPLORATION_KEYS = ("exploration", "sde_sample_freq")  # AgentSpec fields of the exploration options
 # AgentSpec fields that are keyword arguments of SB3's SAC under the same name, as they are (with batch_size, gamma)
 SAC_KEYS = ("buffer_size", "learning_starts", "train_freq", "gradient_steps", "tau")
 # AgentSpec fields that are keyword arguments of SB3's PPO under the same name, as they are
@@ -232,7 +252,7 @@ def get_spec(name: str, **overrides) -> AgentSpec:
     bad = sorted(set(overrides) - set(valid))
     if bad:
         raise ValueError(f"unknown or fixed agent hyperparameter(s) {bad}; valid: {valid}")
-    d = spec.as_dict()
+    d = {**asdict(spec), "net_arch": spec.net_arch}
     d.update(overrides)
     if "env_kwargs" in overrides:  # merged into the agent's env kwargs
         if not isinstance(overrides["env_kwargs"], dict):
@@ -273,6 +293,6 @@ def ppo_kwargs(spec: AgentSpec) -> dict:
     return {k: getattr(spec, k) for k in PPO_KEYS}
 
 
-__all__ = ["AgentSpec", "AGENTS", "ALGOS", "COMMON_ENV", "RESIDUAL_ENV", "PINNED_ENV_KEYS", "PPO_KEYS", "SAC_KEYS",
-           "LinearSchedule", "agent_names", "get_spec", "env_kwargs_for", "resolved_env_kwargs", "ppo_kwargs",
-           "sac_kwargs"]
+__all__ = ["AgentSpec", "AGENTS", "ALGOS", "EXPLORATIONS", "EXPLORATION_KEYS", "COMMON_ENV", "RESIDUAL_ENV",
+           "PINNED_ENV_KEYS", "PPO_KEYS", "SAC_KEYS", "LinearSchedule", "agent_names", "get_spec", "env_kwargs_for",
+           "resolved_env_kwargs", "ppo_kwargs", "sac_kwargs"]

@@ -21,6 +21,7 @@ import textwrap
 
 import yaml
 
+from ehss_gym.agents import factory
 from ehss_gym.agents.factory import ACTIVATIONS, POLICY_PATH
 from ehss_gym.agents.specs import AgentSpec, env_kwargs_for, get_spec, ppo_kwargs
 from ehss_gym.envs import ENV_ID
@@ -53,18 +54,21 @@ def learning_rate(spec: AgentSpec):
 
 def policy_kwargs(spec: AgentSpec) -> str:
     """``policy_kwargs`` as rl-zoo3 evaluates it (``nn`` is ``torch.nn`` there): factory.policy_kwargs in text."""
+    kw = factory.policy_kwargs(spec)
     arch = list(spec.net_arch)
-    return (f"dict(net_arch=dict(pi={arch}, vf={arch}), activation_fn=nn.{ACTIVATIONS[spec.activation].__name__}, "
-            f"log_std_init={spec.log_std_init!r}, zero_init_action={spec.zero_init_action!r})")
+    text = [f"net_arch=dict(pi={arch}, vf={arch})", f"activation_fn=nn.{ACTIVATIONS[spec.activation].__name__}"]
+    text += [f"{k}={v!r}" for k, v in kw.items() if k not in ("net_arch", "activation_fn")]
+    return f"dict({', '.join(text)})"
 
 
-def hyperparams(agent: str = AGENT, task: str = TASK, n: int = N) -> dict:
-    """rl-zoo3's hyperparameters of ``agent`` on ``task`` with base law ``n``: ``{ENV_ID: {...}}``."""
-    spec = get_spec(agent)
+def hyperparams(agent: str = AGENT, task: str = TASK, n: int = N, **overrides) -> dict:
+    """rl-zoo3's hyperparameters of ``agent`` on ``task`` with base law ``n`` (and AgentSpec ``overrides``, e.g.
+    ``exploration="gsde"``): ``{ENV_ID: {...}}``."""
+    spec = get_spec(agent, **overrides)
     entry = {"n_envs": spec.n_envs, "n_timesteps": Config.timesteps, "policy": POLICY_PATH,
              "policy_kwargs": policy_kwargs(spec),
              "normalize": f"dict(norm_obs=True, norm_reward={spec.norm_reward!r}, clip_obs={CLIP_OBS!r})",
-             "learning_rate": learning_rate(spec), **ppo_kwargs(spec),
+             "learning_rate": learning_rate(spec), **ppo_kwargs(spec), **factory.exploration_kwargs(spec),
              "env_kwargs": env_kwargs_for(spec, task, n)}
     return {ENV_ID: entry}
 

@@ -14,14 +14,16 @@ from __future__ import annotations
 
 import math
 
-from .estimators import advance_filters, estimate_derivatives, filter_outputs
+from .estimators import advance_filter, advance_filters, estimate_derivatives, filter_outputs
 from .jit import jit, jit_inline, jit_noalloc
 from .laws import base_current, clf_value, decrease_clip
 from .layout import (
+    FB_PHI_REF,
     FB_VEC,
     FB_VEC2,
     FBV_C_REF,
     FBV_D_REF,
+    FBV_E_REF,
     I_AM,
     I_DHAT,
     I_E,
@@ -33,6 +35,7 @@ from .layout import (
     I_RM,
     I_S,
     I_SAT,
+    I_SHIFT,
     I_T,
     I_UAPP,
     I_UBASE,
@@ -53,6 +56,7 @@ from .layout import (
     Z_NOISE,
     Z_REF,
     Z_SHAPE,
+    Z_SHIFT,
 )
 from .params import P_PS
 from .physics import LC_MODEL, LC_PMAX, gaussian, lie_terms, noise_uniforms, normal_from
@@ -73,6 +77,8 @@ from .settings import (
     C_PDOMAIN,
     C_REF_ACCEL,
     C_SEED,
+    C_SHIFT,
+    C_SHIFT_ON,
     C_SIGMA,
     C_SMOOTH,
     C_ULIM,
@@ -262,6 +268,12 @@ def controller_law(z, k, h, F, G, am, ctrl, ref, filt, info, work):
         s += lam * info[I_E + i]
         psi_lin += lam * info[I_E + i + 1]
     psi = F - ydm + psi_lin
+    info[I_SHIFT] = 0.0
+    if ctrl[C_SHIFT_ON] != 0.0:  # the law tracks y_d + Delta: its s and psi lose Delta's share
+        shift, s_shift, psi_shift = reference_shift(z, m, ctrl, filt, hd)
+        info[I_SHIFT] = shift
+        s -= s_shift
+        psi -= psi_shift
     w = ctrl[C_SMOOTH]
     gain = ctrl[C_LAYER_GAIN]
     if gain > 0.0:  # adaptive layer: the noise std of s from the running mean square of its steps
@@ -285,6 +297,8 @@ def controller_law(z, k, h, F, G, am, ctrl, ref, filt, info, work):
         z[Z_NOISE] = s
     if ctrl[C_ANALOG] == 0.0:
         advance_filters(z, m, int(ctrl[C_EST]), filt, info, hd)
+    if ctrl[C_SHIFT_ON] != 0.0:
+        advance_filter(z, Z_SHIFT, m, filt[FB_PHI_REF], filt[FB_VEC, FBV_E_REF], ctrl[C_SHIFT], hd)
     # the law
     u_base = base_current(ctrl[C_LAW], psi, G, s, n, sigma, w, ctrl[C_ULIM])
     info[I_DHAT] = 0.0
@@ -295,6 +309,28 @@ def controller_law(z, k, h, F, G, am, ctrl, ref, filt, info, work):
     info[I_V] = clf_value(s, n, sigma)
     info[I_UBASE] = u_base
     return u_base
+
+
+@jit_inline
+def reference_shift(z, m, ctrl, filt, dd):
+    r"""The law's reference shift at the sample: (Delta, its share of s, its share of psi).
+
+    The shift delta = ``ctrl[C_SHIFT]`` [output unit] drives a copy of the reference model (the same digital filter,
+    its state z[Z_SHIFT:Z_SHIFT+m]), whose outputs Delta, Delta', ..., Delta^(m) are therefore consistent derivatives
+    of one smooth signal: by linearity the law tracks the reference model's response to r + delta, y_d + Delta, while
+    y_d (I_YD, the errors I_E and the true error the metrics measure) stays the response to r. With the law's errors
+    e_i - Delta^(i) the combined error and its drift become s - (Delta^(m-1) + sum_i lambda_i Delta^(i)) and
+    psi - (Delta^(m) + sum_i lambda_i Delta^(i+1)); with delta = 0 from the start both shares are exactly 0. ``dd``
+    (>= m) receives Delta^(i), i < m (scratch).
+    """
+    top = filter_outputs(z, Z_SHIFT, m, filt[FB_VEC, FBV_C_REF], filt[FB_VEC2, FBV_D_REF], ctrl[C_SHIFT], dd, 0)
+    s_shift = dd[m - 1]
+    psi_shift = top
+    for i in range(m - 1):
+        lam = ctrl[C_LAM0 + i]
+        s_shift += lam * dd[i]
+        psi_shift += lam * dd[i + 1]
+    return dd[0], s_shift, psi_shift
 
 
 @jit_inline
@@ -448,4 +484,5 @@ def _sgn(x):
 
 __all__ = ["controller_update", "controller_sense", "controller_apply", "sense_plant", "model_terms",
            "output_derivatives", "sense_lanes", "lane_law", "controller_law", "model_constants", "dob_current",
-           "lyapunov_residual", "shape_reference", "fhan", "NOISE_TAU", "CW_XM", "CW_MO", "CW_U1", "CW_U2", "CW_TODO"]
+           "lyapunov_residual", "reference_shift", "shape_reference", "fhan", "NOISE_TAU", "CW_XM", "CW_MO", "CW_U1",
+           "CW_U2", "CW_TODO"]

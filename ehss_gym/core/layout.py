@@ -21,7 +21,10 @@ Z_DOB = 19  # disturbance observer: d_hat [unit of s / s], the last s, the last 
 Z_PLAY = 22
 Z_DELAY = 23
 MAX_DELAY = 8  # largest sensor delay [control samples]
-N_LOOP = Z_DELAY + N_PLANT * MAX_DELAY
+# The law's reference shift (ehss_gym.core.controller.reference_shift): the state of the reference model's copy that
+# the shift delta drives (up to 4 slots, the reference model's digital form)
+Z_SHIFT = Z_DELAY + N_PLANT * MAX_DELAY
+N_LOOP = Z_SHIFT + 4
 MAX_ORDER = 4  # largest relative degree (position task)
 
 # --- Plant parameters: PlantParams.as_array() --------------------------------
@@ -94,7 +97,8 @@ I_RM = 32  # the reference model's input: r, or the shaped reference p (C_REF_AC
 I_E_R = 33  # true output minus the raw reference r (no reference model): what the metric rmse_r uses
 I_DHAT = 34  # the disturbance observer's estimate d_hat of the lumped disturbance of s' [unit of s / s]; 0 if off
 I_UDOB = 35  # the observer's current -d_hat/G, clipped to the limit [mA] (part of I_UBASE); 0 if off
-N_INFO = 36
+I_SHIFT = 36  # the law's reference shift Delta at the sample [output unit] (its y_d is I_YD + Delta); 0 if off
+N_INFO = 37
 # A sample is quiet (it counts for the quiet RMSE) past the start-up and neither in a friction event nor within
 # QUIET_GUARD after one ends (ehss_gym.core.metrics.accumulate classifies it, and its metric window below).
 QUIET_STARTUP = 0.2  # [s] the start-up window (t < this), excluded from the quiet RMSE and the tracking class

@@ -69,7 +69,12 @@ C_DELAY = 26  # sensor delay [control samples] (integer stored as float); 0 = of
 C_POS_STEP = 27  # encoder count of the measured x1 [rad]; 0 = not quantised
 C_VEL_STEP = 28  # quantisation step of the measured x2 [rad/s]; 0 = not quantised
 C_LYAP_KAPPA = 29  # Lyapunov-constrained residual: kappa in [0, 1); -1 = off (the residual as commanded)
-N_CTRL = 30
+# The law's reference shift (an input, not a loop setting: the env's "reference" action writes it every agent step;
+# ehss_gym.core.controller.reference_shift): 1 = on; the shift delta [output unit] that drives the reference model's
+# copy
+C_SHIFT_ON = 30
+C_SHIFT = 31
+N_CTRL = 32
 
 
 def check_friction(events) -> tuple[tuple[float, float, float], ...]:

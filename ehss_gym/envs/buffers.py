@@ -19,7 +19,10 @@ N_STATS = 12
 W_TRACK, W_EFFORT, W_RATE, W_TV, W_TVU, W_DIV, W_INV_E2, W_INV_SCALE = range(8)
 # the class reward's weight and the saturation weight; the memory filter: decay and gain per agent step, and its clip
 W_CLASS, W_SAT, W_MEM_DECAY, W_MEM_GAIN, W_MEM_CLIP = range(8, 13)
-N_WEIGHTS = 13
+# the action mode (ehss_gym.envs.actions): its code, 1 if its residual moves every control period, that update's two
+# constants (ehss_gym.envs.actions.period_constants)
+W_ACT_MODE, W_ACT_PERIOD, W_ACT_C1, W_ACT_C2 = range(13, 17)
+N_WEIGHTS = 17
 # The class reward's constants per lane (set at load from the base law's run of the episode), for its parts: tracking
 # sum e^2, tracking sum |e| h, disturbance sum |e| h, disturbance max |e|, control TV, sum u^2 (N_PARTS). Block
 # R_W: each part's weight (0 for a class the episode lacks); R_B: the base law's total of each part; R_K: the episode's
@@ -33,6 +36,9 @@ N_RCLS = 2 * N_PARTS + 1
 # The memory features per lane: the filtered error integral [output unit * s], the action of the step before last.
 MEM_EINT, MEM_APREV2 = 0, 1
 N_MEM = 2
+# The agent's last action per lane in the action modes but "current" (their residual or law input is built from it;
+# up to 3 entries), after the memory features in the lane's block of extras (the observation reads both from there).
+N_ACT = 3
 
 # Per-lane float64 buffer F (B, N_F): column blocks, so one kernel argument carries them all (numba's
 # dispatch costs ~0.1 us per array argument, a large share of a 15 us step).
@@ -53,7 +59,9 @@ F_REW = F_URES + 1  # reward of the last step
 F_APREV = F_REW + 1  # previous normalised action
 F_RCLS = F_APREV + 1  # the class reward's coefficients (N_RCLS; 0 = off)
 F_MEM = F_RCLS + N_RCLS  # the memory features (N_MEM)
-N_F = F_MEM + N_MEM
+F_ACT = F_MEM + N_MEM  # the last action of a mode but "current" (N_ACT)
+N_EXTRA = N_MEM + N_ACT  # the block of extras the observation reads (FLAG_MEM): memory features, then action
+N_F = F_ACT + N_ACT
 # Per-lane int64 buffer: step index k, agent steps taken, group id (scratch).
 IB_K, IB_NSTEP, IB_GID = 0, 1, 2
 N_IB = 3
@@ -62,6 +70,6 @@ N_IB = 3
 BB_RUN, BB_ACT, BB_PRE = 0, 1, 2
 N_BB = 3
 # Observation layout rows (3, D): info index, scale, flags (1 = symlog squash, 2 = from the last period, 4 = from the
-# lane's memory block F_MEM, the index then into it).
+# lane's block of extras F_MEM (memory features, action), the index then into it).
 LAY_SRC, LAY_SCALE, LAY_FLAGS = 0, 1, 2
 FLAG_SQUASH, FLAG_LAST, FLAG_MEM = 1, 2, 4

@@ -17,10 +17,12 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-from ehss_gym.core.registry import LAWS, names
+from ehss_gym.core.registry import ESTIMATORS, LAWS, entry, names
 from ehss_gym.core.scenarios import controller_mismatch, paper_scenario
 from ehss_gym.core.settings import LOOP_SETTINGS, PHYSICAL_FIELDS, TASKS, Scenario
 from ehss_gym.core.validate import check_bool, check_choice, check_finite, check_int, check_positive
+
+from .actions import ACTIONS, action_mode
 
 # The bumpless start (the reference model starts at the measured output and its estimated derivatives, as servo
 # drives do) is the default of both tasks because of the evaluation's ruler, not the noise study: with the paper's
@@ -148,6 +150,7 @@ class EnvDefaults:
         terminate_on_lost_track: end an episode (``terminated=True``) once it has lost track.
         unmodelled_effects: "random" episodes draw the valve and sensor effects the law's model leaves out
             (:data:`ehss_gym.core.scenarios.UNMODELLED_DISTRIBUTION`).
+        action: what the agent's action does, a row of :data:`ehss_gym.envs.actions.ACTIONS`.
         velocity, position: per-task defaults.
     """
 
@@ -167,6 +170,7 @@ class EnvDefaults:
     lost_track: float = 1.0
     terminate_on_lost_track: bool = False
     unmodelled_effects: bool = False
+    action: str = "current"
     # Per task, the noise study's choice (reports/noise/recommended.json; tests/test_noise.py checks it): velocity the
     # paper's SVF with Sontag, position the 1 kHz observer with Sontag and the 100 rad/s^2 reference shaper. The law's
     # sigma, f_r, smoothing and boundary layer are the baselines' tuning (LAW_DEFAULTS). The bumpless start is the
@@ -189,7 +193,7 @@ FIXED_LOOP = ("ref_model_hz", "omega_max", "pressure_bound")
 # The env's settings: the loop settings it exposes, then its own.
 LOOP_KEYS = tuple(k for k in LOOP_SETTINGS if k not in FIXED_LOOP)
 ENV_KEYS = ("mode", "residual_scale", "agent_period", "scenario", "reward_weights", "error_scale", "episode_seconds",
-            "terminate_on_lost_track", "unmodelled_effects", "memory_tau")
+            "terminate_on_lost_track", "unmodelled_effects", "memory_tau", "action", "action_bound")
 # What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends.
 POLICY_KEYS = tuple(k for k in LOOP_KEYS + ENV_KEYS
                     if k not in ("scenario", "episode_seconds", "lost_track", "terminate_on_lost_track",
@@ -234,6 +238,8 @@ class EnvConfig:
     terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track
     unmodelled_effects: bool = DEFAULTS.unmodelled_effects
     memory_tau: float | None = DEFAULTS.memory_tau
+    action: str = DEFAULTS.action
+    action_bound: float | None = None
 
     KEYS = LOOP_KEYS + ENV_KEYS
 
@@ -272,7 +278,8 @@ class EnvConfig:
         scale = check_positive("residual_scale", scale)
         agent_period = check_int("agent_period", kwargs.get("agent_period", d.agent_period), 1)
         cfg = cls(loop=template, mode=mode, residual_scale=scale, agent_period=agent_period,
-                  **_episode_settings(kwargs, td, d, template.control_period * agent_period))
+                  **_episode_settings(kwargs, td, d, template.control_period * agent_period),
+                  **_action_settings(kwargs, d, template, mode))
         if isinstance(cfg.scenario, Scenario):
             cfg.check_pinned(cfg.scenario)
         return cfg
@@ -344,6 +351,26 @@ def _episode_settings(kwargs: dict, td: TaskDefaults, d: EnvDefaults, agent_dt: 
             "terminate_on_lost_track": bool(stop_lost), "unmodelled_effects": unmodelled, "memory_tau": tau}
 
 
+def _action_settings(kwargs: dict, d: EnvDefaults, template: Scenario, mode: str) -> dict:
+    """The action mode and its bound (None: the mode's default for the task), validated."""
+    row = action_mode(kwargs.get("action", d.action))
+    bound = kwargs.get("action_bound")
+    if bound is None:
+        bound = row.default_bound(template.task)
+    elif not row.bound:
+        with_bound = [r.name for r in ACTIONS if r.bound]
+        raise ValueError(f"action_bound applies to the actions {with_bound} (None: the action's default); action "
+                         f"{row.name!r} has none ({row.source}), got {bound!r}")
+    else:
+        bound = check_positive("action_bound", bound)
+    if row.resense and mode != "residual":
+        raise ValueError(f"action {row.name!r} acts through the law: it needs mode 'residual', got mode {mode!r}")
+    if row.name == "reference" and entry(ESTIMATORS, template.estimator).analog:
+        raise ValueError(f"action 'reference' shifts the law's digital reference model: it needs a digital estimator "
+                         f"(not {template.estimator!r})")
+    return {"action": row.name, "action_bound": bound}
+
+
 # The unit of each setting in the defaults table (U = the task's output unit: rad/s velocity, rad position; "" for a
 # choice or a flag).
 SETTING_UNITS = {
@@ -356,6 +383,7 @@ SETTING_UNITS = {
     "mode": "", "residual_scale": "mA", "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
     "terminate_on_lost_track": "", "unmodelled_effects": "", "memory_tau": "s (None: no memory features)",
+    "action": "", "action_bound": "the action's unit (None: none)",
 }
 
 
@@ -393,6 +421,10 @@ def defaults_table() -> str:
         if any(sig[t] != c.sigma for t, c in cfgs.items()):
             rows.append(f'| `sigma` with `law="{law}"` | ' + " | ".join(_cell(v) for v in sig.values())
                         + f" | {SETTING_UNITS['sigma']} |")
+    for row in ACTIONS:  # an action with a bound: its default per task
+        if row.bound:
+            rows.append(f'| `action_bound` with `action="{row.name}"` | '
+                        + " | ".join(_cell(row.default_bound(t)) for t in cfgs) + f" | {row.unit} |")
     for n in (4, 6):
         per_n = {t: EnvConfig.from_kwargs({"task": t, "n": n}) for t in cfgs}
         for key in (k for k in LOOP_KEYS if k not in ("task", "n")):

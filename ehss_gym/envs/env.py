@@ -40,6 +40,17 @@ def parse_action_scalar(action) -> float:
     return v
 
 
+def parse_action_vector(action, k: int) -> tuple[np.ndarray, bool]:
+    """An action of ``k`` values from an array-like of that size, clipped to [-1, 1]: (values (1, k) float64, any
+    was out of range); NaN or a wrong size raises ValueError."""
+    a = np.asarray(action, dtype=np.float64)
+    if a.size != k:
+        raise ValueError(f"action must have shape ({k},), got shape {a.shape}")
+    a = a.reshape(1, k)
+    if np.isnan(a).any():
+        raise ValueError("action is NaN; actions must be numbers in [-1, 1] (out-of-range values are clipped)")
+    clipped = bool((np.abs(a) > 1.0).any())
+    return np.clip(a, -1.0, 1.0), clipped
 
 
 class EHSSTrackingEnv(gym.Env):
@@ -71,10 +82,27 @@ class EHSSTrackingEnv(gym.Env):
 
     The agent acts every ``agent_period`` control periods; its action a is held in between.
 
-    **Action** ``Box(-1, 1, (1,), float32)``: a = the residual current over ``residual_scale`` [mA]
-    (direct mode: the whole current; ``residual_scale`` defaults to ``current_limit``). Out-of-range
-    values are clipped to [-1, 1] and counted (``info["clipped"]`` this step, ``info["n_clipped"]`` in
-    the episode). A NaN action raises ValueError.
+    **Action** ``Box(-1, 1, (k,), float32)``, with the ``action`` setting (:mod:`ehss_gym.envs.actions`; the
+    bounds' defaults and their measurement: docs/ENV.md, "Action modes"):
+
+    ===========  ===  ==========================================================================================
+    action       k    what a does (R, D = ``action_bound``; h the control period)
+    ===========  ===  ==========================================================================================
+    current      1    the residual current ``residual_scale * a`` [mA], held over the agent step (the default;
+                      direct mode: the whole current; ``residual_scale`` defaults to ``current_limit``)
+    rate         1    the residual's rate of change a R / 10 ms [mA/s]; the residual r is integrated every control
+                      period and clipped to +-R [mA]: continuous, at most R / 10 ms
+    filtered     1    the residual is a first-order filter (time constant 10 ms) of R a [mA]: |r| <= R
+    reference    1    the law's reference shifted by delta = D a [output unit] through a copy of the reference model,
+                      so its output and derivatives stay consistent: the law tracks y_d + Delta (the reward and the
+                      metrics still measure against y_d); delta ~ -d h y_d' compensates a sensor delay of d samples
+    schedule     2-3  gain scheduling at the agent rate: a_0 scales the boundary layer's width (``smoothing`` and
+                      ``layer_gain``) within [0.1, 1000], a_1 sigma within [0.1, 10], a_2 (``dob_hz`` > 0 only) the
+                      observer's bandwidth within [0.1, 10]; factor hi^a for a >= 0, lo^(-a) for a < 0
+    ===========  ===  ==========================================================================================
+
+    In every mode a = 0 throughout is the base law, bit for bit. Out-of-range values are clipped to [-1, 1] and
+    counted (``info["clipped"]`` this step, ``info["n_clipped"]`` in the episode). A NaN action raises ValueError.
 
     **Observation** ``Box(-10, 10, (D,), float32)``, D = 15 (velocity) or 17 (position). Each entry
     is ``clip(sign(v) log(1 + |v|), -10, 10)`` with ``v = x / scale`` (only ``last_action`` is linear):
@@ -98,8 +126,15 @@ class EHSSTrackingEnv(gym.Env):
     u_base                         Sontag current [mA] (also     0.1 mA
                                    computed, not applied, in
                                    direct mode)
-    last_action                    previous a [-] (linear)       1
+    last_action                    previous a [-] (linear; in    1
+                                   the rate and filtered modes
+                                   the residual over
+                                   residual_scale)
     =============================  ============================  ===============================
+
+    An action mode but "current" appends its last action (``action``, or ``action_width``, ``action_sigma``,
+    ``action_observer`` for the schedule; [-], linear) and what it moves: ``ref_shift`` (the reference shift Delta at
+    the next sample over D, linear) or ``width`` (the boundary-layer width in use, scaled as s).
 
     **Reward**, per agent step over its control periods k (e_k the sampled error)::
 
@@ -181,7 +216,12 @@ class EHSSTrackingEnv(gym.Env):
     | `terminate_on_lost_track` | False | False |  |
     | `unmodelled_effects` | False | False |  |
     | `memory_tau` | None | None | s (None: no memory features) |
+    | `action` | `"current"` | `"current"` |  |
+    | `action_bound` | None | None | the action's unit (None: none) |
     | `sigma` with `law="lin-sontag"` | 3e6 | 1e7 | unit of s |
+    | `action_bound` with `action="rate"` | 0.4 | 4 | mA |
+    | `action_bound` with `action="filtered"` | 0.4 | 4 | mA |
+    | `action_bound` with `action="reference"` | 8e-4 | 3e-4 | U |
     | `fr` with `n=4` | 134.634 | 60 | Hz |
     | `sigma` with `n=4` | 1.654817e5 | 1.036633e4 | unit of s |
     | `layer_gain` with `n=4` | 4.29904 | 2.89398 | - |
@@ -258,6 +298,11 @@ class EHSSTrackingEnv(gym.Env):
             at the agent step with the step's last measured error held, |x| clipped to 10 error_scale tau against
             windup; scale error_scale tau) and the action of the step before last ``prev_action`` [-]; tau [s] >=
             one agent step; None = none (the observation as without them). See docs/RL.md, "Memory".
+        action: what the agent's action does, a row of :data:`ehss_gym.envs.actions.ACTIONS`: "current" (the
+            default: a residual current), "rate", "filtered", "reference" or "schedule" (the action table above; the
+            last two act through the law and need ``mode="residual"``, "reference" a digital estimator).
+        action_bound: the bound of the rate and filtered modes' residual R [mA] and of the reference mode's shift D
+            [output unit], > 0; None = the mode's default per task (the defaults table); the other modes have none.
         render_mode: None or "rgb_array" (a dashboard: raw reference r, filtered y_d and output y; error; the
             applied current on a linear axis with its limit and its min/max envelope over each agent step;
             friction).
@@ -298,8 +343,8 @@ class EHSSTrackingEnv(gym.Env):
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,
                  terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track,
                  unmodelled_effects: bool = DEFAULTS.unmodelled_effects,
-                 memory_tau: float | None = DEFAULTS.memory_tau, render_mode: str | None = None,
-                 **unknown):
+                 memory_tau: float | None = DEFAULTS.memory_tau, action: str = DEFAULTS.action,
+                 action_bound: float | None = None, render_mode: str | None = None, **unknown):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got "
                              f"{render_mode!r}")
@@ -312,7 +357,8 @@ class EHSSTrackingEnv(gym.Env):
         self.observation_layout = self._lanes.layout
         D = len(self.observation_layout)
         self.observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, shape=(D,), dtype=np.float32)
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(self._lanes.action_dims,), dtype=np.float32)
+        self._current = cfg.action == "current"  # today's action: the fast path of step()
         self._scale = cfg.residual_scale
         self._steps = 0
         self._T = 0
@@ -345,18 +391,23 @@ class EHSSTrackingEnv(gym.Env):
     def step(self, action):
         if not self._ready:
             raise RuntimeError("call reset() before step()")
-        if type(action) is np.ndarray and action.shape == (1,):  # fast path
-            v = float(action[0])
-            if v != v:
-                raise ValueError("action is NaN; actions must be numbers in [-1, 1] (out-of-range values are clipped)")
-        else:
-            v = parse_action_scalar(action)
-        clipped = v > 1.0 or v < -1.0
-        if clipped:
-            v = 1.0 if v > 1.0 else -1.0
-            self._n_clipped += 1
         lanes = self._lanes
-        lanes.u_res[0] = v * self._scale
+        if self._current:
+            if type(action) is np.ndarray and action.shape == (1,):  # fast path
+                v = float(action[0])
+                if v != v:
+                    raise ValueError("action is NaN; actions must be numbers in [-1, 1] (out-of-range values are "
+                                     "clipped)")
+            else:
+                v = parse_action_scalar(action)
+            clipped = v > 1.0 or v < -1.0
+            if clipped:
+                v = 1.0 if v > 1.0 else -1.0
+            lanes.u_res[0] = v * self._scale
+        else:
+            a, clipped = parse_action_vector(action, lanes.action_dims)
+            lanes.set_actions(slice(0, 1), a)
+        self._n_clipped += clipped
         lanes.step()
         self._steps += 1
         lost = lanes.acc0.item(M_LOST) > 0.0

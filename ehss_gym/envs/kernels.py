@@ -11,7 +11,7 @@ import numba as nb
 import numpy as np
 
 from ehss_gym.core.controller import CW_TODO, controller_apply, controller_update, lane_law, sense_lanes
-from ehss_gym.core.jit import jit, jit_noalloc
+from ehss_gym.core.jit import dispatch, jit, jit_inline, jit_noalloc
 from ehss_gym.core.layout import (
     I_E,
     I_SAT,
@@ -31,11 +31,13 @@ from ehss_gym.core.layout import (
 from ehss_gym.core.loop import lanes_period
 from ehss_gym.core.settings import N_CTRL
 
+from .actions import ACTIONS
 from .buffers import (
     BB_ACT,
     BB_PRE,
     BB_RUN,
     F_ACC,
+    F_ACT,
     F_APREV,
     F_CTRL,
     F_INFO,
@@ -63,6 +65,7 @@ from .buffers import (
     LAY_SRC,
     MEM_APREV2,
     MEM_EINT,
+    N_EXTRA,
     N_MEM,
     N_PARTS,
     N_RCLS,
@@ -88,6 +91,10 @@ from .buffers import (
     S_U2,
     S_UMAX,
     S_UMIN,
+    W_ACT_C1,
+    W_ACT_C2,
+    W_ACT_MODE,
+    W_ACT_PERIOD,
     W_CLASS,
     W_DIV,
     W_EFFORT,
@@ -111,7 +118,8 @@ def _write_obs(obs_row, peek_row, last_row, mem_row, lay):
 
     x is read from ``peek_row`` (what the controller sees at the next sample) or, for entries flagged
     FLAG_LAST, from ``last_row`` (the last control period actually run: applied current, residual), or for entries
-    flagged FLAG_MEM from ``mem_row`` (the lane's memory features, layout MEM_*).
+    flagged FLAG_MEM from ``mem_row`` (the lane's block of extras: the memory features, layout MEM_*, then the action
+    of a mode but "current").
     """
     for i in range(lay.shape[1]):
         j = int(lay[LAY_SRC, i])
@@ -180,8 +188,8 @@ def observe(h, F, IB, BB, events, filt, work, obs, lay):
             continue
         F[b, F_INFO_OK:F_INFO_OK + N_INFO] = 0.0
         _peek(F, BB, b, IB[b, IB_K], h, events, filt, work)
-        _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], F[b, F_INFO_OK:F_INFO_OK + N_INFO], F[b, F_MEM:F_MEM + N_MEM],
-                   lay)
+        _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], F[b, F_INFO_OK:F_INFO_OK + N_INFO],
+                   F[b, F_MEM:F_MEM + N_EXTRA], lay)
 
 
 def reward_weights(weights: dict, error_scale: float, residual_scale: float, memory_tau: float | None = None,
@@ -318,6 +326,27 @@ def memory_update(mem, e, a_prev, wts):
     mem[MEM_APREV2] = a_prev
 
 
+@jit_inline
+def rate_period(u, a, c1, c2):
+    """The rate action's residual after one control period: clip(u + a c1, -c2, c2) [mA], c1 = h R / RATE_TIME [mA]
+    the step of a unit action, c2 = R [mA] the authority (:mod:`ehss_gym.envs.actions`)."""
+    u = u + a * c1
+    return c2 if u > c2 else (-c2 if u < -c2 else u)
+
+
+@jit_inline
+def filtered_period(u, a, c1, c2):
+    """The filtered action's residual after one control period: u + c1 (c2 a - u) [mA], c1 = 1 - exp(-h / tau) [-]
+    (the first-order filter's exact step for a held input), c2 = R [mA] the authority."""
+    return u + c1 * (a * c2 - u)
+
+
+action_period = dispatch(
+    "action_period", ("mode", "u", "a", "c1", "c2"), [None if row.period is None else globals()[row.period]
+                                                     for row in ACTIONS], __name__, code="mode", otherwise="u",
+    doc="The residual [mA] after one control period of action mode code ``mode`` (held: ``u`` as it is).")
+
+
 @jit_noalloc
 def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
     """Advance ``n_per`` control periods for every running lane; the env's one compiled step.
@@ -371,6 +400,11 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
                 IB[b, IB_GID] = g
                 snapshot_classes(F[b, F_STATS:F_STATS + N_STATS], acc[b])
         for j in range(n_per):
+            if wts[W_ACT_PERIOD] > 0.0:  # a residual that moves every control period (the rate and filtered modes)
+                for b in range(B):
+                    if act[b]:
+                        u_res[b] = action_period(int(wts[W_ACT_MODE]), u_res[b], F[b, F_ACT], wts[W_ACT_C1],
+                                                 wts[W_ACT_C2])
             # Periods alternate between the F_INFO and F_INFO_OK blocks, so the last finite period's info
             # survives a divergence in the next one without a per-period copy (lanes only ever stop).
             inf = info if j % 2 == 0 else info_ok
@@ -402,7 +436,8 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             diverged = not act[b]
             run[b] = act[b]
             IB[b, IB_K] = kk + n_per
-            a = u_res[b] * wts[W_INV_SCALE]
+            # the step's action [-]: the residual over its scale, or the first entry of another mode's action
+            a = u_res[b] * wts[W_INV_SCALE] if wts[W_ACT_MODE] == 0.0 else F[b, F_ACT]
             F[b, F_REW] = agent_reward(a, F[b, F_APREV], F[b, F_STATS + S_N], F[b, F_STATS + S_SUM_E2],
                                        acc[b, M_TV_U] - F[b, F_STATS + S_TV0], diverged, wts)
             if wts[W_CLASS] > 0.0 or wts[W_SAT] > 0.0:
@@ -419,7 +454,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
         peek_lanes(F, BB, IB, g, kk + n_per, h, filt, c, work, lwork[6])
         for b in range(B):
             if IB[b, IB_GID] == g:
-                _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_MEM], lay)
+                _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
         g += 1
 
 

@@ -52,10 +52,16 @@ from ehss_gym.core.scenarios import (
 )
 from ehss_gym.core.settings import (
     C_BASE,
+    C_DOB_GAIN,
+    C_LAYER_GAIN,
     C_NOISE_THETA,
     C_OMEGA_MAX,
     C_P_BOUND,
     C_SEED,
+    C_SHIFT,
+    C_SHIFT_ON,
+    C_SIGMA,
+    C_SMOOTH,
     N_CTRL,
     Scenario,
     ctrl_row,
@@ -63,11 +69,13 @@ from ehss_gym.core.settings import (
 )
 from ehss_gym.core.sim import simulate_batch
 
+from .actions import ACTIONS, action_code, action_dims, action_mode, period_constants, schedule_factors
 from .buffers import (
     BB_ACT,
     BB_PRE,
     BB_RUN,
     F_ACC,
+    F_ACT,
     F_CTRL,
     F_INFO_OK,
     F_MODEL,
@@ -101,6 +109,10 @@ from .buffers import (
     R_U2,
     R_W,
     S_SATF,
+    W_ACT_C1,
+    W_ACT_C2,
+    W_ACT_MODE,
+    W_ACT_PERIOD,
 )
 from .config import SCENARIOS, EnvConfig
 from .kernels import advance, advance_chunks, observe, reward_weights
@@ -166,6 +178,9 @@ class Lanes:
         tmpl = cfg.template()
         base = ctrl_row(tmpl)
         base[C_BASE] = 1.0 if cfg.mode == "residual" else 0.0
+        self.action = action_mode(cfg.action)
+        self.action_dims = action_dims(self.action, cfg.dob_hz)
+        base[C_SHIFT_ON] = 1.0 if self.action.name == "reference" else 0.0
         self.ctrl_base = base
         nominal = PlantParams().as_array()
         self.F = np.zeros((B, N_F))
@@ -218,6 +233,10 @@ class Lanes:
         self.obs0 = self.obs[0]
         rw = cfg.reward_weights
         self.wts = reward_weights(rw, cfg.error_scale, cfg.residual_scale, cfg.memory_tau, cfg.agent_dt)
+        self.wts[W_ACT_MODE] = action_code(cfg.action)
+        self.wts[W_ACT_PERIOD] = 0.0 if self.action.period is None else 1.0
+        self.wts[W_ACT_C1], self.wts[W_ACT_C2] = period_constants(self.action, cfg.action_bound, cfg.control_period)
+        self._write = ACTION_WRITERS[self.action.write]
         self.elog = np.zeros((B, 1), dtype=np.float32)
         self.T = np.zeros(B, dtype=np.int64)  # agent steps in each lane's episode
         self.scenarios: list[Scenario | None] = [None] * B
@@ -276,6 +295,16 @@ class Lanes:
             self.elog = el
             self._bind()
         self.scenarios[b] = sc
+
+    def set_actions(self, idx, a: np.ndarray) -> None:
+        """Write the agent step's actions ``a`` (len(idx), k), already clipped to [-1, 1], into lanes ``idx``, as the
+        env's action mode does (:mod:`ehss_gym.envs.actions`)."""
+        self._write(self, idx, a)
+
+    def resense(self, idx) -> None:
+        """Drop the look-ahead of lanes ``idx``: their next period computes its sample afresh (the same arithmetic,
+        with the law's inputs the action has just changed)."""
+        self.BB[idx, BB_PRE] = False
 
     def observe(self, lanes) -> None:
         """Fill the observations of the given lanes from their current state (no time passes)."""
@@ -355,3 +384,41 @@ class Lanes:
         if t is None:
             t = self._template = self.cfg.template()
         return t
+
+
+# --- the action modes' writers (ehss_gym.envs.actions: each row names its writer here) ---------------------------
+
+
+def write_current(lanes: Lanes, idx, a: np.ndarray) -> None:
+    """The current action: the residual ``residual_scale * a`` [mA], held over the agent step."""
+    lanes.u_res[idx] = a[:, 0] * lanes.cfg.residual_scale
+
+
+def write_held(lanes: Lanes, idx, a: np.ndarray) -> None:
+    """The rate and filtered actions: the action, which the kernel turns into the residual every period."""
+    lanes.F[idx, F_ACT:F_ACT + a.shape[1]] = a
+
+
+def write_reference(lanes: Lanes, idx, a: np.ndarray) -> None:
+    """The reference action: the law's reference shift delta = ``action_bound * a`` [output unit]."""
+    write_held(lanes, idx, a)
+    lanes.ctrl[idx, C_SHIFT] = a[:, 0] * lanes.cfg.action_bound
+    lanes.resense(idx)
+
+
+def write_schedule(lanes: Lanes, idx, a: np.ndarray) -> None:
+    """The schedule action: the law's boundary-layer width (smoothing and adaptive gain), sigma and (observer on) the
+    observer's gain 1 - exp(-2 pi f_d h) at the scaled bandwidth, each the template's times its factor."""
+    write_held(lanes, idx, a)
+    f = schedule_factors(a)
+    base = lanes.ctrl_base
+    lanes.ctrl[idx, C_SMOOTH] = base[C_SMOOTH] * f[:, 0]
+    lanes.ctrl[idx, C_LAYER_GAIN] = base[C_LAYER_GAIN] * f[:, 0]
+    lanes.ctrl[idx, C_SIGMA] = base[C_SIGMA] * f[:, 1]
+    if a.shape[1] > 2:  # at factor 1 the template's own gain, bit for bit
+        scaled = -np.expm1(-2.0 * math.pi * lanes.cfg.dob_hz * f[:, 2] * lanes.cfg.control_period)
+        lanes.ctrl[idx, C_DOB_GAIN] = np.where(f[:, 2] == 1.0, base[C_DOB_GAIN], scaled)
+    lanes.resense(idx)
+
+
+ACTION_WRITERS = {row.write: globals()[row.write] for row in ACTIONS}

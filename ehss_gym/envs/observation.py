@@ -6,11 +6,12 @@ import math
 
 import numpy as np
 
-from ehss_gym.core.layout import I_E, I_S, I_UAPP, I_UBASE, I_URES, I_XM, I_YD
+from ehss_gym.core.layout import I_E, I_S, I_SHIFT, I_UAPP, I_UBASE, I_URES, I_W, I_XM, I_YD
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.settings import UNITS
 
-from .buffers import MEM_APREV2, MEM_EINT
+from .actions import SCHEDULE_RANGES, action_dims, action_mode
+from .buffers import MEM_APREV2, MEM_EINT, N_MEM
 from .config import EnvConfig
 
 # Observation normalisation (see the class docstring).
@@ -42,6 +43,26 @@ def observation_layout(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]
     if cfg.memory_tau is not None:  # memory features: source -1 - index into the lane's memory block (MEM_*)
         out.append(("e_int", -1 - MEM_EINT, cfg.error_scale * cfg.memory_tau, True, f"{unit}*s"))
         out.append(("prev_action", -1 - MEM_APREV2, 1.0, False, "-"))
+    return out + action_entries(cfg)
+
+
+def action_entries(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]]:
+    """The entries an action mode but "current" appends (:mod:`ehss_gym.envs.actions`): its last action (each entry
+    [-], linear; source -1 - its index in the lane's block of extras) and what the mode moves: the reference shift
+    Delta at the next sample (over its bound, linear), the schedule's boundary-layer width in use (scaled as s). The
+    rate and filtered residual is ``last_action`` (the residual of the last period over ``residual_scale``)."""
+    row = action_mode(cfg.action)
+    if row.name == "current":
+        return []
+    k = action_dims(row, cfg.dob_hz)
+    names = ["action"] if k == 1 else [f"action_{r[0]}" for r in SCHEDULE_RANGES[:k]]
+    out = [(name, -1 - (N_MEM + i), 1.0, False, "-") for i, name in enumerate(names)]
+    unit = UNITS[cfg.task]
+    if row.name == "reference":
+        out.append(("ref_shift", I_SHIFT, cfg.action_bound, False, unit))
+    if row.name == "schedule":
+        m = cfg.order
+        out.append(("width", I_W, cfg.error_scale * (2.0 * math.pi * cfg.fr) ** (m - 1), True, f"{unit}/s^{m - 1}"))
     return out
 
 

@@ -98,7 +98,7 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         self.observation_layout = self._lanes.layout
         D = len(self.observation_layout)
         self.single_observation_space = spaces.Box(-OBS_BOUND, OBS_BOUND, shape=(D,), dtype=np.float32)
-        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(self._lanes.action_dims,), dtype=np.float32)
         self.observation_space = batch_space(self.single_observation_space, N)
         self.action_space = batch_space(self.single_action_space, N)
         self._rngs: list[np.random.Generator | None] = [None] * N
@@ -160,14 +160,14 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
             raise RuntimeError("call reset() before step()")
         N = self.num_envs
         lanes = self._lanes
+        k = lanes.action_dims
         a = np.asarray(actions, dtype=np.float64).reshape(N, -1)
-        if a.shape[1] != 1:
-            raise ValueError(f"actions must have shape ({N}, 1), got {np.shape(actions)}")
-        a = a[:, 0]
+        if a.shape[1] != k:
+            raise ValueError(f"actions must have shape ({N}, {k}), got {np.shape(actions)}")
         if np.isnan(a).any():
             raise ValueError("actions contain NaN; actions must be numbers in [-1, 1] (out-of-range values are "
                              "clipped)")
-        clipped = (a > 1.0) | (a < -1.0)
+        clipped = ((a > 1.0) | (a < -1.0)).any(axis=1)
         a = np.clip(a, -1.0, 1.0)
         infos: dict = {}
         resetting = np.nonzero(self._autoreset)[0]
@@ -179,8 +179,14 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         idle = np.flatnonzero(self._ended)  # DISABLED mode: ended lanes are not advanced
         clipped[idle] = False
         self._n_clipped += clipped
-        lanes.u_res[:N] = a * self.config.residual_scale
-        lanes.u_res[resetting] = 0.0
+        if k == 1 and self.config.action == "current":  # today's action, as it always was
+            lanes.u_res[:N] = a[:, 0] * self.config.residual_scale
+            lanes.u_res[resetting] = 0.0
+        else:  # the lanes that step (a lane just reset keeps its loaded state: zero action)
+            moving = np.ones(N, dtype=np.bool_)
+            moving[resetting] = False
+            moving[idle] = False
+            lanes.set_actions(np.flatnonzero(moving), a[moving])
         lanes.run[resetting] = False  # not advanced on their reset step
         lanes.run[idle] = False
         lanes.step()

@@ -27,8 +27,9 @@ import math
 
 import numpy as np
 
-from ehss_gym.core.scenarios import heldout_scenarios
+from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, UNMODELLED_DISTRIBUTION, heldout_scenarios
 from ehss_gym.envs import EnvConfig, rollout
+from ehss_gym.envs.actions import action_dims, action_mode
 
 from .scoring import CLASSES, episode_log_ratios, failure, figure_of, rank_key
 
@@ -37,22 +38,26 @@ TEST_START = 0  # offset of the test block (the evaluation harness's held-out su
 
 
 def heldout_suite(env_kwargs: dict, count: int, start: int, episode_seconds: float | None = None) -> list:
-    """``count`` held-out Scenarios for the controller settings of ``env_kwargs`` (seeds from ``start``)."""
-    return heldout_scenarios(count, EnvConfig.from_kwargs(env_kwargs).template(), episode_seconds, start=start)
+    """``count`` held-out Scenarios for the controller settings of ``env_kwargs`` (seeds from ``start``), drawn as the
+    env draws its training episodes (with the unmodelled effects when ``unmodelled_effects`` is set)."""
+    cfg = EnvConfig.from_kwargs(env_kwargs)
+    dist = UNMODELLED_DISTRIBUTION if cfg.unmodelled_effects else DEFAULT_DISTRIBUTION
+    return heldout_scenarios(count, cfg.template(), episode_seconds, dist, start=start)
 
 
 class _ActFn:
-    """An ``act_fn`` (raw observations (B, D) -> actions (B, 1)) as a policy with SB3's ``predict``."""
+    """An ``act_fn`` (raw observations (B, D) -> actions (B, k)) as a policy with SB3's ``predict``."""
 
-    def __init__(self, act_fn):
-        """Wrap ``act_fn`` (None: the zero action)."""
+    def __init__(self, act_fn, k: int = 1):
+        """Wrap ``act_fn`` (None: the zero action) of actions of size ``k``."""
         self.act_fn = act_fn
+        self.k = k
 
     def predict(self, observation, state=None, episode_start=None, deterministic=True):
-        """SB3-style: (actions (B, 1) float32, state unchanged)."""
+        """SB3-style: (actions (B, k) float32, state unchanged)."""
         if self.act_fn is None:  # the base law in residual mode
-            return np.zeros((len(observation), 1), dtype=np.float32), state
-        return np.asarray(self.act_fn(observation), dtype=np.float32).reshape(len(observation), 1), state
+            return np.zeros((len(observation), self.k), dtype=np.float32), state
+        return np.asarray(self.act_fn(observation), dtype=np.float32).reshape(len(observation), self.k), state
 
 
 def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
@@ -61,7 +66,7 @@ def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
     Args:
         env_kwargs: ``EHSSTracking-v0`` keyword arguments (scenario pinned per episode).
         scenarios: Scenarios built from the env's ``scenario_template``.
-        act_fn: raw observations (B, D) float32 -> actions (B, 1); None = zero action (the base law in
+        act_fn: raw observations (B, D) float32 -> actions (B, k); None = zero action (the base law in
             residual mode).
 
     Returns:
@@ -69,7 +74,9 @@ def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
         friction events and the episode return added.
     """
     out = []
-    for sc, r in zip(scenarios, rollout(_ActFn(act_fn), env_kwargs, scenarios)):
+    cfg = EnvConfig.from_kwargs(env_kwargs)
+    k = action_dims(action_mode(cfg.action), cfg.dob_hz)
+    for sc, r in zip(scenarios, rollout(_ActFn(act_fn, k), env_kwargs, scenarios)):
         m = dict(r.metrics)
         m["return"] = r.ret
         m["has_friction"] = any(ev[0] > 0 for ev in sc.friction)
