@@ -7,6 +7,7 @@ import json
 import math
 import os
 import pathlib
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -341,6 +342,11 @@ def test_cli_quick_writes_the_report(tmp_path, capsys):
         assert (out / f).is_file(), f
     text = (out / "REPORT.md").read_text()
     assert "`ehss evaluate" in text and "--quick" in text and f"ehss-gym {__version__}" in text
+    # the header's wall time counts every phase: the phases add up to it (before, the bounds were left out)
+    wall, phases = re.search(r"wall time ([\d.]+) s \(([^)]*)\)", text).groups()
+    times = dict((k, float(v)) for k, v in re.findall(r"([a-z-]+) ([\d.]+) s", phases))
+    assert list(times) == ["start-up", "setup", "episodes", "statistics", "bounds", "figures", "report"]
+    assert abs(sum(times.values()) - float(wall)) <= 0.02 * float(wall) + 0.5, (wall, times)
     assert "q_tracking    = sqrt((trk_rmse / trk_rmse_R) * (trk_iae / trk_iae_R))" in text
     assert "overall figure G   = exp(mean over the classes present on the suite of log G_c)" in text
     assert "keeps the paper's start" in text and "## 5. Step suite" in text
