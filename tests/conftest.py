@@ -9,6 +9,7 @@ output folder, store or cache pointed at tmp_path shows up here, on the first ru
 import atexit
 import os
 import shutil
+import subprocess
 import sys
 import tempfile
 
@@ -17,12 +18,16 @@ from hypothesis import settings
 from hypothesis.configuration import set_hypothesis_home_dir
 from hypothesis.database import InMemoryExampleDatabase
 
-from ehss_gym.infra.execution import pin_blas
+from ehss_gym.infra.execution import NUMBA_CACHE_ENV, numba_cache_dir, pin_blas
 
 # tests/reference.py is a plain helper module next to the tests
 sys.path.insert(0, os.path.dirname(__file__))
 
 pin_blas()  # as every ehss command: MKL's code path fixed before any test computes (tests/test_reproducible.py)
+# one numba cache for every process of the session (xdist workers, the commands' worker processes, fresh processes,
+# Ray workers, which get this folder anyway): the package's per-source-version folder on the local disk, set before
+# numba loads here and inherited by every process started from here; the checkout's __pycache__ stays untouched
+os.environ.setdefault(NUMBA_CACHE_ENV, numba_cache_dir())
 
 # hypothesis keeps its examples in ./.hypothesis by default (the checkout): in memory for the session instead; its
 # other files (a cache of the constants it reads from the sources) go to a temporary folder removed at exit
@@ -66,6 +71,17 @@ def _snapshot() -> dict:
 
 def _is_controller(config) -> bool:
     return not hasattr(config, "workerinput")  # an xdist worker has workerinput; the controller checks once
+
+
+def pytest_configure(config):
+    """With xdist workers: compile numba's kernels into the session's cache first (tests/warm_kernels.py, two sets
+    side by side), so that the workers load them instead of each compiling them again."""
+    workers = getattr(config.option, "numprocesses", None)
+    if _is_controller(config) and isinstance(workers, int) and workers > 1 and not config.option.collectonly:
+        script = os.path.join(os.path.dirname(__file__), "warm_kernels.py")
+        procs = [subprocess.Popen([sys.executable, script, part]) for part in ("sim", "env")]
+        if any(p.wait() for p in procs):
+            raise pytest.UsageError("compiling numba's kernels failed (tests/warm_kernels.py)")
 
 
 def pytest_sessionstart(session):
