@@ -37,6 +37,13 @@ _HYPOTHESIS_HOME = tempfile.mkdtemp(prefix="ehss-hypothesis-")
 set_hypothesis_home_dir(_HYPOTHESIS_HOME)
 atexit.register(shutil.rmtree, _HYPOTHESIS_HOME, True)
 
+# matplotlib keeps its font cache and config in the home folder (~/.cache/matplotlib, ~/.config/matplotlib), which
+# it creates on a machine where they do not exist yet (an empty home): a folder of the session instead, shared by every
+# process started from here (the font cache is built once), removed at exit; a user's own MPLCONFIGDIR is kept
+if "MPLCONFIGDIR" not in os.environ:
+    os.environ["MPLCONFIGDIR"] = tempfile.mkdtemp(prefix="ehss-matplotlib-")
+    atexit.register(shutil.rmtree, os.environ["MPLCONFIGDIR"], True)
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SKIPPED_DIRS = {".git", "__pycache__", ".pytest_cache", ".ruff_cache"}
 EDITOR_FILES = (".swp", ".swo", "~")  # an editor's files, saved beside the sources while the tests run
@@ -82,6 +89,27 @@ def pytest_configure(config):
         procs = [subprocess.Popen([sys.executable, script, part]) for part in ("sim", "env")]
         if any(p.wait() for p in procs):
             raise pytest.UsageError("compiling numba's kernels failed (tests/warm_kernels.py)")
+
+
+# Units of work (an xdist group, or one test) that start first, longest first (CPU-seconds on this machine's 2 cores:
+# the Ray group ~200 with its daemons, the quick evaluate CLI ~110, the benchmarks ~60, the quick headroom, the
+# interrupted sweep and the quick noise study ~40 each, the fidelity run ~35): a long unit started last would leave the
+# other worker idle at the end. Only the order changes (the tests do not depend on it); xdist then hands out the
+# units in this order (--no-loadscope-reorder in pyproject.toml).
+LONG_FIRST = ("ray", "tests/test_evaluate.py::test_cli_quick_writes_the_report", "benchmarks",
+              "tests/test_headroom.py::test_quick_headroom_report",
+              "tests/test_execution.py::test_an_interrupted_sweep_restarted_recomputes_only_the_missing_jobs",
+              "tests/test_noise.py::test_quick_noise_report_renders", "fidelity")
+
+
+def _unit(item) -> str:
+    mark = item.get_closest_marker("xdist_group")
+    return (mark.args[0] if mark.args else mark.kwargs.get("name")) if mark else item.nodeid
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {u: i for i, u in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(_unit(item), len(rank)))  # stable: the rest keep their order
 
 
 def pytest_sessionstart(session):

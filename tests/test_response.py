@@ -14,6 +14,8 @@ from ehss_gym.cli import main
 from ehss_gym.core.response import frequency_response, step_metrics
 from ehss_gym.envs.config import EnvConfig
 
+pytestmark = pytest.mark.xdist_group("response")  # one worker computes the loop's responses (a module fixture) once
+
 
 def _second_order(z, wn):
     """The unit step response of wn^2 / (s^2 + 2 z wn s + wn^2), 0 < z < 1, in closed form."""
