@@ -25,15 +25,16 @@ RUN = """
 import hashlib, json
 import numpy as np
 from ehss_gym import evaluation as ev
+FIGURES = FIGURES_HERE
 cfg = ev.EvalConfig(suites=("heldout",), heldout_episodes=4, n_boot=100)
 res = ev.evaluate([ev.parse_policy(p) for p in ("clf-n2", "dob-n2", "pid")], cfg, workers=1, progress=False)
 a = np.random.default_rng(0).standard_normal((64, 64))
 print(json.dumps({
-    "summary": {f"{d['task']}/{d['policy']}": [d["rank"]] + [d[k] for k in %r] for d in res.summary},
+    "summary": {f"{d['task']}/{d['policy']}": [d["rank"]] + [d[k] for k in FIGURES] for d in res.summary},
     "rows": [[r["task"], r["policy"], r["episode"], repr(r["rmse"]), repr(r["dst_peak"]), repr(r["tv_u_rate"])]
              for r in res.rows],
     "blas": hashlib.sha256((a @ a).tobytes()).hexdigest()}))
-""" % (FIGURES,)
+""".replace("FIGURES_HERE", repr(FIGURES))
 
 
 def _child(env: dict) -> dict:
