@@ -18,6 +18,8 @@ from ehss_gym.agents.specs import AGENTS, AgentSpec, env_kwargs_for, get_spec
 from ehss_gym.train import zoo
 from ehss_gym.train.loop import make_env
 
+pytestmark = pytest.mark.xdist_group("agents")  # one worker computes the residual agent (a module fixture) once
+
 SHORT = {"episode_seconds": 0.05}  # 100 agent steps
 
 

@@ -21,6 +21,8 @@ sys.path.insert(0, ROOT)
 from benchmarks import bench_compile, bench_env, bench_memory, bench_sim, compile_child, report  # noqa: E402
 from benchmarks.common import Section, Table, Target, interleave  # noqa: E402
 
+pytestmark = pytest.mark.xdist_group("benchmarks")  # one worker computes the measured sections (a module fixture) once
+
 
 def test_quick_run_writes_report(tmp_path):
     out = tmp_path / "perf"

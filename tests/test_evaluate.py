@@ -7,6 +7,7 @@ import json
 import math
 import os
 import pathlib
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -330,9 +331,17 @@ def test_a_law_evaluated_on_both_tasks_acts_on_each_with_its_own_object():
 # The CLI end to end (--quick is what CI runs)
 
 
+LEARNED = "residual-ppo-position-n2"  # a shipped model: five seeds
+
+
 def test_cli_quick_writes_the_report(tmp_path, capsys):
+    """The quick form on every suite and both tasks, for the scripted laws and one shipped learned model (its five
+    seeds, in an earlier loop: the report's section for those), with 2 held-out and 2 unmodelled episodes per task
+    instead of 8 and 100 bootstrap replicates: the report's every path in half the work (.ci/run runs the whole
+    default quick form, every shipped model included, twice)."""
     out = tmp_path / "cmp"
-    rc = main(["evaluate", "--quick", "--out", str(out), "--store", str(tmp_path / "jobs"), "--no-progress"])
+    rc = main(["evaluate", "--quick", "--episodes", "2", "--n-boot", "100", "--policies", *ev.SCRIPTED_DEFAULT,
+               LEARNED, "--out", str(out), "--store", str(tmp_path / "jobs"), "--no-progress"])
     assert rc == 0
     for f in ("REPORT.md", "episodes.csv", "summary.csv", "steps.csv", "figures/pareto_heldout.png",
               "figures/pareto_paper.png", "figures/pareto_robustness.png", "figures/pareto_unmodelled.png",
@@ -341,6 +350,11 @@ def test_cli_quick_writes_the_report(tmp_path, capsys):
         assert (out / f).is_file(), f
     text = (out / "REPORT.md").read_text()
     assert "`ehss evaluate" in text and "--quick" in text and f"ehss-gym {__version__}" in text
+    # the header's wall time counts every phase: the phases add up to it (before, the bounds were left out)
+    wall, phases = re.search(r"wall time ([\d.]+) s \(([^)]*)\)", text).groups()
+    times = dict((k, float(v)) for k, v in re.findall(r"([a-z-]+) ([\d.]+) s", phases))
+    assert list(times) == ["start-up", "setup", "episodes", "statistics", "bounds", "figures", "report"]
+    assert abs(sum(times.values()) - float(wall)) <= 0.02 * float(wall) + 0.5, (wall, times)
     assert "q_tracking    = sqrt((trk_rmse / trk_rmse_R) * (trk_iae / trk_iae_R))" in text
     assert "overall figure G   = exp(mean over the classes present on the suite of log G_c)" in text
     assert "keeps the paper's start" in text and "## 5. Step suite" in text
@@ -350,14 +364,16 @@ def test_cli_quick_writes_the_report(tmp_path, capsys):
     for label in ("tracking RMSE", "disturbance peak", "RMSE", "IAE", "ITAE", "recovery on", "control TV",
                   "saturation", "divergence rate", "V decrease"):
         assert label in text
-    cfg = ev.EvalConfig.quick()
-    n_specs = len(ev.default_specs())
+    cfg = ev.EvalConfig.quick(heldout_episodes=2)
+    n_specs = len(ev.SCRIPTED_DEFAULT) + 1
     rows = _csv_rows(out / "episodes.csv")
     per_task = (1 + 2 * cfg.heldout_episodes  # the heldout and the unmodelled suite
                 + cfg.sweep_episodes * (len(cfg.friction_levels) + len(cfg.mismatch_levels)) + len(cfg.step_amplitudes))
     scripted = len(ev.SCRIPTED_DEFAULT)
     assert len(rows) >= scripted * 2 * per_task
     assert len(rows) <= n_specs * 2 * per_task * 10  # learned models add at most a few seeds per task
+    assert {r["run"] for r in rows if r["policy"] == LEARNED} == {str(k) for k in range(5)}
+    assert "## 7. Learned policies" in text and LEARNED in text.split("## 7. Learned policies")[1]
     ref = [r for r in rows if r["policy"] == ev.REFERENCE_POLICY and r["suite"] != "step"]
     assert all(float(r["q_overall"]) == 1.0 for r in ref)
     summary = _csv_rows(out / "summary.csv")

@@ -17,6 +17,8 @@ import pytest
 
 from ehss_gym.reporting.fidelity import BEGIN, END, replace_block
 
+pytestmark = pytest.mark.xdist_group("fidelity")  # one worker computes the quick fidelity run (a module fixture) once
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -11,6 +11,8 @@ from ehss_gym import evaluation as ev
 from ehss_gym.evaluation import harness
 from ehss_gym.reporting import comparison_figures as cf
 
+pytestmark = pytest.mark.xdist_group("figures")  # one worker computes the small evaluation (a module fixture) once
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 

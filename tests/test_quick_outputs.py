@@ -17,7 +17,7 @@ def captured(monkeypatch, tmp_path):
         seen["evaluate"] = out
         return out + "/REPORT.md"
 
-    fake_res = types.SimpleNamespace(rows=[], wall_time=0.0, workers=1, timings={}, summary=[], notes=[])
+    fake_res = types.SimpleNamespace(rows=[], wall_time=0.0, workers=1, timings={}, summary=[], notes=[], started=0.0)
     monkeypatch.setattr(evaluate, "evaluate", lambda *a, **k: fake_res)
     monkeypatch.setattr(evaluate, "write_report", fake_write_report)
     monkeypatch.setattr(reproduce, "main_reproduce",

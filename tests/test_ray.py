@@ -79,8 +79,8 @@ def _csvs(folder) -> dict:
 def test_quick_evaluation_csvs_are_byte_identical_on_both_backends(ray_instance, tmp_path):
     """A scripted law, a PID and a learned (safe-weights) policy on the quick held-out suite: local worker processes
     and Ray tasks write the same bytes. (.ci/run compares the whole ehss evaluate --quick the same way: minutes.)"""
-    argv = ["evaluate", "--quick", "--no-progress", "--no-store", "--task", "velocity", "--suite", "heldout",
-            "--policies", "clf-n2", "pid", "residual-ppo-velocity-n2"]
+    argv = ["evaluate", "--quick", "--episodes", "2", "--no-progress", "--no-store", "--task", "velocity", "--suite",
+            "heldout", "--policies", "clf-n2", "pid", "residual-ppo-velocity-n2"]
     assert cli_main([*argv, "--out", str(tmp_path / "local"), "--workers", "2"]) == 0
     assert cli_main([*argv, "--out", str(tmp_path / "ray"), "--backend", "ray"]) == 0
     local, remote = _csvs(tmp_path / "local"), _csvs(tmp_path / "ray")

@@ -15,6 +15,8 @@ from ehss_gym.agents import safeweights as sw
 from ehss_gym.agents.export import export_policy
 from ehss_gym.agents.safeweights import SafeWeightsError, load_policy
 
+pytestmark = pytest.mark.xdist_group("safeweights")  # one worker computes the trained model (a module fixture) once
+
 
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):

@@ -14,6 +14,8 @@ from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.suites import STEP_SECONDS, STEP_TIME
 from ehss_gym.reporting import comparison
 
+pytestmark = pytest.mark.xdist_group("step_suite")  # one worker computes the step results (a module fixture) once
+
 CFG = ev.EvalConfig(suites=("step",), tasks=("velocity",), step_amplitudes=(0.5, -1.0), n_boot=100)
 
 

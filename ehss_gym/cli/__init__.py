@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import time
 
 from ehss_gym._version import __version__
 
@@ -26,8 +27,10 @@ def build_parser():
 
 def main(argv=None) -> int:
     """Run ``ehss`` with ``argv`` (default ``sys.argv[1:]``); returns the exit code."""
+    started = time.perf_counter()
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
+    args.started = started  # for the reports' timing lines: the command's own start-up counts too
     args.argv = argv  # the command line, for the made-by lines of figures
     runner = importlib.import_module(f"{__name__}.{args.module}")  # the command's dependencies load here
     return int(runner.run(args) or 0)

@@ -3,15 +3,17 @@
 
 from __future__ import annotations
 
+import math
 import os
 import sys
+import time
 import warnings
 from dataclasses import replace
 
 from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, PolicyWarning, default_specs, evaluate, parse_policies
 from ehss_gym.infra.execution import Executor
 from ehss_gym.infra.util import report_folder
-from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
+from ehss_gym.reporting.comparison import DEFAULT_OUT, prefetch_bounds, write_report
 
 from .common import backend_from_args, store_from_args
 
@@ -69,6 +71,10 @@ def run(args) -> int:
                           progress=not args.no_progress) as executor:
                 res = evaluate(specs, cfg, workers=args.workers, progress=not args.no_progress,
                                command=_command_line(args), executor=executor)
+                t0 = time.perf_counter()
+                # the step suite's bounds not shipped with the package: computed over the workers, kept in the store
+                prefetch_bounds(res, executor, progress=not args.no_progress)
+                res.timings["bounds"] = time.perf_counter() - t0
     except ValueError as exc:  # PolicyError, SafeWeightsError, ExecutionError (backend, address), bad settings
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
@@ -78,6 +84,10 @@ def run(args) -> int:
     print(f"{prog}: {executor.computed} job(s) computed, {executor.skipped} from the store", file=sys.stderr)
     for note in res.notes:
         print(f"{prog}: note: {note}", file=sys.stderr)
+    started = getattr(args, "started", math.nan)
+    if math.isfinite(started):  # the command's imports and parsing before the evaluation began
+        res.timings = {"start-up": res.started - started, **res.timings}
+        res.started = started
     path = write_report(res, report_folder(args.out, args.quick, DEFAULT_OUT))
     print(f"{len(res.rows)} episodes in {res.wall_time:.1f} s ({res.workers} workers; "
           + ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()) + f"); wrote {path}")

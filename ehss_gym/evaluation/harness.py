@@ -105,8 +105,11 @@ class Results:
     traces: dict  # (policy, run, task) -> paper trace
     summary: list  # per (suite, task, policy) dicts
     comparisons: list  # learned vs best CLF / base law
-    wall_time: float = math.nan
-    timings: dict = field(default_factory=dict)  # phase -> wall time [s]: setup, episodes, statistics, report
+    wall_time: float = math.nan  # [s] from ``started`` to the end of the last phase timed
+    # phase -> wall time [s]: setup, episodes, statistics (here), then start-up (the command line's imports before
+    # the evaluation), bounds, figures and report (added by the command and the report)
+    timings: dict = field(default_factory=dict)
+    started: float = math.nan  # time.perf_counter() when the work began (the evaluation, or the command before it)
     workers: int = 1
     command: str = "ehss evaluate"
     notes: list = field(default_factory=list)
@@ -349,7 +352,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
     timings = {"setup": t0 - t_start, "episodes": t1 - t0, "statistics": t2 - t1}
     return Results(cfg=cfg, specs=specs, episodes=episodes, rows=rows, traces=traces, summary=summary,
                    comparisons=comparisons, wall_time=t2 - t_start, timings=timings, workers=workers,
-                   command=command, notes=notes)
+                   command=command, notes=notes, started=t_start)
 
 
 # the names callers use as ``harness.<name>`` (the training report and validation: ``from ehss_gym.evaluation

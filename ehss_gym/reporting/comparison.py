@@ -46,7 +46,7 @@ from ehss_gym.evaluation.suites import (
 )
 from ehss_gym.infra.fmt import fmt_cell
 from ehss_gym.infra.util import atomic_write_text
-from ehss_gym.study.bound import step_bound
+from ehss_gym.study.bound_table import case, kept_step_bound, prefetch
 
 from .comparison_figures import FIGURE_KINDS, make_figures
 from .render import render
@@ -197,8 +197,32 @@ def _comparison_rows(res: Results) -> list[list]:
 
 
 def bound_function():
-    """:func:`ehss_gym.study.bound.step_bound`, the bound the step table's ratios take (tests replace it)."""
-    return step_bound
+    """:func:`ehss_gym.study.bound_table.kept_step_bound`, the bound the step table's ratios take (the table shipped
+    with the package, or computed once per case; tests replace it)."""
+    return kept_step_bound
+
+
+def _step_plants(res: Results) -> dict:
+    """(task, amplitude) -> the plant of that step-suite episode (the true plant the bound is taken on)."""
+    return {(ep.task, ep.level): ep.physical["plant"] for ep in getattr(res, "episodes", ()) if ep.suite == "step"}
+
+
+def _step_case(task: str, amplitude: float, plant=None) -> dict:
+    """The bound's case of one step of the suite: its plant, at the env's current limit for the task."""
+    limit = EnvConfig.from_kwargs({"task": task}).current_limit
+    return case(task, amplitude, t_step=STEP_TIME, t_end=STEP_SECONDS[task], current_limit=limit,
+                plant=PlantParams() if plant is None else plant)
+
+
+def prefetch_bounds(res: Results, executor=None, progress: bool = False) -> int:
+    """Compute the step suite's bounds that are neither shipped nor kept, as jobs of ``executor`` (in parallel, and
+    kept in its store: :func:`ehss_gym.study.bound_table.prefetch`); returns how many were computed or read from the
+    store. With the default bound only (a replaced :func:`bound_function` computes its own)."""
+    if bound_function() is not kept_step_bound:
+        return 0
+    plants = _step_plants(res)
+    keys = dict.fromkeys((r["task"], r["level"]) for r in res.rows if r["suite"] == "step")
+    return prefetch([_step_case(t, a, plants.get((t, a))) for t, a in keys], executor, progress)
 
 
 def step_rows(res: Results, bound=None, notes: list | None = None) -> list[dict]:
@@ -209,6 +233,7 @@ def step_rows(res: Results, bound=None, notes: list | None = None) -> list[dict]
     cache: dict = {}
     out = []
     specs = {sp.name: sp for sp in res.specs}
+    plants = _step_plants(res)
     for r in res.rows:
         if r["suite"] != "step":
             continue
@@ -218,19 +243,20 @@ def step_rows(res: Results, bound=None, notes: list | None = None) -> list[dict]
         if bound is not None:
             key = (r["task"], r["level"])
             if key not in cache:
-                cache[key] = _bound_of(bound, r["task"], r["level"], notes)
+                cache[key] = _bound_of(bound, r["task"], r["level"], notes, plants.get(key))
             d["iae_bound"] = cache[key]
             d["bound_ratio"] = r["iae_r"] / cache[key] if cache[key] > 0 else math.nan
         out.append(d)
     return out
 
 
-def _bound_of(bound, task: str, amplitude: float, notes: list | None) -> float:
-    """The bound's IAE [output unit * s] of one step of the suite, NaN (and a note) where the bound refuses it."""
-    limit = EnvConfig.from_kwargs({"task": task}).current_limit
+def _bound_of(bound, task: str, amplitude: float, notes: list | None, plant: PlantParams | None = None) -> float:
+    """The bound's IAE [output unit * s] of one step of the suite on ``plant`` (default Table I), NaN (and a note)
+    where the bound refuses it."""
+    c = _step_case(task, amplitude, plant)
     try:
-        return float(bound(task, amplitude, t_step=STEP_TIME, t_end=STEP_SECONDS[task], plant=PlantParams(),
-                           current_limit=limit).iae_bound)
+        return float(bound(task, amplitude, t_step=c["t_step"], t_end=c["t_end"], plant=c["plant"],
+                           current_limit=c["current_limit"]).iae_bound)
     except ValueError as exc:
         if notes is not None:
             notes.append(f"{task}, step {amplitude:+g}: no physical bound ({exc})")
@@ -355,9 +381,12 @@ def write_report(res: Results, out: str) -> str:
     """Write REPORT.md, episodes.csv, summary.csv, comparisons.csv, steps.csv and figures/ under ``out``; returns
     REPORT.md.
 
-    Every file is written atomically; REPORT.md last, so an interrupted run leaves the previous report. The
-    figures' wall time [s] is added to ``res.timings["figures"]``.
+    Every file is written atomically; REPORT.md last, so an interrupted run leaves the previous report. The wall
+    time [s] of each phase is added to ``res.timings``: ``bounds`` (the step suite's physical bounds, added to what
+    :func:`prefetch_bounds` took), ``figures`` and ``report`` (tables, CSVs and the text); ``res.wall_time`` becomes
+    the time from ``res.started`` to the report.
     """
+    t0 = time.perf_counter()
     os.makedirs(os.path.join(out, "figures"), exist_ok=True)
     atomic_write_text(os.path.join(out, "episodes.csv"), csv_text(res.rows, EPISODE_COLUMNS))
     atomic_write_text(os.path.join(out, "summary.csv"), csv_text(res.summary, _columns(res.summary)))
@@ -365,12 +394,20 @@ def write_report(res: Results, out: str) -> str:
         atomic_write_text(os.path.join(out, "comparisons.csv"), csv_text(res.comparisons, _columns(res.comparisons)))
     bound = bound_function() if any(r["suite"] == "step" for r in res.rows) else None
     bound_notes: list = []
+    t1 = time.perf_counter()
     steps = step_rows(res, bound, bound_notes)
+    t2 = time.perf_counter()
+    if bound is not None:
+        res.timings["bounds"] = res.timings.get("bounds", 0.0) + (t2 - t1)
     if steps:
         atomic_write_text(os.path.join(out, "steps.csv"), csv_text(steps, STEP_COLUMNS))
-    t0 = time.perf_counter()
+    t3 = time.perf_counter()
     figs = make_figures(res, os.path.join(out, "figures"))
-    res.timings["figures"] = time.perf_counter() - t0
+    t4 = time.perf_counter()
+    res.timings["figures"] = t4 - t3
+    res.timings["report"] = (t1 - t0) + (t3 - t2)  # the tables and CSVs; rendering the text takes milliseconds
+    if math.isfinite(res.started):
+        res.wall_time = t4 - res.started
     text = report_text(res, figs, steps, bound is not None, bound_notes)
     path = os.path.join(out, "REPORT.md")
     atomic_write_text(path, text)
@@ -378,4 +415,4 @@ def write_report(res: Results, out: str) -> str:
 
 
 __all__ = ["DEFAULT_OUT", "EPISODE_COLUMNS", "STEP_COLUMNS", "fmt", "csv_text", "ci_cell", "gate_cell",
-           "step_rows", "report_context", "report_text", "write_report"]
+           "step_rows", "prefetch_bounds", "report_context", "report_text", "write_report"]

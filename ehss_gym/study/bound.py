@@ -458,14 +458,15 @@ def step_bound(task: str, amplitude: float, *, t_step: float, t_end: float, plan
         ValueError: a parameter out of its range (named in the message), a velocity the limit cannot hold, a
             target not reached within t_end, or a horizon too short for the window.
     """
-    key = _validated(task, amplitude, t_step, t_end, plant, current_limit, friction, grid, dt, window, starts, seed,
+    key = bound_inputs(task, amplitude, t_step, t_end, plant, current_limit, friction, grid, dt, window, starts, seed,
                      max_iter)
     return _cached_bound(key)
 
 
-def _validated(task, amplitude, t_step, t_end, plant, current_limit, friction, grid, dt, window, starts, seed,
+def bound_inputs(task, amplitude, t_step, t_end, plant, current_limit, friction, grid, dt, window, starts, seed,
                max_iter) -> tuple:
-    """The arguments of :func:`step_bound` checked, as one hashable key."""
+    """The arguments of :func:`step_bound` checked and with their defaults resolved, as one hashable tuple: every
+    input a bound depends on (what :mod:`ehss_gym.study.bound_table` keys its kept bounds by)."""
     if task not in TASKS:
         raise ValueError(f"task must be one of {sorted(TASKS)}, got {task!r}")
     amplitude = check_finite("amplitude", amplitude)
@@ -777,9 +778,9 @@ def main(argv=None) -> int:
     return 0
 
 
-__all__ = ["step_bound", "StepBound", "BoundDiagnostics", "law_step", "step_iae", "bound_figure", "bound_row",
-           "crossing_time", "hold_current", "Model", "Problem", "make_problem", "plant_model", "minimise_iae",
-           "cascade", "first_order_check", "linear_step", "lag_model", "SIM_STEP", "START_NAMES"]
+__all__ = ["step_bound", "bound_inputs", "StepBound", "BoundDiagnostics", "law_step", "step_iae", "bound_figure",
+           "bound_row", "crossing_time", "hold_current", "Model", "Problem", "make_problem", "plant_model",
+           "minimise_iae", "cascade", "first_order_check", "linear_step", "lag_model", "SIM_STEP", "START_NAMES"]
 
 
 if __name__ == "__main__":
