@@ -20,7 +20,7 @@ def _fake(value: float, centre: float) -> dict:
     """Metrics whose every class pair grows as (1 + |value - centre|), so the objective's minimum is at ``centre``."""
     f = 1.0 + abs(value - centre)
     return {"diverged": False, "lost_track": False, "trk_rmse": f, "trk_iae": f, "dst_peak": f, "dst_iae": f,
-            "tv_u_rate": f, "rms_u": f}
+            "tv_u_rate": f, "rms_u": f, "t_tracking": 1.0, "t_disturbance": 0.5}
 
 
 def test_the_per_episode_search_finds_each_episodes_own_best_and_keeps_the_base_on_a_tie():
@@ -34,7 +34,7 @@ def test_the_per_episode_search_finds_each_episodes_own_best_and_keeps_the_base_
         calls.append(len(idx))
         return [_fake(v, centres[i]) for v, i in zip(values, idx)]
 
-    metrics, best = hr.search_episodes(search, 0.0, run_values, [False] * 4)
+    metrics, best = hr.search_episodes(search, 0.0, run_values, [False] * 4, "velocity")
     assert best[0] == pytest.approx(0.3) and best[1] == pytest.approx(-3.0) and best[2] == 0.0
     assert abs(best[3] - 0.5) < abs(0.3 - 0.5) and abs(best[3] - 0.5) < 0.1
     assert [m["trk_rmse"] for m in metrics] == [_fake(b, c)["trk_rmse"] for b, c in zip(best, centres)]
@@ -47,7 +47,7 @@ def test_a_failing_candidate_is_never_kept():
     def run_values(values, idx):
         return [{**_fake(v, 1.0), "diverged": v != 0.0} for v in values]
 
-    _, best = hr.search_episodes(search, 0.0, run_values, [True])
+    _, best = hr.search_episodes(search, 0.0, run_values, [True], "velocity")
     assert best == [0.0]
 
 

@@ -159,15 +159,17 @@ def _feedforward(task: str, kw: dict, eps: list, search) -> dict:
     return {"ff centred": (res[:n], [None] * n), "ff at edge": (res[n:], [None] * n)}
 
 
-def _objective(m: dict, ref: dict, noisy: bool) -> float:
-    """The ruler's per-episode overall log ratio of ``m`` against ``ref``; inf for a failed episode or no class."""
+def _objective(m: dict, ref: dict, noisy: bool, task: str) -> float:
+    """The ruler's per-episode overall log ratio of ``m`` against ``ref`` (an episode of ``task``); inf for a failed
+    episode or no class."""
     if m["diverged"] or m["lost_track"]:
         return math.inf
-    logs = episode_log_ratios(m, ref, noisy)
+    logs = episode_log_ratios(m, ref, noisy, task)
     return float(np.mean(list(logs.values()))) if logs else math.inf
 
 
-def search_episodes(search: Search1D, first: float, run_values: Callable, noisy: Sequence[bool]) -> tuple[list, list]:
+def search_episodes(search: Search1D, first: float, run_values: Callable, noisy: Sequence[bool],
+                    task: str) -> tuple[list, list]:
     """:class:`Search1D` on every episode at once, minimising each episode's :func:`_objective` against its run at
     ``first`` (the base law's value, kept on ties).
 
@@ -176,6 +178,7 @@ def search_episodes(search: Search1D, first: float, run_values: Callable, noisy:
         first: the base law's value of the setting.
         run_values: (values, episode indices) -> the episodes' metrics with those values (one value per index).
         noisy: per episode, whether it has sensor noise (its effort class is chatter).
+        task: the episodes' task (the ruler's floors).
 
     Returns:
         (per episode the metrics at its best value, the best values).
@@ -196,7 +199,7 @@ def search_episodes(search: Search1D, first: float, run_values: Callable, noisy:
 
     def consider(values: list) -> None:
         for i, m in enumerate(metrics_at(values)):
-            o = _objective(m, ref[i], noisy[i])
+            o = _objective(m, ref[i], noisy[i], task)
             if o < obj[i]:
                 best[i], obj[i] = values[i], o
 
@@ -221,7 +224,7 @@ def _best_bias(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, 
     def run_values(values, idx):
         return rollout(ConstantResidualPolicy(cfg, currents=values), kw, [eps[i] for i in idx])[0]
 
-    return search_episodes(search, 0.0, run_values, _noisy(eps))
+    return search_episodes(search, 0.0, run_values, _noisy(eps), task)
 
 
 def _best_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, list]:
@@ -238,7 +241,7 @@ def _best_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list,
                 out[j] = m
         return out
 
-    return search_episodes(search, float(EnvConfig.from_kwargs(kw).loop.smoothing), run_values, _noisy(eps))
+    return search_episodes(search, float(EnvConfig.from_kwargs(kw).loop.smoothing), run_values, _noisy(eps), task)
 
 
 @dataclass(frozen=True)
