@@ -163,6 +163,9 @@ class EHSSTrackingEnv(gym.Env):
     | `pressure_domain` | 0.95 | 0.95 | x P_s |
     | `dob_hz` | 0 | 0 | Hz (0: off) |
     | `lyapunov_kappa` | None | None | - (None: off) |
+    | `reference_delay` | 0 | 0 | control samples (0: off) |
+    | `inverse_threshold` | 0 | 0 | % of rated current (0: none) |
+    | `inverse_hysteresis` | 0 | 0 | % of rated current (0: none) |
     | `lost_track` | 1 | 1 | x reference amplitude |
     | `mode` | `"residual"` | `"residual"` |  |
     | `residual_scale` | 10 | 10 | mA |
@@ -234,6 +237,15 @@ class EHSSTrackingEnv(gym.Env):
             (Sontag's -sqrt(a^2 + b^4) for the plain law), wherever the law makes V decrease; kappa in [0, 1), None
             = off. ``info["metrics"]["v_model_decrease"]`` is the episode's share of control periods with the model's
             V' < 0. See docs/MODEL.md, "Lyapunov-constrained residual".
+        reference_delay: delay compensation [control samples], in [0, 8]: the law tracks the reference model's output
+            and its derivatives of that many samples earlier (interpolated between samples), so that with a sensor
+            delay of as many samples the true output tracks y_d instead of leading it; 0 = off. See docs/MODEL.md,
+            "Compensating the unmodelled valve and sensors".
+        inverse_threshold: the valve inverse's dead band [% of the valve's rated current, 10 mA], in [0, 10]: the
+            commanded current (law plus residual) passes through the inverse of a valve dead band of this width and
+            a play operator of width ``inverse_hysteresis`` before the current limit, so that such a valve puts out
+            the command; 0 = none (both 0: off).
+        inverse_hysteresis: the valve inverse's play operator's total width [% of rated current], in [0, 30]; 0 = none.
         scenario: "random" (the training distribution of :mod:`ehss_gym.core.scenarios`), "paper",
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
@@ -291,8 +303,8 @@ class EHSSTrackingEnv(gym.Env):
                  estimator_hz: float | None = None, observer_hz: float | None = None, law: str | None = None,
                  layer_gain: float | None = None, bumpless: bool | None = None, ref_accel: float | None = None,
                  pressure_domain: float | None = DEFAULTS.pressure_domain, dob_hz: float = DEFAULTS.dob_hz,
-                 lyapunov_kappa: float | None = None,
-                 agent_period: int = DEFAULTS.agent_period,
+                 lyapunov_kappa: float | None = None, reference_delay: float = 0.0, inverse_threshold: float = 0.0,
+                 inverse_hysteresis: float = 0.0, agent_period: int = DEFAULTS.agent_period,
                  residual_scale: float | None = None, scenario: str | Scenario = DEFAULTS.scenario,
                  reward_weights: dict | None = None, error_scale: float | None = None,
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,

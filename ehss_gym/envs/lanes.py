@@ -117,7 +117,8 @@ CLASS_PARTS = ((R_TRK_E2, M_TRK_SUM_E2, 0.25, "tracking"), (R_TRK_ABS, M_TRK_SUM
 
 def class_coefficients(sc: Scenario, agent_period: int) -> np.ndarray:
     """The class reward's constants (R_*) of an episode, from the base law's run of it (zero residual, the
-    disturbance observer off: the law alone, which a residual or the observer is measured against).
+    disturbance observer and the compensators off: the law alone, which a residual or the observer is measured
+    against).
 
     A part of a class the episode has (tracking and disturbance if it has samples in their windows, effort always)
     gets its weight in the class's log figure over the number of such classes (the ruler's mean over classes), the
@@ -125,7 +126,8 @@ def class_coefficients(sc: Scenario, agent_period: int) -> np.ndarray:
     :func:`ehss_gym.envs.kernels.class_reward`). A part whose base total is 0 (no sample moved it) is left out.
     """
     K = sc.n_steps // agent_period
-    law = sc.replace(t_end=K * agent_period * sc.control_period, log_interval=sc.t_end, dob_hz=0.0)
+    law = sc.replace(t_end=K * agent_period * sc.control_period, log_interval=sc.t_end, dob_hz=0.0, reference_delay=0.0,
+                     inverse_threshold=0.0, inverse_hysteresis=0.0)
     base = simulate_batch([law])[0].acc
     present = {"tracking": base[M_TRK_STEPS] > 0, "disturbance": base[M_DST_STEPS] > 0, "effort": True}
     n_cls = sum(present.values())
