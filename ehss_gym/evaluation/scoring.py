@@ -54,8 +54,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ehss_gym.core.params import PlantParams
-from ehss_gym.core.unmodelled import DATASHEET_RANGES, DATASHEET_THRESHOLD, RATED_CURRENT
+from ehss_gym.core.resolution import (
+    CURRENT_FLOOR,
+    ERROR_RESOLUTION,
+    FLOOR_SOURCES,
+    POSITION_RESOLUTION,
+    TV_FLOOR,
+    VALVE_BANDWIDTH,
+    VALVE_THRESHOLD,
+    VELOCITY_RESOLUTION,
+)
 
 from . import stats
 from .specs import CLF_RE, REFERENCE_POLICY, PolicySpec, controller_settings
@@ -122,30 +130,8 @@ class Floors:
         return out
 
 
-# The physical floors' values and sources (module docstring). The sensors are the finest the suites model (the
-# unmodelled suite's, ehss_gym.core.unmodelled.DATASHEET_RANGES); the valve's figures are its datasheet threshold
-# bound and its first-order lag's bandwidth (Table I's tau).
-ENCODER_BITS = DATASHEET_RANGES.encoder_bits[1]  # the finest encoder the suites model: 2^20 counts per revolution
-POSITION_RESOLUTION = 2.0 * math.pi / 2**ENCODER_BITS  # [rad] one count of it
-VELOCITY_RESOLUTION = DATASHEET_RANGES.velocity_step[0]  # [rad/s] the finest velocity signal's step
-VALVE_THRESHOLD = DATASHEET_THRESHOLD / 100.0 * RATED_CURRENT  # [mA] the valve's threshold bound, 0.5 % of 10 mA
-VALVE_BANDWIDTH = 1.0 / (2.0 * math.pi * PlantParams().tau)  # [Hz] the valve lag's corner frequency
-TV_FLOOR = 2.0 * VALVE_THRESHOLD * VALVE_BANDWIDTH  # [mA/s] the threshold, switched both ways once per band period
-CURRENT_FLOOR = VALVE_THRESHOLD  # [mA]
-FLOOR_SOURCES = {
-    "velocity": (f"the finest velocity signal the suites model, a step of {VELOCITY_RESOLUTION:g} rad/s (a 16-bit "
-                 "converter over +-3 rad/s; ehss_gym.core.unmodelled.DATASHEET_RANGES)"),
-    "position": (f"one count of a 2^{ENCODER_BITS}-count-per-revolution encoder, 2 pi / 2^{ENCODER_BITS} rad, the "
-                 "finest the suites model (ehss_gym.core.unmodelled.DATASHEET_RANGES)"),
-    "tv": (f"the valve's threshold ({DATASHEET_THRESHOLD:g} % of its {RATED_CURRENT:g} mA rated current, Moog's "
-           f"datasheet bound) switched both ways once per period of its bandwidth 1/(2 pi tau) = "
-           f"{VALVE_BANDWIDTH:.3g} Hz (tau = {PlantParams().tau:g} s, Table I): 2 x {VALVE_THRESHOLD:g} mA x "
-           f"{VALVE_BANDWIDTH:.3g} Hz"),
-    "current": (f"the valve's threshold, {DATASHEET_THRESHOLD:g} % of its {RATED_CURRENT:g} mA rated current "
-                "(Moog's datasheet bound): the smallest current step that moves the spool"),
-}
-PHYSICAL_FLOORS = Floors("physical", {"velocity": VELOCITY_RESOLUTION, "position": POSITION_RESOLUTION}, TV_FLOOR,
-                         CURRENT_FLOOR)
+# the ruler's: the physical resolutions and valve levels of ehss_gym.core.resolution, with their sources
+PHYSICAL_FLOORS = Floors("physical", dict(ERROR_RESOLUTION), TV_FLOOR, CURRENT_FLOOR)
 # the floors before the physical ones: numeric only, the same for every task and for an IAE as for an error
 NUMERIC_FLOORS = Floors("numeric", {"velocity": 1e-12, "position": 1e-12}, 1e-9, 1e-9, iae_per_window=False)
 FLOORS = PHYSICAL_FLOORS  # the ruler's
