@@ -9,7 +9,8 @@
   model's logged outputs of d samples before (exactly for a whole d, interpolated for a fractional one), every
   derivative alike; in the closed loop with a sensor delay of d samples, it brings the position task's tracking error
   back to the loop without the delay;
-- both off: the defaults, bit for bit (also ``tools/loop_fingerprint.py``); bad values name the setting.
+- both off: the defaults, bit for bit (also ``tools/loop_fingerprint.py``); bad values name the setting;
+- the ideal corrections' sizes (``ehss headroom``) against their first-order and bounding values.
 """
 
 from __future__ import annotations
@@ -29,6 +30,8 @@ from ehss_gym.core.sim import simulate, simulate_batch
 from ehss_gym.core.unmodelled import Unmodelled
 from ehss_gym.core.unmodelled_kernels import valve_input
 from ehss_gym.envs import EHSSTrackingEnv, EnvConfig
+from ehss_gym.evaluation.suites import EvalConfig, build_episodes
+from ehss_gym.study.corrections import episode_corrections
 
 COMMANDS = st.lists(st.floats(-8.0, 8.0, allow_nan=False), min_size=1, max_size=80)
 
@@ -152,3 +155,22 @@ def test_bad_compensator_settings_name_the_setting_and_its_range(kw, match):
         Scenario(**kw)
     with pytest.raises(ValueError, match=match):
         EHSSTrackingEnv(**kw)
+
+
+def test_the_ideal_corrections_sizes_follow_from_their_definitions():
+    """On one unmodelled-suite episode per task: the reference shift of a delay of d samples is, to first order, d h
+    times the reference's next derivative (its RMS within 5 %); the valve inverse adds at most th + h/2 to the law's
+    current, and about that much on the average (its RMS within [th, th + h/2]) when the current keeps moving."""
+    for task in ("velocity", "position"):
+        ep = build_episodes(EvalConfig(suites=("unmodelled",), tasks=(task,), heldout_episodes=1))[0]
+        um = ep.physical["unmodelled"]
+        got = episode_corrections(task, {"task": task}, ep.physical)
+        tr = simulate(EnvConfig.from_kwargs({"task": task}).template().replace(**ep.physical).replace(
+            log_interval=5e-5, reference_delay=float(um.delay)))
+        sel = tr.log[:, 0] >= 0.2
+        slope = um.delay * 5e-5 * np.sqrt(np.mean(tr.log[sel, L_YD + 1] ** 2))
+        ss, n, _ = got["reference shift y_d"]
+        assert math.sqrt(ss / n) == pytest.approx(slope, rel=0.05)
+        ss, n, peak = got["valve inverse's added current"]
+        th, half = um.threshold_current, 0.5 * um.hysteresis_current
+        assert peak <= th + half + 1e-12 and th <= math.sqrt(ss / n) <= th + half
