@@ -21,7 +21,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     res = measure(tuple(args.task), episodes)
     with Executor(Backend("local", workers=args.workers), progress=not args.no_progress) as executor:
-        ranks = rankings(tuple(args.task), episodes, executor)
+        ranks = rankings(tuple(args.task), episodes, executor, quick=args.quick)
     path = write_report(res, report_folder(args.out, args.quick, DEFAULT_OUT), cmd, time.perf_counter() - t0, ranks)
     for t in res:
         checks = ", ".join(f"{c['factor']}: {c['class']} x{c['ratio']:.3g} ({'met' if c['met'] else 'NOT met'})"

@@ -459,7 +459,7 @@ def add_factors(p) -> None:
                    help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
     add_workers(p)
     add_out(p, "output folder", os.path.join("reports", "factors"))
-    add_quick(p, "6 held-out episodes per task")
+    add_quick(p, "6 held-out episodes per task, a 2 s paper run and one level per robustness sweep in the rankings")
     add_progress(p)
 
 

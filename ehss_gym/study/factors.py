@@ -20,9 +20,10 @@ Also measured: the share of the pooled sum of e_t^2 (the true error, all episode
 t < 0.2 s, as it is.
 
 **Which rankings the physical floors change** (:func:`rankings`): the scripted policies of ``ehss evaluate``
-(:data:`~ehss_gym.evaluation.specs.SCRIPTED_DEFAULT`) on its held-out and unmodelled suites, run once through the
-harness, their episodes scored by the ruler with the physical floors and with the numeric ones; per (suite, task)
-and figure (overall and each class) the order of the policies under each, and where it differs.
+(:data:`~ehss_gym.evaluation.specs.SCRIPTED_DEFAULT`) on every suite it ranks (paper, held-out, robustness,
+unmodelled), run once through the harness, their episodes scored by the ruler with the physical floors and with the
+numeric ones; per (suite, task) and figure (overall and each class) the order of the policies under each, and where it
+differs.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from ehss_gym.evaluation.harness import evaluate
 from ehss_gym.evaluation.scoring import (
     CLASS_METRICS,
     CLASSES,
+    FIGURE_SUITES,
     NUMERIC_FLOORS,
     PHYSICAL_FLOORS,
     Block,
@@ -164,7 +166,7 @@ def task_factors(task: str, episodes: int, episode_seconds: float = 2.0) -> dict
             "floor_blind": blind, "wall_s": time.perf_counter() - t0}
 
 
-RANK_SUITES = ("heldout", "unmodelled")  # the suites whose rankings the report compares under both floors
+RANK_SUITES = FIGURE_SUITES  # the suites whose rankings the report compares under both floors: every ranked suite
 
 
 def _orders(rows: list, names: Sequence[str], suite: str, task: str) -> dict:
@@ -183,20 +185,25 @@ def _orders(rows: list, names: Sequence[str], suite: str, task: str) -> dict:
 
 
 def rankings(tasks: Sequence[str] = TASKS, episodes: int = 48, executor: Executor | None = None,
-             progress: bool = False) -> list[dict]:
-    """The scripted policies on the held-out and unmodelled suites, ranked with the numeric and the physical floors.
+             progress: bool = False, quick: bool = False) -> list[dict]:
+    """The scripted policies on every ranked suite, ranked with the numeric and the physical floors.
 
     Args:
         tasks: the tasks.
-        episodes: episodes per task and suite.
+        episodes: held-out (and unmodelled-suite) episodes per task; the paper and robustness suites are
+            ``ehss evaluate``'s.
         executor: where the episodes run (default: this machine's cores).
         progress: show a progress bar.
+        quick: the CI form: a 2 s paper run, one friction and one mismatch level (numbers not meaningful).
 
     Returns:
         One dict per (suite, task): "suite", "task", "orders" ({"numeric": ..., "physical": ...}, each
         :func:`_orders`), "changed" (the figures whose order differs).
     """
     cfg = EvalConfig(suites=RANK_SUITES, tasks=tuple(tasks), heldout_episodes=episodes)
+    if quick:
+        cfg = EvalConfig.quick(suites=RANK_SUITES, tasks=tuple(tasks), heldout_episodes=episodes, paper_seconds=2.0,
+                               friction_levels=(1.8,), mismatch_levels=(0.2,))
     specs = [scripted_spec(n) for n in SCRIPTED_DEFAULT]
     res = evaluate(specs, cfg, progress=progress, command=PROG, executor=executor)
     names = [s.name for s in res.specs]
