@@ -87,14 +87,14 @@ def test_search_climbs_out_of_an_infeasible_start_and_prefers_feasible_points():
 
 def test_objective_is_the_rulers_figure_with_the_gate():
     base = {"diverged": False, "lost_track": False, "saturation": 0.0, "trk_rmse": 1.0, "trk_iae": 1.0,
-            "dst_peak": 1.0, "dst_iae": 1.0, "tv_u_rate": 1.0, "rms_u": 1.0}
+            "dst_peak": 1.0, "dst_iae": 1.0, "tv_u_rate": 1.0, "rms_u": 1.0, "t_tracking": 1.0, "t_disturbance": 0.5}
     better = {**base, "trk_rmse": 0.25, "trk_iae": 0.25}  # tracking x1/4, disturbance and effort x1
-    out = objective([better, better], [base, base], [False, True])
+    out = objective([better, better], [base, base], [False, True], "velocity")
     assert out["classes"] == pytest.approx({"tracking": 0.25, "disturbance": 1.0, "effort": 1.0, "chatter": 1.0})
     assert out["figure"] == pytest.approx(0.25 ** 0.25) and not out["failed"]
-    lost = objective([better, {**better, "lost_track": True}], [base, base], [False, False])
+    lost = objective([better, {**better, "lost_track": True}], [base, base], [False, False], "velocity")
     assert lost["failed"] and lost["n_failed"] == 1 and lost["key"] > out["key"]
-    sat = objective([{**better, "saturation": 0.2}], [base], [False])
+    sat = objective([{**better, "saturation": 0.2}], [base], [False], "velocity")
     assert sat["failed"] and sat["n_failed"] == 0
 
 
@@ -135,7 +135,8 @@ def test_a_row_takes_its_inherited_settings_from_the_row_it_names(monkeypatch):
     def fake(task, settings, episodes, seconds):
         seen.append(dict(settings))
         m = {"diverged": False, "lost_track": False, "saturation": 0.0, "trk_rmse": 1.0, "trk_iae": 1.0,
-             "dst_peak": 1.0, "dst_iae": 1.0, "tv_u_rate": 1.0, "rms_u": 1.0}
+             "dst_peak": 1.0, "dst_iae": 1.0, "tv_u_rate": 1.0, "rms_u": 1.0, "t_tracking": 1.0,
+             "t_disturbance": 0.5}
         return [{**m, "trk_rmse": abs(math.log10(settings["f"] / 7.0)) + 1.0}]
 
     monkeypatch.setitem(B.RUNNERS, "fake", fake)
@@ -143,7 +144,7 @@ def test_a_row_takes_its_inherited_settings_from_the_row_it_names(monkeypatch):
                    {"f": 10.0}, {"n": 2}, inherit=(("velocity/src", ("sigma", "w")),))
     tuned = {"velocity/src": {"settings": {"sigma": 3e5, "w": 4.0, "fr": 50.0}}}
     anchor = ([{"diverged": False, "trk_rmse": 1.0, "trk_iae": 1.0, "dst_peak": 1.0, "dst_iae": 1.0,
-                "tv_u_rate": 1.0, "rms_u": 1.0}], [False])
+                "tv_u_rate": 1.0, "rms_u": 1.0, "t_tracking": 1.0, "t_disturbance": 0.5}], [False])
     out = tune_row(row, tuned, TuneSettings(budget=9, episodes=1), {"velocity": anchor})
     assert seen[0] == {"n": 2, "sigma": 3e5, "f": 10.0, "w": 4.0}  # w starts at the source's, sigma is held
     assert all(s["sigma"] == 3e5 and "fr" not in s for s in seen)

@@ -42,38 +42,72 @@ def _csv_rows(path):
 # Scores
 
 
-def _m(trk=(1e-3, 1e-4), dst=(1e-2, 1e-3), eff=(100.0, 0.5), diverged=False):
-    """Metrics of one episode: (trk_rmse, trk_iae), (dst_peak, dst_iae), (tv_u_rate, rms_u)."""
+def _m(trk=(1e-3, 1e-4), dst=(1e-2, 1e-3), eff=(100.0, 0.5), diverged=False, windows=(1.0, 0.5)):
+    """Metrics of one episode: (trk_rmse, trk_iae), (dst_peak, dst_iae), (tv_u_rate, rms_u), the tracking and
+    disturbance windows' durations [s]."""
     return {"trk_rmse": trk[0], "trk_iae": trk[1], "dst_peak": dst[0], "dst_iae": dst[1], "tv_u_rate": eff[0],
-            "rms_u": eff[1], "diverged": diverged}
+            "rms_u": eff[1], "diverged": diverged, "t_tracking": windows[0], "t_disturbance": windows[1]}
 
 
 def test_class_ratios_by_hand():
     ref = _m()
+    T = "velocity"
     # the reference against itself: exactly 1 in every class
-    assert scoring.episode_log_ratios(ref, ref, False) == {"tracking": 0.0, "disturbance": 0.0, "effort": 0.0}
-    assert set(scoring.episode_log_ratios(ref, ref, True)) == {"tracking", "disturbance", "chatter"}
+    assert scoring.episode_log_ratios(ref, ref, False, T) == {"tracking": 0.0, "disturbance": 0.0, "effort": 0.0}
+    assert set(scoring.episode_log_ratios(ref, ref, True, T)) == {"tracking", "disturbance", "chatter"}
     # halving both tracking metrics gives 1/2, doubling them 2: symmetric in log ratio, no cap
-    half = scoring.episode_log_ratios(_m(trk=(5e-4, 5e-5)), ref, False)
-    double = scoring.episode_log_ratios(_m(trk=(2e-3, 2e-4)), ref, False)
+    half = scoring.episode_log_ratios(_m(trk=(5e-4, 5e-4)), _m(trk=(1e-3, 1e-3)), False, T)
+    double = scoring.episode_log_ratios(_m(trk=(2e-3, 2e-3)), _m(trk=(1e-3, 1e-3)), False, T)
     assert math.exp(half["tracking"]) == pytest.approx(0.5, rel=1e-14)
     assert math.exp(double["tracking"]) == pytest.approx(2.0, rel=1e-14)
     assert half["tracking"] == pytest.approx(-double["tracking"], rel=1e-14)
     # sqrt of the product of the two ratios: RMSE x4, IAE x1 -> 2; TV x9, RMS current x1/4 -> 1.5
-    assert math.exp(scoring.class_log_ratio(_m(trk=(4e-3, 1e-4)), ref, "tracking")) == pytest.approx(2.0)
-    assert math.exp(scoring.class_log_ratio(_m(eff=(900.0, 0.125)), ref, "effort")) == pytest.approx(1.5)
-    huge = scoring.class_log_ratio(_m(trk=(1e3, 1e2)), ref, "tracking")
+    assert math.exp(scoring.class_log_ratio(_m(trk=(4e-3, 1e-3)), _m(trk=(1e-3, 1e-3)), "tracking", T)) == \
+        pytest.approx(2.0)
+    assert math.exp(scoring.class_log_ratio(_m(eff=(900.0, 0.125)), ref, "effort", T)) == pytest.approx(1.5)
+    huge = scoring.class_log_ratio(_m(trk=(1e3, 1e3)), _m(trk=(1e-3, 1e-3)), "tracking", T)
     assert math.exp(huge) == pytest.approx(1e6)  # no cap
-    # floors: 0 against 0 is 1; 0 against 1e-10 is the floor's ratio (1e-12 / 1e-10 on one metric of two)
+    # the numeric floors (the ruler's before the physical ones): 0 against 0 is 1; 0 against 1e-10 is the floor's
+    # ratio (1e-12 / 1e-10 on one metric of two)
+    num = scoring.NUMERIC_FLOORS
     zero = _m(trk=(0.0, 1e-4), eff=(0.0, 0.0))
-    assert scoring.class_log_ratio(zero, _m(trk=(0.0, 1e-4)), "tracking") == 0.0
-    assert math.exp(scoring.class_log_ratio(zero, _m(trk=(1e-10, 1e-4)), "tracking")) == pytest.approx(0.1)
-    assert math.exp(scoring.class_log_ratio(zero, _m(eff=(1e-8, 1e-9)), "effort")) == pytest.approx(
+    assert scoring.class_log_ratio(zero, _m(trk=(0.0, 1e-4)), "tracking", T, num) == 0.0
+    assert math.exp(scoring.class_log_ratio(zero, _m(trk=(1e-10, 1e-4)), "tracking", T, num)) == pytest.approx(0.1)
+    assert math.exp(scoring.class_log_ratio(zero, _m(eff=(1e-8, 1e-9)), "effort", T, num)) == pytest.approx(
         math.sqrt(0.1 * 1.0))
     # no window, no class; a diverged episode (or reference) has no ratio at all
-    assert "disturbance" not in scoring.episode_log_ratios(_m(dst=(math.nan, math.nan)), ref, False)
-    assert scoring.episode_log_ratios(_m(diverged=True), ref, False) == {}
-    assert scoring.episode_log_ratios(ref, _m(diverged=True), False) == {}
+    assert "disturbance" not in scoring.episode_log_ratios(_m(dst=(math.nan, math.nan)), ref, False, T)
+    assert scoring.episode_log_ratios(_m(diverged=True), ref, False, T) == {}
+    assert scoring.episode_log_ratios(ref, _m(diverged=True), False, T) == {}
+
+
+@pytest.mark.parametrize("task", ["velocity", "position"])
+def test_physical_floors_blind_the_ruler_below_what_a_sensor_or_the_valve_resolves(task):
+    """Below the physical floors a ratio is 1 whatever the numbers; above them the ruler is as before; a floor only
+    takes the lower side of a ratio (a policy 10x the floor against a reference below it gets the ratio to the floor,
+    not to the reference)."""
+    f = scoring.PHYSICAL_FLOORS
+    e = f.error[task]
+    assert e == (1e-4 if task == "velocity" else 2 * math.pi / 2**20)
+    assert f.current == pytest.approx(0.05) and f.tv == pytest.approx(2 * 0.05 / (2 * math.pi * 0.01))
+    win = (1.2, 0.4)  # [s]
+    tiny = _m(trk=(0.1 * e, 0.1 * e * win[0]), dst=(0.2 * e, 0.2 * e * win[1]), eff=(0.1 * f.tv, 0.1 * f.current),
+              windows=win)
+    tinier = _m(trk=(1e-3 * e, 1e-3 * e * win[0]), dst=(1e-3 * e, 1e-3 * e * win[1]),
+                eff=(1e-3 * f.tv, 1e-3 * f.current), windows=win)
+    assert scoring.episode_log_ratios(tinier, tiny, False, task) == {"tracking": 0.0, "disturbance": 0.0,
+                                                                       "effort": 0.0}
+    # with the numeric floors the same numbers rank: x1e-2 on every metric
+    num = scoring.episode_log_ratios(tinier, tiny, False, task, scoring.NUMERIC_FLOORS)
+    assert math.exp(num["tracking"]) == pytest.approx(1e-2) and math.exp(num["effort"]) == pytest.approx(1e-2)
+    # an IAE's floor is the error floor over the IAE's window: an IAE at 3x that against one at the floor is 3x
+    above = _m(trk=(10 * e, 10 * e * win[0]), windows=win)
+    ratio = math.exp(scoring.class_log_ratio(above, tiny, "tracking", task))
+    assert ratio == pytest.approx(10.0)  # sqrt(10 e / e * 10 e T / (e T))
+    assert math.exp(scoring.class_log_ratio(above, _m(trk=(20 * e, 20 * e * win[0]), windows=win), "tracking",
+                                            task)) == pytest.approx(0.5)
+    with pytest.raises(KeyError):
+        scoring.class_log_ratio(above, {k: v for k, v in tiny.items() if k != "t_tracking"}, "tracking", task)
 
 
 def test_figures_gates_and_ranking_by_hand():

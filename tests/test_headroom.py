@@ -20,7 +20,7 @@ def _fake(value: float, centre: float) -> dict:
     """Metrics whose every class pair grows as (1 + |value - centre|), so the objective's minimum is at ``centre``."""
     f = 1.0 + abs(value - centre)
     return {"diverged": False, "lost_track": False, "trk_rmse": f, "trk_iae": f, "dst_peak": f, "dst_iae": f,
-            "tv_u_rate": f, "rms_u": f}
+            "tv_u_rate": f, "rms_u": f, "t_tracking": 1.0, "t_disturbance": 0.5}
 
 
 def test_the_per_episode_search_finds_each_episodes_own_best_and_keeps_the_base_on_a_tie():
@@ -34,7 +34,7 @@ def test_the_per_episode_search_finds_each_episodes_own_best_and_keeps_the_base_
         calls.append(len(idx))
         return [_fake(v, centres[i]) for v, i in zip(values, idx)]
 
-    metrics, best = hr.search_episodes(search, 0.0, run_values, [False] * 4)
+    metrics, best = hr.search_episodes(search, 0.0, run_values, [False] * 4, "velocity")
     assert best[0] == pytest.approx(0.3) and best[1] == pytest.approx(-3.0) and best[2] == 0.0
     assert abs(best[3] - 0.5) < abs(0.3 - 0.5) and abs(best[3] - 0.5) < 0.1
     assert [m["trk_rmse"] for m in metrics] == [_fake(b, c)["trk_rmse"] for b, c in zip(best, centres)]
@@ -47,7 +47,7 @@ def test_a_failing_candidate_is_never_kept():
     def run_values(values, idx):
         return [{**_fake(v, 1.0), "diverged": v != 0.0} for v in values]
 
-    _, best = hr.search_episodes(search, 0.0, run_values, [True])
+    _, best = hr.search_episodes(search, 0.0, run_values, [True], "velocity")
     assert best == [0.0]
 
 
@@ -103,7 +103,8 @@ def test_quick_headroom_report(tmp_path):
     assert blocks == {(t, s) for t in cfg.tasks for s in SUITES if hr.suite_episodes(cfg, t).get(s)}
     for task, suite in blocks:
         got = {r["policy"] for r in rows if r["task"] == task and r["suite"] == suite}
-        want = {hr.label(v, ap, cfg) for v in hr.VARIANTS for ap in cfg.periods_of(v, suite)}
+        want = {hr.label(v, ap, cfg) for v in hr.VARIANTS for ap in cfg.periods_of(v, suite)
+                if not v.suites or suite in v.suites}
         assert got == want, (task, suite)
         ref = next(r for r in rows if r["task"] == task and r["suite"] == suite and r["policy"] == "clf-n2")
         assert float(ref["figure"]) == 1.0 and float(ref["tracking"]) == 1.0
@@ -118,6 +119,13 @@ def test_quick_headroom_report(tmp_path):
     assert sum(1 for ln in lines if "| base law |" in ln and ln.endswith("| the same to the last bit |")) == len(blocks)
     assert sum(1 for ln in lines if "| heldout | base law | 5, 20, 200 | the same to the last bit |" in ln) == 2
     assert sum(1 for ln in lines if "| heldout | dob-n2 | 5, 20 | the same to the last bit |" in ln) == 2
+    assert sum(1 for ln in lines if "| heldout | dcomp-n2 | 5, 20 | the same to the last bit |" in ln) == 2
+    # the oracles knowing the unmodelled effects run on the unmodelled suite only; the ideal corrections' sizes
+    known = {r["suite"] for r in rows if r["variant"] in ("delay known", "valve known", "both known")}
+    assert known == {"unmodelled"}
+    corr = _csv(out / "corrections.csv")
+    assert {r["task"] for r in corr} == set(cfg.tasks)
+    assert all(float(r["rms"]) > 0.0 and float(r["max_abs"]) >= float(r["max_rms"]) for r in corr)
     for cls in CLASSES:
         assert any(r[cls] not in ("", "nan") and math.isfinite(float(r[cls])) for r in rows), cls
     assert np.isfinite([float(r["figure_hi"]) for r in rows]).all()

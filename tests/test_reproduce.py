@@ -30,7 +30,8 @@ def rec(task=V, fr=100.0, n=2, *, diverged=False, t_diverged=None, sigma=1.0, h=
     """A synthetic Record; metrics default to a healthy, well-tracking run."""
     m = dict(diverged=diverged, t_diverged=t_diverged, rmse=1e-3, rmse_nominal=1e-3, rmse_quiet=1e-3, max_abs_e=0.03,
              max_abs_e_friction=0.03, recovery_on=0.01, recovery_off=0.01, tv_u_rate=100.0, tv_u=2000.0,
-             peak_u=10.0, peak_u_applied=10.0, saturation=0.0, dst_peak=0.03, dst_iae=0.01, rms_u=1.0)
+             peak_u=10.0, peak_u_applied=10.0, saturation=0.0, dst_peak=0.03, dst_iae=0.01, rms_u=1.0,
+             t_disturbance=2.2)
     f = dict(amp_pre=2e-3, amp_fric_sus=2e-3, amp_post_sus=2e-3, peak_edge_dist=0.001, chatter_index=0.9,
              G_med=3.1e6, t_fric_on=8.0)
     for k, v in vals.items():
@@ -155,7 +156,8 @@ def _heldout(ratio6, ratio4=None, tasks=(V, P), k=24, spread=0.2):
     rng = np.random.default_rng(3)
     out = {}
     for t in tasks:
-        base = [dict(diverged=False, dst_peak=float(p), dst_iae=float(p) / 10) for p in rng.uniform(0.01, 0.1, k)]
+        base = [dict(diverged=False, dst_peak=float(p), dst_iae=float(p) / 10, t_disturbance=0.8)
+                for p in rng.uniform(0.01, 0.1, k)]
         by_n = {2: base}
         for n, r in ((4, 1.0 if ratio4 is None else ratio4), (6, ratio6[t] if isinstance(ratio6, dict) else ratio6)):
             f = r * np.exp(rng.normal(0.0, spread, k))
@@ -174,7 +176,7 @@ def test_c7_each_side():
     # a point estimate below 1 is not enough: with a wide scatter over few episodes the CI includes 1
     assert R.claim_c7(_heldout(1.05, 1.0, k=6, spread=0.5)).verdict == "not reproduced"
     assert R.claim_c7({}).verdict == "not reproduced"
-    g, lo, hi, used = R.paired_disturbance(_heldout(2.0)[V][2], _heldout(2.0)[V][6])
+    g, lo, hi, used = R.paired_disturbance(_heldout(2.0)[V][2], _heldout(2.0)[V][6], "velocity")
     assert used == 24 and lo < g < hi < 1.0
     div = _heldout(2.0, 1.1)
     div[V][6][0] = dict(div[V][6][0], diverged=True)  # a diverged episode leaves the pairs, the others decide

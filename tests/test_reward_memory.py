@@ -8,7 +8,7 @@ import pytest
 
 from ehss_gym.envs import EHSSTrackingEnv, EHSSTrackingVectorEnv
 from ehss_gym.envs.kernels import CLASS_EPS, memory_update
-from ehss_gym.evaluation.scoring import episode_log_ratios
+from ehss_gym.evaluation.scoring import NUMERIC_FLOORS, episode_log_ratios
 
 CLASS_ONLY = {"track": 0.0, "effort": 0.0, "rate": 0.0, "class": 1.0}
 
@@ -47,7 +47,7 @@ def test_class_return_is_minus_the_episodes_log_figure():
     want = -w * sum(wp / n_cls * math.log((s1[p] + CLASS_EPS * s0[p]) / (s0[p] * (1 + CLASS_EPS)))
                     for p, (_, wp) in PART_WEIGHTS.items())
     assert ret1 == pytest.approx(want, rel=1e-6)
-    G = math.exp(np.mean(list(episode_log_ratios(m1, m0, False).values())))
+    G = math.exp(np.mean(list(episode_log_ratios(m1, m0, False, "position", NUMERIC_FLOORS).values())))
     assert ret1 < 0.0 and G > 1.0
 
 
@@ -62,7 +62,9 @@ def test_class_return_ranks_policies_as_the_ruler_does(task, seed):
     runs = {n: _episode(task, seed, p, CLASS_ONLY, dob) for n, (p, dob) in policies.items()}
     base = runs["base"][1]
     assert base["steps_disturbance"] > 0
-    G = {n: math.exp(np.mean(list(episode_log_ratios(m, base, False).values()))) for n, (_, m, _) in runs.items()}
+    # the class reward spreads the ruler with its numeric floors (its own offsets: 1 % of the base law's totals)
+    G = {n: math.exp(np.mean(list(episode_log_ratios(m, base, False, task, NUMERIC_FLOORS).values())))
+         for n, (_, m, _) in runs.items()}
     by_g = sorted(G, key=G.get)
     by_return = sorted(runs, key=lambda n: -runs[n][0])
     assert by_return == by_g, (G, {n: r[0] for n, r in runs.items()})

@@ -46,7 +46,7 @@ def sweep_task(task: str, hz: list[float], episodes: int, n: int) -> dict:
         logs = {c: [] for c in CLASSES}
         ms = [t.metrics() for t in trs]
         for sc, m, r in zip(scenarios, ms, ref):
-            for c, v in episode_log_ratios(m, r, any(x > 0 for x in sc.noise_std)).items():
+            for c, v in episode_log_ratios(m, r, any(x > 0 for x in sc.noise_std), sc.task).items():
                 logs[c].append(v)
         g, gc = figure_of(logs)
         failed = sum(1 for m in ms if m["diverged"] or m["lost_track"])

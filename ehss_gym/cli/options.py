@@ -294,6 +294,8 @@ LOOP_TYPES = {
     "dob_hz": finite("--dob-hz", 0.0, low_open=False),
     "pressure_domain": or_none("--pressure-domain", finite("--pressure-domain", 0.0)),
     "lyapunov_kappa": or_none("--lyapunov-kappa", finite("--lyapunov-kappa", 0.0, low_open=False)),
+    **{k: finite("--" + k.replace("_", "-"), 0.0, low_open=False) for k in ("reference_delay", "inverse_threshold",
+                                                                         "inverse_hysteresis")},
     "lost_track": or_none("--lost-track", finite("--lost-track", 0.0)),
 }
 LOOP_CHOICES = {"estimator": ESTIMATORS, "law": LAWS}
@@ -452,11 +454,13 @@ def add_evaluate(p) -> None:
 
 def add_factors(p) -> None:
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
-                   help="held-out episodes per task (default 48; --quick 6)")
+                   help="held-out (and unmodelled-suite) episodes per task (default 48; --quick 6)")
     p.add_argument("--task", type=task_list, default=tuple(TASKS),
                    help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
+    add_workers(p)
     add_out(p, "output folder", os.path.join("reports", "factors"))
-    add_quick(p, "6 held-out episodes per task")
+    add_quick(p, "6 held-out episodes per task, a 2 s paper run and one level per robustness sweep in the rankings")
+    add_progress(p)
 
 
 def add_headroom(p) -> None:

@@ -7,7 +7,7 @@ Every policy here has ``predict(observation, state=None, episode_start=None, det
 
 - :class:`CLFPolicy`: the CLF law of the env it acts in (its ``law`` and ``estimator``; names such as ``clf-n2``,
   ``lin-sontag-n4`` or ``sontag-foh-n2`` map to env settings by :func:`parse_scripted`; ``dob-n2`` adds the
-  disturbance observer, ``dob_hz``) for the env's n.
+  disturbance observer, ``dob_hz``; ``dcomp-n2`` delays the law's reference, ``reference_delay``) for the env's n.
   Residual mode: a zero residual (the base law alone). Direct mode: the law's current the env reports in the
   observation (``u_base``), over ``residual_scale``, held for the agent period.
 - :class:`PIDPolicy`: a PID on the tracking error, u = -(kp e + ki int e dt + kd e') [mA], with the
@@ -42,10 +42,10 @@ Every policy here has ``predict(observation, state=None, episode_start=None, det
 """
 
 from .base import ScriptedPolicy
-from .clf import DOB_HZ, SCRIPTED_FORMS, CLFPolicy, parse_scripted
+from .clf import DCOMP_SAMPLES, DOB_HZ, SCRIPTED_FORMS, CLFPolicy, parse_scripted
 from .feedforward import ConstantResidualPolicy, FrictionFeedforwardPolicy
 from .pid import PID_GAINS, PID_RELAY, PID_RELAY_GAINS, RULES, PIDPolicy, default_pid_gains, relay_experiment, tune_pid
 
-__all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "DOB_HZ", "PIDPolicy",
+__all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "DOB_HZ", "DCOMP_SAMPLES", "PIDPolicy",
            "FrictionFeedforwardPolicy", "ConstantResidualPolicy", "tune_pid", "relay_experiment", "PID_GAINS",
            "PID_RELAY_GAINS", "PID_RELAY", "RULES", "default_pid_gains"]

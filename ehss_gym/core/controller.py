@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 
+from .compensators import law_errors, valve_inverse
 from .estimators import advance_filter, advance_filters, estimate_derivatives, filter_outputs
 from .jit import jit, jit_inline, jit_noalloc
 from .laws import base_current, clf_value, decrease_clip
@@ -255,9 +256,9 @@ def controller_law(z, k, h, F, G, am, ctrl, ref, filt, info, work):
     # Reference model: y_d^(0..m-1) at the sample and y_d^(m) from its equation with the same input.
     ydm = filter_outputs(z, Z_REF, m, filt[FB_VEC, FBV_C_REF], filt[FB_VEC2, FBV_D_REF], rm, info, I_YD)
     info[I_YD + m] = ydm
-    # Errors and the combined error; e itself uses the measured output.
-    for i in range(m):
-        info[I_E + i] = info[I_YE + i] - info[I_YD + i]
+    # Errors (against y_d, or y_d delayed by the reference delay: law_errors) and the combined error; e itself uses
+    # the measured output.
+    ydm = law_errors(z, k, m, ctrl, info)
     y_true = z[X_THETA] if m == 4 else z[X_OMEGA]
     info[I_E_TRUE] = y_true - info[I_YD]
     info[I_E_R] = y_true - r
@@ -360,14 +361,16 @@ def dob_current(z, k, h, alpha, s, G, ulim, info):
 
 @jit_noalloc
 def controller_apply(z, info, ctrl, u_base, u_res):
-    """Add the residual u_res [mA] to ctrl[C_BASE] * u_base [mA], apply the current limit; returns u_app [mA].
+    """Add the residual u_res [mA] to ctrl[C_BASE] * u_base [mA], pass the sum through the valve inverse (a loop
+    setting, off by default: :func:`ehss_gym.core.compensators.valve_inverse`), apply the current limit; returns u_app
+    [mA].
 
     Writes I_URES, I_UCMD, I_UAPP and I_SAT of ``info`` and, with the disturbance observer on, records in z what it
     compares the next sample with: this sample's s and its prediction psi + G u_app of s' (the applied current, so a
     clipped command does not wind the estimate up).
     """
     u_res = lyapunov_residual(info, ctrl[C_LYAP_KAPPA], ctrl[C_BASE] * u_base, u_res)
-    u_cmd = ctrl[C_BASE] * u_base + u_res
+    u_cmd = valve_inverse(z, ctrl[C_BASE] * u_base + u_res, ctrl)  # the valve inverse (off: the sum itself)
     ulim = ctrl[C_ULIM]
     sat = 0.0
     u_app = u_cmd

@@ -21,11 +21,18 @@ Z_DOB = 19  # disturbance observer: d_hat [unit of s / s], the last s, the last 
 Z_PLAY = 22
 Z_DELAY = 23
 MAX_DELAY = 8  # largest sensor delay [control samples]
+MAX_ORDER = 4  # largest relative degree (position task)
+# The compensators of those effects (loop settings, off by default; ehss_gym.core.compensators): the valve inverse's
+# model of the play operator's output [mA], then the reference delay's ring of the reference model's outputs y_d,
+# y_d', ..., y_d^(m) at the last REF_RING samples (slot j holds them at Z_REF_RING + j * N_YD).
+Z_VINV = Z_DELAY + N_PLANT * MAX_DELAY
+Z_REF_RING = Z_VINV + 1
+N_YD = MAX_ORDER + 1  # y_d and its derivatives up to the largest relative degree
+REF_RING = MAX_DELAY + 2  # samples kept: a delay of up to MAX_DELAY samples, interpolated with the sample before
 # The law's reference shift (ehss_gym.core.controller.reference_shift): the state of the reference model's copy that
 # the shift delta drives (up to 4 slots, the reference model's digital form)
-Z_SHIFT = Z_DELAY + N_PLANT * MAX_DELAY
-N_LOOP = Z_SHIFT + 4
-MAX_ORDER = 4  # largest relative degree (position task)
+Z_SHIFT = Z_REF_RING + REF_RING * N_YD
+N_LOOP = Z_SHIFT + MAX_ORDER
 
 # --- Plant parameters: PlantParams.as_array() --------------------------------
 N_PARAM = 14  # len(PlantParams._fields): checked by ehss_gym.core.params

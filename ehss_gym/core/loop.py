@@ -17,6 +17,7 @@ import math
 import numba as nb
 import numpy as np
 
+from .compensators import inverse_model_update
 from .controller import CW_TODO, controller_apply, lane_law, model_constants, sense_lanes
 from .jit import jit, jit_noalloc
 from .layout import (
@@ -217,6 +218,7 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
             U[b] = 0.0
             continue
         U[b] = valve_input(z[b], u, ctrl[b])  # the valve's threshold and hysteresis (off: u)
+        inverse_model_update(z[b], u, ctrl[b])  # the valve inverse's model of it (off: nothing)
         for i in range(nx):
             X[i, b] = z[b, i]
         # the sensor noise on the output at this sample, held over the period for an analog estimator

@@ -32,7 +32,8 @@ control period, T the simulated time):
   |e_t| and ``dst_iae`` = sum |e_t| h over the disturbance windows; ``su_rmse``, ``su_iae``, ``su_peak`` over the
   start-up. NaN for a window with no sample (IAE included: an episode without friction has no disturbance
   class). ``steps_startup``, ``steps_disturbance``, ``steps_tracking``: the samples in each (they add up to
-  ``steps``). ``iae_r``: sum |y - r| h, the true output against the raw reference.
+  ``steps``); ``t_tracking``, ``t_disturbance`` [s]: the tracking and disturbance windows' durations.
+  ``iae_r``: sum |y - r| h, the true output against the raw reference.
 - ``max_abs_e``: max |e|; ``max_abs_e_friction``: max |e| while friction is on.
 - ``recovery_on`` / ``recovery_off``: settling time after the first friction
   edge (on / off): the time until |e| enters, and then stays in, a band of
@@ -346,6 +347,9 @@ def summarize_acc(a: np.ndarray, sc, t: np.ndarray | None = None, e: np.ndarray 
         "iae_r": float(a[M_SUM_ABS_ER]),
     }
     out.update(window_metrics(a))
+    # the windows' durations [s] (the ruler floors an IAE at an error floor held over its window)
+    out["t_tracking"] = out["steps_tracking"] * sc.control_period
+    out["t_disturbance"] = out["steps_disturbance"] * sc.control_period
     on, off = (math.nan, math.nan) if t is None or e is None else recovery_times(t, e, sc.friction)
     out["recovery_on"] = on
     out["recovery_off"] = off

@@ -23,10 +23,11 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from .filters import butterworth_coefficients
+from .layout import MAX_DELAY
 from .params import PlantParams
 from .registry import ESTIMATORS, LAWS, REFERENCE_FAMILIES, code, entry, names
 from .signals import Reference, paper_reference
-from .unmodelled import Unmodelled
+from .unmodelled import HYSTERESIS_MAX, RATED_CURRENT, THRESHOLD_MAX, Unmodelled
 from .validate import check_bool, check_choice, check_even_n, check_finite, check_positive
 
 TASKS = {"velocity": 3, "position": 4}  # task -> relative degree m of its output
@@ -69,12 +70,16 @@ C_DELAY = 26  # sensor delay [control samples] (integer stored as float); 0 = of
 C_POS_STEP = 27  # encoder count of the measured x1 [rad]; 0 = not quantised
 C_VEL_STEP = 28  # quantisation step of the measured x2 [rad/s]; 0 = not quantised
 C_LYAP_KAPPA = 29  # Lyapunov-constrained residual: kappa in [0, 1); -1 = off (the residual as commanded)
+# The compensators of the unmodelled effects (ehss_gym.core.compensators), loop settings: 0 = off
+C_REF_DELAY = 30  # the law's reference delayed by this many control samples (a float: interpolated); 0 = off
+C_INV_THRESHOLD = 31  # the valve inverse's threshold (dead band) th_c [mA]; 0 = none
+C_INV_HYSTERESIS = 32  # the valve inverse's hysteresis, its play operator's total width h_c [mA]; 0 = none
 # The law's reference shift (an input, not a loop setting: the env's "reference" action writes it every agent step;
 # ehss_gym.core.controller.reference_shift): 1 = on; the shift delta [output unit] that drives the reference model's
 # copy
-C_SHIFT_ON = 30
-C_SHIFT = 31
-N_CTRL = 32
+C_SHIFT_ON = 33
+C_SHIFT = 34
+N_CTRL = 35
 
 
 def check_friction(events) -> tuple[tuple[float, float, float], ...]:
@@ -174,6 +179,20 @@ class Scenario:
     which the model's V' = a + b u of the law's CLF is at most kappa times the law's own decrease (Sontag's
     -sqrt(a^2 + b^4) for the plain law), wherever the law makes V decrease; kappa in [0, 1); None = off (the residual
     as commanded). See docs/MODEL.md, "Lyapunov-constrained residual"."""
+    reference_delay: float = 0.0
+    """delay compensation: the law tracks the reference model's output y_d and its derivatives of ``reference_delay``
+    control samples earlier (interpolated linearly between samples), in [0, MAX_DELAY = 8]; 0 = off. With a sensor
+    delay of d samples (``unmodelled.delay``) the law drives the measured output, d samples old, onto today's y_d, so
+    the true output leads y_d; against y_d of d samples before, the true output tracks y_d (the metrics still measure
+    y - y_d). See docs/MODEL.md, "Compensating the unmodelled valve and sensors"."""
+    inverse_threshold: float = 0.0
+    """the valve inverse's threshold [percent of the valve's rated current, 10 mA], in [0, THRESHOLD_MAX = 10]: the
+    commanded current is pre-compensated by the inverse of a dead band of this width and a play operator of width
+    ``inverse_hysteresis`` (the valve model of ``unmodelled``), so that such a valve puts out the command itself;
+    0 = none. See docs/MODEL.md, "Compensating the unmodelled valve and sensors"."""
+    inverse_hysteresis: float = 0.0
+    """the valve inverse's hysteresis [percent of the valve's rated current], in [0, HYSTERESIS_MAX = 30]: the total
+    width of the play operator it inverts (``inverse_threshold``); 0 = none"""
     omega_max: float = 1e3
     """divergence bound on |x2| [rad/s]"""
     pressure_bound: float = 1.5
@@ -210,6 +229,7 @@ class Scenario:
         if self.lyapunov_kappa is not None:
             object.__setattr__(self, "lyapunov_kappa", check_finite("lyapunov_kappa", self.lyapunov_kappa, low=0.0,
                                                                     high=1.0, high_open=True))
+        self._check_compensators()
         if self.pressure_domain is not None:
             object.__setattr__(self, "pressure_domain", check_finite("pressure_domain", self.pressure_domain, low=0.0,
                                                                      high=1.0, low_open=True))
@@ -227,6 +247,15 @@ class Scenario:
         if self.t_end < self.control_period:
             raise ValueError(f"t_end must be >= control_period ({self.control_period:g} s), got {self.t_end:g}")
         self._check_episode()
+
+    def _check_compensators(self) -> None:
+        """The compensators' checks (reference delay, valve inverse)."""
+        object.__setattr__(self, "reference_delay", check_finite("reference_delay (control samples)",
+                                                                 self.reference_delay, low=0.0, high=MAX_DELAY))
+        object.__setattr__(self, "inverse_threshold", check_finite("inverse_threshold (% of rated current)",
+                                                                   self.inverse_threshold, low=0.0, high=THRESHOLD_MAX))
+        object.__setattr__(self, "inverse_hysteresis", check_finite(
+            "inverse_hysteresis (% of rated current)", self.inverse_hysteresis, low=0.0, high=HYSTERESIS_MAX))
 
     def _check_episode(self) -> None:
         """The physical fields' checks."""
@@ -313,6 +342,9 @@ def ctrl_row(sc: Scenario) -> np.ndarray:
     row[C_DOB_GAIN] = dob_gain(sc.dob_hz, sc.control_period)
     unmodelled_slots(sc.unmodelled, row)
     row[C_LYAP_KAPPA] = -1.0 if sc.lyapunov_kappa is None else sc.lyapunov_kappa
+    row[C_REF_DELAY] = sc.reference_delay
+    row[C_INV_THRESHOLD] = sc.inverse_threshold * RATED_CURRENT / 100.0
+    row[C_INV_HYSTERESIS] = sc.inverse_hysteresis * RATED_CURRENT / 100.0
     return row
 
 

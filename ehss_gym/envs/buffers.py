@@ -15,14 +15,18 @@ S_SATF = 6  # share of the step's control periods at the current limit (0 if non
 # the metric-class sums of the accumulator when the step began (the class reward's differences): tracking sum e^2 and
 # sum |e| h, disturbance sum |e| h and max |e|, sum u^2 (S_TV0 holds the TV)
 S_TRK_E2, S_TRK_ABS, S_DST_ABS, S_DST_MAX, S_U2 = 7, 8, 9, 10, 11
-N_STATS = 12
+# the accumulator's tracking and disturbance sample counts when the step began, and the step's largest |e_t| (the true
+# error) over its control periods (the physical reward's)
+S_TRK_N, S_DST_N, S_EMAX = 12, 13, 14
+N_STATS = 15
 W_TRACK, W_EFFORT, W_RATE, W_TV, W_TVU, W_DIV, W_INV_E2, W_INV_SCALE = range(8)
 # the class reward's weight and the saturation weight; the memory filter: decay and gain per agent step, and its clip
 W_CLASS, W_SAT, W_MEM_DECAY, W_MEM_GAIN, W_MEM_CLIP = range(8, 13)
 # the action mode (ehss_gym.envs.actions): its code, 1 if its residual moves every control period, that update's two
 # constants (ehss_gym.envs.actions.period_constants)
 W_ACT_MODE, W_ACT_PERIOD, W_ACT_C1, W_ACT_C2 = range(13, 17)
-N_WEIGHTS = 17
+W_PHYS = 17  # the physical reward's weight
+N_WEIGHTS = 18
 # The class reward's constants per lane (set at load from the base law's run of the episode), for its parts: tracking
 # sum e^2, tracking sum |e| h, disturbance sum |e| h, disturbance max |e|, control TV, sum u^2 (N_PARTS). Block
 # R_W: each part's weight (0 for a class the episode lacks); R_B: the base law's total of each part; R_K: the episode's
@@ -33,6 +37,13 @@ R_W = 0
 R_B = N_PARTS
 R_K = 2 * N_PARTS
 N_RCLS = 2 * N_PARTS + 1
+# The physical reward's constants per lane (set at load from the base law's run of the episode): its samples in the
+# tracking and the disturbance windows and in all (the effort class's), its agent steps K, the number of classes it has,
+# and each metric's scale, its physical floor plus the base law's level over the episode: the tracking window's mean
+# e_t^2 [U^2] and mean |e_t| [U], the disturbance windows' peak |e_t| and mean |e_t| [U], the control TV rate [mA/s] and
+# the mean u^2 [mA^2].
+P_NTRK, P_NDST, P_N, P_K, P_NCLS, P_MS, P_MA, P_PK, P_DMA, P_TV, P_U2 = range(11)
+N_RPHYS = 11
 # The memory features per lane: the filtered error integral [output unit * s], the action of the step before last.
 MEM_EINT, MEM_APREV2 = 0, 1
 N_MEM = 2
@@ -61,7 +72,8 @@ F_RCLS = F_APREV + 1  # the class reward's coefficients (N_RCLS; 0 = off)
 F_MEM = F_RCLS + N_RCLS  # the memory features (N_MEM)
 F_ACT = F_MEM + N_MEM  # the last action of a mode but "current" (N_ACT)
 N_EXTRA = N_MEM + N_ACT  # the block of extras the observation reads (FLAG_MEM): memory features, then action
-N_F = F_ACT + N_ACT
+F_RPHYS = F_ACT + N_ACT  # the physical reward's constants (N_RPHYS; 0 = off)
+N_F = F_RPHYS + N_RPHYS
 # Per-lane int64 buffer: step index k, agent steps taken, group id (scratch).
 IB_K, IB_NSTEP, IB_GID = 0, 1, 2
 N_IB = 3

@@ -143,7 +143,7 @@ class EnvDefaults:
         pressure_domain: the controller evaluates its model at |x3| <= pressure_domain * P_s (None = anywhere).
         dob_hz: cutoff of the disturbance observer on the combined error [Hz]; 0 = off.
         scenario: "random" or "paper".
-        reward_weights: track, effort, rate, tv, tv_u, divergence, class, saturation weights.
+        reward_weights: track, effort, rate, tv, tv_u, divergence, class, saturation, physical weights.
         memory_tau: time constant [s] of the observation's filtered error integral (with the action of the step
             before last: the memory features); None = no memory features (the observation as before).
         lost_track: lost-track bound as a multiple of the reference's amplitude (see ``Scenario.lost_track``).
@@ -165,7 +165,7 @@ class EnvDefaults:
     dob_hz: float = 0.0
     scenario: str = "random"
     reward_weights: tuple = (("track", 1.0), ("effort", 0.05), ("rate", 0.05), ("tv", 0.0), ("tv_u", 0.0),
-                             ("divergence", 10.0), ("class", 0.0), ("saturation", 0.0))
+                             ("divergence", 10.0), ("class", 0.0), ("saturation", 0.0), ("physical", 0.0))
     memory_tau: float | None = None
     lost_track: float = 1.0
     terminate_on_lost_track: bool = False
@@ -187,7 +187,7 @@ class EnvDefaults:
 DEFAULTS = EnvDefaults()
 MODES = ("residual", "direct")
 SCENARIOS = ("random", "paper")
-REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence", "class", "saturation")
+REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence", "class", "saturation", "physical")
 # Loop settings the env keeps at the Scenario's defaults (not keyword arguments of the env).
 FIXED_LOOP = ("ref_model_hz", "omega_max", "pressure_bound")
 # The env's settings: the loop settings it exposes, then its own.
@@ -379,7 +379,8 @@ SETTING_UNITS = {
     "observer_hz": "Hz",
     "law": "", "layer_gain": "-", "bumpless": "", "ref_accel": "rad/s^2 (0: none)", "pressure_domain": "x P_s",
     "lost_track": "x reference amplitude", "dob_hz": "Hz (0: off)",
-    "lyapunov_kappa": "- (None: off)",
+    "lyapunov_kappa": "- (None: off)", "reference_delay": "control samples (0: off)",
+    "inverse_threshold": "% of rated current (0: none)", "inverse_hysteresis": "% of rated current (0: none)",
     "mode": "", "residual_scale": "mA", "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
     "terminate_on_lost_track": "", "unmodelled_effects": "", "memory_tau": "s (None: no memory features)",

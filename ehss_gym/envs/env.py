@@ -158,6 +158,25 @@ class EHSSTrackingEnv(gym.Env):
     law; :func:`ehss_gym.envs.kernels.class_reward`). The base law's totals come from its run of the episode at reset
     (one simulation more per episode).
 
+    The **physical reward** (weight ``physical``, 0 by default) is the ruler per agent step, with no history: each step
+    pays, for each class c of the episode (tracking and disturbance where their windows have samples, effort always; C
+    of them), its metric pair over the step's own control samples, each over its scale s = its physical floor
+    (:mod:`ehss_gym.core.resolution`: e_f = 1e-4 rad/s or 2 pi / 2^20 rad for an error, tv_f = 1.59 mA/s, u_f = 0.05 mA)
+    plus the base law's level over the episode (from its run at reset, as the class reward's)::
+
+        r = -w_physical K / C sum_c (n_c / N_c) phi_c
+        phi_tracking    = 1/4 log(1 + mean e_t^2 / s) + 1/2 log(1 + mean |e_t| / s)      s = e_f^2 + B, e_f + B
+        phi_disturbance = 1/2 log(1 + max |e_t| / s) + 1/2 log(1 + mean |e_t| / s)       s = e_f + B
+        phi_effort      = 1/2 log(1 + TV / (n h) / s) + 1/4 log(1 + mean u^2 / s)        s = tv_f + B, u_f^2 + B
+
+    with e_t the true error over the step's n_c samples in class c's window (the effort class: all n), B the base
+    law's value of the same metric over the episode's window, N_c the episode's samples in the window, K its agent
+    steps, TV the applied current's total variation over the step [mA]. Below its scale a metric costs about its ratio
+    to it (so the episode's sum follows the metric's mean, as the ruler's RMSE, IAE and TV do), far above it
+    logarithmically (bounded, as the ruler is); a difference below a floor costs next to nothing. Over an episode it
+    ranks fixed policies as the ruler's overall figure does (docs/RL.md, "Physical reward", with the measured agreement;
+    :func:`ehss_gym.envs.kernels.physical_reward`).
+
     **Termination and truncation.** Divergence (non-finite value, |x2| > omega_max, |x3| > 1.5 P_s;
     see :mod:`ehss_gym.core.sim`) ends the episode with ``terminated=True``, ``info["diverged"]=True`` and
     ``info["divergence_reason"]``; the observation and info show the last finite state. With
@@ -198,6 +217,9 @@ class EHSSTrackingEnv(gym.Env):
     | `pressure_domain` | 0.95 | 0.95 | x P_s |
     | `dob_hz` | 0 | 0 | Hz (0: off) |
     | `lyapunov_kappa` | None | None | - (None: off) |
+    | `reference_delay` | 0 | 0 | control samples (0: off) |
+    | `inverse_threshold` | 0 | 0 | % of rated current (0: none) |
+    | `inverse_hysteresis` | 0 | 0 | % of rated current (0: none) |
     | `lost_track` | 1 | 1 | x reference amplitude |
     | `mode` | `"residual"` | `"residual"` |  |
     | `residual_scale` | 10 | 10 | mA |
@@ -211,6 +233,7 @@ class EHSSTrackingEnv(gym.Env):
     | `reward_weights["divergence"]` | 10 | 10 | - |
     | `reward_weights["class"]` | 0 | 0 | - |
     | `reward_weights["saturation"]` | 0 | 0 | - |
+    | `reward_weights["physical"]` | 0 | 0 | - |
     | `error_scale` | 0.01 | 0.01 | U |
     | `episode_seconds` | None | None | s (None: 2 s random, 20 s paper) |
     | `terminate_on_lost_track` | False | False |  |
@@ -274,12 +297,22 @@ class EHSSTrackingEnv(gym.Env):
             (Sontag's -sqrt(a^2 + b^4) for the plain law), wherever the law makes V decrease; kappa in [0, 1), None
             = off. ``info["metrics"]["v_model_decrease"]`` is the episode's share of control periods with the model's
             V' < 0. See docs/MODEL.md, "Lyapunov-constrained residual".
+        reference_delay: delay compensation [control samples], in [0, 8]: the law tracks the reference model's output
+            and its derivatives of that many samples earlier (interpolated between samples), so that with a sensor
+            delay of as many samples the true output tracks y_d instead of leading it; 0 = off. See docs/MODEL.md,
+            "Compensating the unmodelled valve and sensors".
+        inverse_threshold: the valve inverse's dead band [% of the valve's rated current, 10 mA], in [0, 10]: the
+            commanded current (law plus residual) passes through the inverse of a valve dead band of this width and
+            a play operator of width ``inverse_hysteresis`` before the current limit, so that such a valve puts out
+            the command; 0 = none (both 0: off).
+        inverse_hysteresis: the valve inverse's play operator's total width [% of rated current], in [0, 30]; 0 = none.
         scenario: "random" (the training distribution of :mod:`ehss_gym.core.scenarios`), "paper",
             or a pinned :class:`ehss_gym.Scenario` whose controller fields equal this env's
             (``env.unwrapped.scenario_template.replace(...)``). ``reset(options={"scenario": ...})``
             overrides it for one episode (also accepting a dict of physical fields).
-        reward_weights: dict overriding any of track, effort, rate, tv, tv_u, divergence, class, saturation (the
-            class reward: see the reward above and docs/RL.md, "Class reward").
+        reward_weights: dict overriding any of track, effort, rate, tv, tv_u, divergence, class, saturation, physical
+            (the class and the physical rewards: see the reward above and docs/RL.md, "Class reward" and "Physical
+            reward").
         error_scale: error scale of reward and observation [output unit].
         episode_seconds: episode duration [s] for "random" and "paper" (None: 2 s random, 20 s paper; a pinned
             Scenario keeps its t_end).
@@ -336,8 +369,8 @@ class EHSSTrackingEnv(gym.Env):
                  estimator_hz: float | None = None, observer_hz: float | None = None, law: str | None = None,
                  layer_gain: float | None = None, bumpless: bool | None = None, ref_accel: float | None = None,
                  pressure_domain: float | None = DEFAULTS.pressure_domain, dob_hz: float = DEFAULTS.dob_hz,
-                 lyapunov_kappa: float | None = None,
-                 agent_period: int = DEFAULTS.agent_period,
+                 lyapunov_kappa: float | None = None, reference_delay: float = 0.0, inverse_threshold: float = 0.0,
+                 inverse_hysteresis: float = 0.0, agent_period: int = DEFAULTS.agent_period,
                  residual_scale: float | None = None, scenario: str | Scenario = DEFAULTS.scenario,
                  reward_weights: dict | None = None, error_scale: float | None = None,
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,

@@ -14,11 +14,14 @@ from ehss_gym.core.controller import CW_TODO, controller_apply, controller_updat
 from ehss_gym.core.jit import dispatch, jit, jit_inline, jit_noalloc
 from ehss_gym.core.layout import (
     I_E,
+    I_E_TRUE,
     I_SAT,
     I_UAPP,
     M_DST_MAX,
+    M_DST_STEPS,
     M_DST_SUM_ABS,
     M_SUM_U2,
+    M_TRK_STEPS,
     M_TRK_SUM_ABS,
     M_TRK_SUM_E2,
     M_TV_U,
@@ -50,6 +53,7 @@ from .buffers import (
     F_RCLS,
     F_REF,
     F_REW,
+    F_RPHYS,
     F_STATS,
     F_URES,
     F_Z,
@@ -69,8 +73,20 @@ from .buffers import (
     N_MEM,
     N_PARTS,
     N_RCLS,
+    N_RPHYS,
     N_STATS,
     N_WEIGHTS,
+    P_DMA,
+    P_K,
+    P_MA,
+    P_MS,
+    P_N,
+    P_NCLS,
+    P_NDST,
+    P_NTRK,
+    P_PK,
+    P_TV,
+    P_U2,
     R_B,
     R_DST_ABS,
     R_DST_MAX,
@@ -81,12 +97,15 @@ from .buffers import (
     R_W,
     S_DST_ABS,
     S_DST_MAX,
+    S_DST_N,
+    S_EMAX,
     S_N,
     S_SAT,
     S_SATF,
     S_SUM_E2,
     S_TRK_ABS,
     S_TRK_E2,
+    S_TRK_N,
     S_TV0,
     S_U2,
     S_UMAX,
@@ -103,6 +122,7 @@ from .buffers import (
     W_MEM_CLIP,
     W_MEM_DECAY,
     W_MEM_GAIN,
+    W_PHYS,
     W_RATE,
     W_SAT,
     W_TRACK,
@@ -194,10 +214,12 @@ def observe(h, F, IB, BB, events, filt, work, obs, lay):
 
 def reward_weights(weights: dict, error_scale: float, residual_scale: float, memory_tau: float | None = None,
                    agent_dt: float = 1.0) -> np.ndarray:
-    """The ``wts`` vector :func:`agent_reward` and :func:`class_reward` read (W_* slots), from the env's settings.
+    """The ``wts`` vector :func:`agent_reward`, :func:`class_reward` and :func:`physical_reward` read (W_* slots),
+    from the env's settings.
 
     Args:
-        weights: the env's ``reward_weights`` (track, effort, rate, tv, tv_u, divergence, class, saturation) [-].
+        weights: the env's ``reward_weights`` (track, effort, rate, tv, tv_u, divergence, class, saturation,
+            physical) [-].
         error_scale: the tracking error that costs 1 per step [output unit].
         residual_scale: the current of a unit action [mA].
         memory_tau: time constant of the memory's filtered error integral [s]; None = no memory features.
@@ -205,7 +227,7 @@ def reward_weights(weights: dict, error_scale: float, residual_scale: float, mem
     """
     wts = np.zeros(N_WEIGHTS)
     for slot, key in ((W_TRACK, "track"), (W_EFFORT, "effort"), (W_RATE, "rate"), (W_TV, "tv"), (W_TVU, "tv_u"),
-                      (W_DIV, "divergence"), (W_CLASS, "class"), (W_SAT, "saturation")):
+                      (W_DIV, "divergence"), (W_CLASS, "class"), (W_SAT, "saturation"), (W_PHYS, "physical")):
         wts[slot] = weights.get(key, 0.0)
     wts[W_INV_E2] = 1.0 / error_scale**2
     wts[W_INV_SCALE] = 1.0 / residual_scale
@@ -252,6 +274,8 @@ def snapshot_classes(st, acc):
     st[S_DST_ABS] = acc[M_DST_SUM_ABS]
     st[S_DST_MAX] = acc[M_DST_MAX]
     st[S_U2] = acc[M_SUM_U2]
+    st[S_TRK_N] = acc[M_TRK_STEPS]
+    st[S_DST_N] = acc[M_DST_STEPS]
 
 
 CLASS_EPS = 1e-2  # the class reward's offset, as a share of the base law's total of each part
@@ -313,6 +337,48 @@ def _class_sum(st, acc, p, now):
     if p == R_TV:
         return acc[M_TV_U] if now else st[S_TV0]
     return acc[M_SUM_U2] if now else st[S_U2]
+
+
+@jit
+def physical_reward(st, acc, rp, n, h, diverged, wts):
+    """The physical reward of one agent step of ``n`` control periods of ``h`` [s] (the env's docstring states it):
+    a function of the step's own samples and of the episode's constants, no history.
+
+    For each class of the ruler the step's samples in its window give the class's metric pair over the step, each
+    over its scale s (``rp``, P_*: the metric's physical floor, :mod:`ehss_gym.core.resolution`, plus the base law's
+    level over the episode): tracking phi = 1/4 log(1 + ms/s_ms) + 1/2 log(1 + ma/s_ma) (ms, ma: the step's mean e_t^2
+    and mean |e_t| in the tracking window), disturbance phi = 1/2 log(1 + peak/s_pk) + 1/2 log(1 + ma/s_dma) (peak: the
+    step's largest |e_t|), effort phi = 1/2 log(1 + tv/s_tv) + 1/4 log(1 + mu2/s_u2) (tv: the step's control TV per
+    second; mu2: its mean u^2); the weights are the ruler's (a square root of a mean square counts 1/2 of a log, the
+    pair's two metrics 1/2 each). The step pays -w K / C sum_c (n_c / N_c) phi_c: n_c its samples in class c's window,
+    N_c the episode's, K its agent steps, C its classes (docs/RL.md, "Physical reward"). 0 on divergence (the penalty
+    is :func:`agent_reward`'s).
+
+    Args:
+        st: the lane's step statistics (S_*: the accumulator's sums and counts when the step began, S_EMAX).
+        acc: the lane's metrics accumulator (M_*).
+        rp: the lane's constants (P_*).
+        n: control periods run in the step.
+        h: the control period [s].
+        diverged: the loop diverged in the step.
+        wts: reward weights (W_PHYS).
+    """
+    if diverged or n <= 0.0 or rp[P_K] <= 0.0:
+        return 0.0
+    r = 0.0
+    ntrk = acc[M_TRK_STEPS] - st[S_TRK_N]
+    if ntrk > 0.0:
+        ms = (acc[M_TRK_SUM_E2] - st[S_TRK_E2]) / ntrk
+        ma = (acc[M_TRK_SUM_ABS] - st[S_TRK_ABS]) / (ntrk * h)
+        r += ntrk / rp[P_NTRK] * (0.25 * math.log1p(ms / rp[P_MS]) + 0.5 * math.log1p(ma / rp[P_MA]))
+    ndst = acc[M_DST_STEPS] - st[S_DST_N]
+    if ndst > 0.0:
+        ma = (acc[M_DST_SUM_ABS] - st[S_DST_ABS]) / (ndst * h)
+        r += ndst / rp[P_NDST] * 0.5 * (math.log1p(st[S_EMAX] / rp[P_PK]) + math.log1p(ma / rp[P_DMA]))
+    tv = (acc[M_TV_U] - st[S_TV0]) / (n * h)
+    mu2 = (acc[M_SUM_U2] - st[S_U2]) / n
+    r += n / rp[P_N] * (0.5 * math.log1p(tv / rp[P_TV]) + 0.25 * math.log1p(mu2 / rp[P_U2]))
+    return -wts[W_PHYS] * rp[P_K] / rp[P_NCLS] * r
 
 
 @jit
@@ -421,6 +487,8 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
                         F[b, F_STATS + S_UMIN] = u
                     if j == 0 or u > F[b, F_STATS + S_UMAX]:
                         F[b, F_STATS + S_UMAX] = u
+                    if wts[W_PHYS] > 0.0 and abs(inf[b, I_E_TRUE]) > F[b, F_STATS + S_EMAX]:
+                        F[b, F_STATS + S_EMAX] = abs(inf[b, I_E_TRUE])
             if n_act == 0:
                 break
         for b in range(B):
@@ -443,6 +511,9 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
             if wts[W_CLASS] > 0.0 or wts[W_SAT] > 0.0:
                 F[b, F_REW] += class_reward(F[b, F_STATS:F_STATS + N_STATS], acc[b], F[b, F_RCLS:F_RCLS + N_RCLS],
                                             IB[b, IB_NSTEP], diverged, wts)
+            if wts[W_PHYS] > 0.0:
+                F[b, F_REW] += physical_reward(F[b, F_STATS:F_STATS + N_STATS], acc[b],
+                                               F[b, F_RPHYS:F_RPHYS + N_RPHYS], F[b, F_STATS + S_N], h, diverged, wts)
             if wts[W_MEM_GAIN] > 0.0:
                 memory_update(F[b, F_MEM:F_MEM + N_MEM], info_ok[b, I_E], F[b, F_APREV], wts)
             F[b, F_APREV] = a

@@ -24,6 +24,7 @@ from ehss_gym.core.layout import (
     M_DST_MAX,
     M_DST_STEPS,
     M_DST_SUM_ABS,
+    M_STEPS,
     M_SUM_U2,
     M_TRK_STEPS,
     M_TRK_SUM_ABS,
@@ -41,6 +42,7 @@ from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import N_LANE_CONST, lane_constants
 from ehss_gym.core.references import reference_value
 from ehss_gym.core.registry import REFERENCE_FAMILIES
+from ehss_gym.core.resolution import CURRENT_FLOOR, ERROR_RESOLUTION, TV_FLOOR
 from ehss_gym.core.scenarios import (
     DEFAULT_DISTRIBUTION,
     PHYSICAL_FIELDS,
@@ -83,6 +85,7 @@ from .buffers import (
     F_RCLS,
     F_REF,
     F_REW,
+    F_RPHYS,
     F_STATS,
     F_URES,
     F_Z,
@@ -98,7 +101,19 @@ from .buffers import (
     N_F,
     N_IB,
     N_RCLS,
+    N_RPHYS,
     N_STATS,
+    P_DMA,
+    P_K,
+    P_MA,
+    P_MS,
+    P_N,
+    P_NCLS,
+    P_NDST,
+    P_NTRK,
+    P_PK,
+    P_TV,
+    P_U2,
     R_B,
     R_DST_ABS,
     R_DST_MAX,
@@ -127,18 +142,26 @@ CLASS_PARTS = ((R_TRK_E2, M_TRK_SUM_E2, 0.25, "tracking"), (R_TRK_ABS, M_TRK_SUM
                (R_TV, M_TV_U, 0.5, "effort"), (R_U2, M_SUM_U2, 0.25, "effort"))
 
 
-def class_coefficients(sc: Scenario, agent_period: int) -> np.ndarray:
-    """The class reward's constants (R_*) of an episode, from the base law's run of it (zero residual, the
-    disturbance observer off: the law alone, which a residual or the observer is measured against).
+def base_law_run(sc: Scenario, agent_period: int) -> np.ndarray:
+    """The metrics accumulator (M_*) of the base law's run of an episode's K whole agent steps: zero residual, the
+    disturbance observer and the compensators off (the law alone, which a residual or the observer is measured
+    against); what the class and the physical rewards take their constants from."""
+    K = sc.n_steps // agent_period
+    law = sc.replace(t_end=K * agent_period * sc.control_period, log_interval=sc.t_end, dob_hz=0.0, reference_delay=0.0,
+                     inverse_threshold=0.0, inverse_hysteresis=0.0)
+    return simulate_batch([law])[0].acc
+
+
+def class_coefficients(sc: Scenario, agent_period: int, base: np.ndarray | None = None) -> np.ndarray:
+    """The class reward's constants (R_*) of an episode, from the base law's run of it (``base``, its accumulator;
+    default: :func:`base_law_run`).
 
     A part of a class the episode has (tracking and disturbance if it has samples in their windows, effort always)
     gets its weight in the class's log figure over the number of such classes (the ruler's mean over classes), the
     others 0; the base law's totals and the episode's agent steps K complete them (see
     :func:`ehss_gym.envs.kernels.class_reward`). A part whose base total is 0 (no sample moved it) is left out.
     """
-    K = sc.n_steps // agent_period
-    law = sc.replace(t_end=K * agent_period * sc.control_period, log_interval=sc.t_end, dob_hz=0.0)
-    base = simulate_batch([law])[0].acc
+    base = base_law_run(sc, agent_period) if base is None else base
     present = {"tracking": base[M_TRK_STEPS] > 0, "disturbance": base[M_DST_STEPS] > 0, "effort": True}
     n_cls = sum(present.values())
     out = np.zeros(N_RCLS)
@@ -146,7 +169,29 @@ def class_coefficients(sc: Scenario, agent_period: int) -> np.ndarray:
         if present[cls] and base[m] > 0.0:
             out[R_W + slot] = w / n_cls
             out[R_B + slot] = base[m]
-    out[R_K] = K
+    out[R_K] = sc.n_steps // agent_period
+    return out
+
+
+def physical_coefficients(sc: Scenario, agent_period: int, base: np.ndarray | None = None) -> np.ndarray:
+    """The physical reward's constants (P_*) of an episode, from the base law's run of it (``base``, its accumulator;
+    default: :func:`base_law_run`): its samples in the tracking and disturbance windows and in all, its agent steps K,
+    its number of classes (tracking and disturbance where their windows have samples, effort always), and each
+    metric's scale, its physical floor (:mod:`ehss_gym.core.resolution`) plus the base law's level over the episode
+    (:func:`ehss_gym.envs.kernels.physical_reward`)."""
+    base = base_law_run(sc, agent_period) if base is None else base
+    e, h = ERROR_RESOLUTION[sc.task], sc.control_period
+    out = np.zeros(N_RPHYS)
+    n_trk, n_dst, n = base[M_TRK_STEPS], base[M_DST_STEPS], base[M_STEPS]
+    out[P_NTRK], out[P_NDST], out[P_N] = n_trk, n_dst, n
+    out[P_K] = sc.n_steps // agent_period
+    out[P_NCLS] = 1 + (n_trk > 0) + (n_dst > 0)
+    out[P_MS] = e * e + (base[M_TRK_SUM_E2] / n_trk if n_trk else 0.0)
+    out[P_MA] = e + (base[M_TRK_SUM_ABS] / (n_trk * h) if n_trk else 0.0)
+    out[P_PK] = e + base[M_DST_MAX]
+    out[P_DMA] = e + (base[M_DST_SUM_ABS] / (n_dst * h) if n_dst else 0.0)
+    out[P_TV] = TV_FLOOR + base[M_TV_U] / (n * h)
+    out[P_U2] = CURRENT_FLOOR * CURRENT_FLOOR + base[M_SUM_U2] / n
     return out
 
 
@@ -282,8 +327,13 @@ class Lanes:
         model_constants(self.model[b:b + 1], self.ctrl[b:b + 1], self.tmp_c)
         self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
         init_accumulator(self.acc[b], sc.lost_track_bound)
-        if cfg.reward_weights.get("class", 0.0) > 0.0:
-            self.F[b, F_RCLS:F_RCLS + N_RCLS] = class_coefficients(sc, cfg.agent_period)
+        rw = cfg.reward_weights
+        if rw.get("class", 0.0) > 0.0 or rw.get("physical", 0.0) > 0.0:
+            base = base_law_run(sc, cfg.agent_period)  # once for both rewards
+            if rw.get("class", 0.0) > 0.0:
+                self.F[b, F_RCLS:F_RCLS + N_RCLS] = class_coefficients(sc, cfg.agent_period, base)
+            if rw.get("physical", 0.0) > 0.0:
+                self.F[b, F_RPHYS:F_RPHYS + N_RPHYS] = physical_coefficients(sc, cfg.agent_period, base)
         self.IB[b] = 0
         self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
         self.run[b] = True

@@ -56,7 +56,8 @@ from .specs import (
 from .suites import SUITE_ENV, SUITES, SWEEP_WINDOW, TASKS, UNITS, Episode, EvalConfig, build_episodes, step_of
 
 # beyond METRICS
-ROW_EXTRAS = ("su_iae", "peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped")
+ROW_EXTRAS = ("su_iae", "peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped", "t_tracking",
+              "t_disturbance")
 TRACED_SUITES = ("paper", "step")  # suites whose episodes are traced at the agent rate (figures, step metrics)
 
 

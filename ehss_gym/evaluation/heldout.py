@@ -71,7 +71,7 @@ def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
 
     Returns:
         The env's end-of-episode metrics dict per scenario (``info["metrics"]``), with the scenario's
-        friction events and the episode return added.
+        friction events, its task and the episode return added.
     """
     out = []
     cfg = EnvConfig.from_kwargs(env_kwargs)
@@ -81,6 +81,7 @@ def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
         m["return"] = r.ret
         m["has_friction"] = any(ev[0] > 0 for ev in sc.friction)
         m["noisy"] = any(v > 0.0 for v in sc.noise_std)
+        m["task"] = sc.task
         out.append(m)
     return out
 
@@ -89,7 +90,7 @@ def _class_logs(results: list[dict], reference: list[dict]) -> dict:
     """Per class the episodes' log ratios to ``reference`` (episodes where neither diverged)."""
     logs: dict = {c: [] for c in CLASSES}
     for m, ref in zip(results, reference):
-        for c, v in episode_log_ratios(m, ref, m["noisy"]).items():
+        for c, v in episode_log_ratios(m, ref, m["noisy"], m["task"]).items():
             logs[c].append(v)
     return logs
 

@@ -2,7 +2,7 @@
 
 **The ruler** (lower is better; the reference law scores exactly 1). Per episode, against the reference law R
 (:data:`~ehss_gym.evaluation.specs.REFERENCE_POLICY`: the CLF law with n = 2 at the env's defaults) on the same
-episode, both not diverged, each metric floored (x -> max(x, floor), :data:`FLOORS`)::
+episode, both not diverged, each metric floored at its physical floor (x -> max(x, floor), :data:`PHYSICAL_FLOORS`)::
 
     q_trk = sqrt((trk_rmse / trk_rmse_R) * (trk_iae / trk_iae_R))        tracking window
     q_dst = sqrt((dst_peak / dst_peak_R) * (dst_iae / dst_iae_R))        episodes with a disturbance window
@@ -16,6 +16,24 @@ The per-episode overall log ratio (for the IQM and the probability of improvemen
 class log ratios. An episode counts in a policy's figures only if the reference and every run of the policy
 finished it without diverging.
 
+**The floors and which figure ranks** (the rule, written before the runs it judges). A difference no real rig
+resolves, or no real valve responds to, must not rank policies, so each metric is floored at a physical level
+(:class:`Floors`, :data:`PHYSICAL_FLOORS`; each value's source in :data:`FLOOR_SOURCES`):
+
+- an error (RMSE, peak |e|) at the smallest error the task's sensor resolves: one count of the finest position
+  encoder the suites model (2^20 counts per revolution: 5.99e-6 rad), the finest velocity signal's step
+  (1e-4 rad/s); an IAE at that error held over the IAE's window (floor x the window's duration);
+- the RMS current at the servo valve's threshold (0.5 % of its 10 mA rated current: 0.05 mA), the smallest
+  current step that moves the spool;
+- the control TV rate at that threshold switched back and forth at the valve's bandwidth 1/(2 pi tau):
+  2 x 0.05 mA x 15.9 Hz = 1.59 mA/s, the largest TV rate that can lie wholly below the threshold within the
+  valve's band.
+
+Ranking is by the overall figure G of these floored ratios, as before (failure gate first). The absolute levels
+(medians of the raw metrics, :func:`absolute_levels`) are shown beside the ratios and rank nothing. The earlier
+numeric floors (1e-12 output unit for every error and IAE, 1e-9 mA/s, 1e-9 mA: :data:`NUMERIC_FLOORS`) remain
+available to measure what the physical floors change (``ehss factors``).
+
 **Failure gates**: a policy fails on a (suite, task) if any episode of any run diverged or lost track, or its mean
 saturation share exceeds :data:`SATURATION_GATE`. **Ranking**: policies without a failure first, by G; then the
 failed ones, by the number of failed episodes, then G. Learned policies whose controller settings differ from
@@ -23,35 +41,100 @@ today's env defaults (recorded in an earlier loop) are summarised but not ranked
 
 :func:`summarize` gives, per (suite, task, policy) of the figure suites, the class and overall figures with
 bootstrap CIs (:mod:`ehss_gym.evaluation.stats`, on the log ratios, reported exponentiated), the IQM and the
-probability of improvement over the best CLF, the gates, the mean metrics; and, per learned policy in today's
-loop, its comparison with the best CLF and its base law. The step suite is summarised apart (its own table).
+probability of improvement over the best CLF, the gates, the mean metrics and the absolute levels; and, per learned
+policy in today's loop, its comparison with the best CLF and its base law. The step suite is summarised apart (its
+own table).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
+from ehss_gym.core.resolution import (
+    CURRENT_FLOOR,
+    ERROR_RESOLUTION,
+    FLOOR_SOURCES,
+    POSITION_RESOLUTION,
+    TV_FLOOR,
+    VALVE_BANDWIDTH,
+    VALVE_THRESHOLD,
+    VELOCITY_RESOLUTION,
+)
+
 from . import stats
 from .specs import CLF_RE, REFERENCE_POLICY, PolicySpec, controller_settings
-from .suites import SUITES, TASKS, EvalConfig
+from .suites import SUITES, TASKS, UNITS, EvalConfig
 
-ERROR_FLOOR = 1e-12  # [output unit] (output unit * s for an IAE): floor of the error metrics in a ratio
-TV_FLOOR = 1e-9  # [mA/s] floor of the control TV rate
-CURRENT_FLOOR = 1e-9  # [mA] floor of the RMS current
 SATURATION_GATE = 0.10  # [-] a mean saturation share above this fails the gate
 CLASSES = ("tracking", "disturbance", "effort", "chatter")
-# class -> its two metrics (key of metrics.summarize_acc, floor)
+# class -> its two metrics (keys of metrics.summarize_acc); their floors: Floors.of
 CLASS_METRICS = {
-    "tracking": (("trk_rmse", ERROR_FLOOR), ("trk_iae", ERROR_FLOOR)),
-    "disturbance": (("dst_peak", ERROR_FLOOR), ("dst_iae", ERROR_FLOOR)),
-    "effort": (("tv_u_rate", TV_FLOOR), ("rms_u", CURRENT_FLOOR)),
-    "chatter": (("tv_u_rate", TV_FLOOR), ("rms_u", CURRENT_FLOOR)),
+    "tracking": ("trk_rmse", "trk_iae"),
+    "disturbance": ("dst_peak", "dst_iae"),
+    "effort": ("tv_u_rate", "rms_u"),
+    "chatter": ("tv_u_rate", "rms_u"),
 }
-FLOORS = (("errors and IAEs", ERROR_FLOOR, "output unit (* s)"), ("control TV", TV_FLOOR, "mA/s"),
-          ("RMS current", CURRENT_FLOOR, "mA"))
+# an IAE metric -> the key of its window's duration [s] (metrics.summarize_acc)
+IAE_WINDOW = {"trk_iae": "t_tracking", "dst_iae": "t_disturbance"}
+
+
+@dataclass(frozen=True)
+class Floors:
+    """The floor of each class metric before a ratio (x -> max(x, floor)).
+
+    Attributes:
+        name: "physical" or "numeric".
+        error: task -> the floor of an error metric (RMSE, peak |e|) [output unit].
+        tv: the floor of the control TV rate [mA/s].
+        current: the floor of the RMS current [mA].
+        iae_per_window: an IAE's floor is ``error`` times its window's duration [output unit * s] (the IAE of an
+            error at the floor all through the window); False: ``error`` itself (the numeric floors').
+    """
+
+    name: str
+    error: dict
+    tv: float
+    current: float
+    iae_per_window: bool = True
+
+    def of(self, key: str, task: str, m: dict) -> float:
+        """The floor of metric ``key`` of ``task`` in an episode's metrics ``m`` (its window's duration, for an IAE).
+
+        Raises:
+            KeyError: an unknown metric or task, or an IAE without its window's duration in ``m``.
+        """
+        if key in ("tv_u_rate",):
+            return self.tv
+        if key == "rms_u":
+            return self.current
+        e = self.error[task]
+        if key in IAE_WINDOW:
+            return e * float(m[IAE_WINDOW[key]]) if self.iae_per_window else e
+        if key in ("trk_rmse", "dst_peak"):
+            return e
+        raise KeyError(f"no floor for metric {key!r}")
+
+    def rows(self) -> list[tuple[str, str, str, str]]:
+        """(what, value, unit, source) per floor, for the reports."""
+        srcs = FLOOR_SOURCES if self.name == "physical" else {}
+        out = [(f"{t} error (RMSE, peak)", f"{v:.3g}", UNITS[t], srcs.get(t, "numeric")) for t, v in self.error.items()]
+        iae = "the error floor x the window's duration" if self.iae_per_window else f"{self.error[TASKS[0]]:g}"
+        out.append(("IAE", iae, "output unit * s", "the error floor held over the IAE's window" if srcs
+                    else "numeric"))
+        out.append(("control TV rate", f"{self.tv:.3g}", "mA/s", srcs.get("tv", "numeric")))
+        out.append(("RMS current", f"{self.current:.3g}", "mA", srcs.get("current", "numeric")))
+        return out
+
+
+# the ruler's: the physical resolutions and valve levels of ehss_gym.core.resolution, with their sources
+PHYSICAL_FLOORS = Floors("physical", dict(ERROR_RESOLUTION), TV_FLOOR, CURRENT_FLOOR)
+# the floors before the physical ones: numeric only, the same for every task and for an IAE as for an error
+NUMERIC_FLOORS = Floors("numeric", {"velocity": 1e-12, "position": 1e-12}, 1e-9, 1e-9, iae_per_window=False)
+FLOORS = PHYSICAL_FLOORS  # the ruler's
 # the suites with the summary figure (step: its own table)
 FIGURE_SUITES = ("paper", "heldout", "robustness", "unmodelled")
 STEP_KEYS = ("step_rise_time", "step_overshoot", "step_settling_time")  # step-suite extras, with iae_r
@@ -101,26 +184,28 @@ def episode_classes(noisy: bool) -> tuple[str, ...]:
     return ("tracking", "disturbance", "chatter" if noisy else "effort")
 
 
-def class_log_ratio(m: dict, ref: dict, cls: str) -> float:
-    """log q_c of one episode (module docstring): half the sum of the log ratios of the class's two floored
-    metrics; NaN if a metric is undefined (no sample in the class's window)."""
+def class_log_ratio(m: dict, ref: dict, cls: str, task: str, floors: Floors = PHYSICAL_FLOORS) -> float:
+    """log q_c of one episode of ``task`` (module docstring): half the sum of the log ratios of the class's two
+    metrics, each floored (``floors``, the ruler's by default); NaN if a metric is undefined (no sample in the class's
+    window)."""
     out = 0.0
-    for key, floor in CLASS_METRICS[cls]:
+    for key in CLASS_METRICS[cls]:
         a, b = m[key], ref[key]
         if not (math.isfinite(a) and math.isfinite(b)):
             return math.nan
+        floor = floors.of(key, task, ref)  # the same episode, so the same window for both
         out += 0.5 * (math.log(max(a, floor)) - math.log(max(b, floor)))
     return out
 
 
-def episode_log_ratios(m: dict, ref: dict, noisy: bool) -> dict:
+def episode_log_ratios(m: dict, ref: dict, noisy: bool, task: str, floors: Floors = PHYSICAL_FLOORS) -> dict:
     """The episode's class log ratios against the reference law's metrics ``ref`` on it (only its classes with a
-    defined ratio); empty if either diverged."""
+    defined ratio); empty if either diverged. ``task`` and ``floors``: as :func:`class_log_ratio`."""
     if m["diverged"] or ref["diverged"]:
         return {}
     out = {}
     for cls in episode_classes(noisy):
-        v = class_log_ratio(m, ref, cls)
+        v = class_log_ratio(m, ref, cls, task, floors)
         if math.isfinite(v):
             out[cls] = v
     return out
@@ -145,9 +230,10 @@ def rank_key(failed: bool, n_failed: int, g: float, name: str = "") -> tuple:
     return (bool(failed), int(n_failed) if failed else 0, math.isnan(g), g if not math.isnan(g) else 0.0, name)
 
 
-def ratio_rows(rows: list) -> None:
+def ratio_rows(rows: list, floors: Floors = PHYSICAL_FLOORS) -> None:
     """Add the per-episode ratios ``q_<class>`` and ``q_overall`` (NaN outside the episode's classes or where it or
-    the reference law diverged) to every row, against the reference law on the same episode.
+    the reference law diverged) to every row, against the reference law on the same episode (metrics floored at
+    ``floors``, the ruler's by default).
 
     Raises:
         RuntimeError: an episode the reference law was not run on.
@@ -158,7 +244,7 @@ def ratio_rows(rows: list) -> None:
         rr = ref.get(k)
         if rr is None:
             raise RuntimeError(f"no {REFERENCE_POLICY} result for {k}; the reference law must be evaluated")
-        logs = episode_log_ratios(r, rr, r["noisy"])
+        logs = episode_log_ratios(r, rr, r["noisy"], r["task"], floors)
         for c in CLASSES:
             r[f"q_{c}"] = math.exp(logs[c]) if c in logs else math.nan
         r["q_overall"] = math.exp(float(np.mean(list(logs.values())))) if logs else math.nan
@@ -210,6 +296,24 @@ def _mean_metrics(sel: list) -> dict:
         else:
             d[key] = _finite_mean([r[key] for r in ok])
     return d
+
+
+# the absolute levels shown beside the ratios (medians over a policy's non-diverged episodes; they rank nothing):
+# (key of the summary row, metric, which episodes: "all", "noise-free" (the effort class's) or "noisy" (chatter's))
+ABSOLUTE_LEVELS = (("abs_trk_rmse", "trk_rmse", "all"), ("abs_dst_peak", "dst_peak", "all"),
+                   ("abs_tv_effort", "tv_u_rate", "noise-free"), ("abs_tv_chatter", "tv_u_rate", "noisy"),
+                   ("abs_rms_u", "rms_u", "all"))
+
+
+def absolute_levels(sel: Sequence[dict]) -> dict:
+    """The absolute levels of a policy's rows ``sel`` on one (suite, task) (:data:`ABSOLUTE_LEVELS`): the median of
+    each metric over the non-diverged episodes it is defined on (NaN if none)."""
+    out = {}
+    for key, metric, which in ABSOLUTE_LEVELS:
+        v = [r[metric] for r in sel if not r["diverged"] and math.isfinite(r[metric])
+             and (which == "all" or r["noisy"] == (which == "noisy"))]
+        out[key] = float(np.median(v)) if v else math.nan
+    return out
 
 
 class Block:
@@ -299,6 +403,7 @@ def _block_summary(rows: list, blk: Block, specs: Sequence[PolicySpec], suite: s
              "earlier_loop": is_earlier_loop(spec, task)}
         d.update(figure_statistics(blk, n, k, cfg))
         d.update(_mean_metrics(sel))
+        d.update(absolute_levels(sel))
         block.append(d)
     ranked = sorted((d for d in block if not d["earlier_loop"]),
                     key=lambda d: rank_key(d["failed"], d["n_failed"], d["figure"], d["policy"]))
@@ -394,7 +499,9 @@ def summarize(rows: list, specs: Sequence[PolicySpec], cfg: EvalConfig) -> tuple
     return summary, comparisons
 
 
-__all__ = ["CLASSES", "CLASS_METRICS", "FLOORS", "ERROR_FLOOR", "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE",
-           "METRICS", "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios",
-           "failure", "figure_of", "rank_key", "ratio_rows", "matrix", "Block", "figure_statistics", "is_earlier_loop",
+__all__ = ["CLASSES", "CLASS_METRICS", "IAE_WINDOW", "Floors", "FLOORS", "PHYSICAL_FLOORS", "NUMERIC_FLOORS",
+           "FLOOR_SOURCES", "POSITION_RESOLUTION", "VELOCITY_RESOLUTION", "VALVE_THRESHOLD", "VALVE_BANDWIDTH",
+           "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE", "ABSOLUTE_LEVELS", "absolute_levels", "METRICS",
+           "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios", "failure",
+           "figure_of", "rank_key", "ratio_rows", "matrix", "Block", "figure_statistics", "is_earlier_loop",
            "summarize"]

@@ -5,9 +5,9 @@ A :class:`PolicySpec` names a policy, its kind, the env settings it acts in and 
 entry (:func:`parse_policy`):
 
 - ``clf-n<even n>`` and ``pid``: the scripted laws of :mod:`ehss_gym.controllers` (both tasks); the CLF law's
-  variants by name, ``<law>-n<k>`` and ``<law>-<estimator>-n<k>`` (e.g. ``lin-sontag-n4``, ``sontag-foh-n2``), and
-  ``dob-n<even n>``, the law with the disturbance observer on the combined error
-  (:func:`ehss_gym.controllers.parse_scripted`);
+  variants by name, ``<law>-n<k>`` and ``<law>-<estimator>-n<k>`` (e.g. ``lin-sontag-n4``, ``sontag-foh-n2``),
+  ``dob-n<even n>``, the law with the disturbance observer on the combined error, and ``dcomp-n<even n>``, the law
+  with its reference delayed (:func:`ehss_gym.controllers.parse_scripted`);
 - ``sb3:PATH``: a model of any stable-baselines3 (or sb3-contrib) algorithm, its algorithm read from the .zip and
   its env settings, the mode included, from the env spec saved with it (:func:`saved_env_kwargs`; an error
   without one);
@@ -42,7 +42,7 @@ from .suites import TASKS
 
 # the law every ratio of the evaluation is taken to (evaluation.scoring): the env's default law
 REFERENCE_POLICY = f"clf-n{DEFAULTS.n}"
-SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "dob-n2", "pid")
+SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "dob-n2", "dcomp-n2", "pid")
 LEARNED_KINDS = ("residual-ppo", "ppo-direct", "sb3")  # sb3: any algorithm, its mode from the saved env spec
 # The settings that shape the base law's closed loop (the env's loop settings but the task, n and when a run is
 # flagged as lost): a learned policy trained at other values is compared with the laws at its own.
@@ -99,7 +99,8 @@ def valid_forms() -> str:
     shipped = ", ".join(names) if names else "none shipped yet"
     return ("clf-n<even n >= 2> (e.g. clf-n2, clf-n4, clf-n6), the CLF variants <law>-n<k> and "
             "<law>-<estimator>-n<k> (e.g. lin-sontag-n4, sontag-foh-n2), dob-n<even n> (the CLF law with the "
-            "disturbance observer, e.g. dob-n2), pid, residual-ppo:PATH, ppo-direct:PATH, "
+            "disturbance observer, e.g. dob-n2), dcomp-n<even n> (the CLF law with its reference delayed, e.g. "
+            "dcomp-n2), pid, residual-ppo:PATH, ppo-direct:PATH, "
             "sb3:PATH (any SB3 algorithm, the mode from its saved env spec; PATH = an SB3 .zip, a safe-weights stem "
             f"PATH with PATH.safetensors + PATH.json, a glob matching several training seeds, or an rl-zoo3 run "
             f"folder), or a shipped model name ({shipped}); any of them as LABEL=SPEC to name it in the report")
@@ -111,7 +112,7 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
     :class:`PolicySpec` (runs on both tasks).
 
     Args:
-        name: "clf-n<even n>", "<law>-n<k>", "<law>-<estimator>-n<k>", "dob-n<even n>" or "pid".
+        name: "clf-n<even n>", "<law>-n<k>", "<law>-<estimator>-n<k>", "dob-n<even n>", "dcomp-n<even n>" or "pid".
         label: report name (default ``name``); needed when ``env_overrides`` change the law.
         env_overrides: env settings changed from the defaults (e.g. ``{"sigma": 1.0}``: the paper's scale).
         gains: PID only: task -> (kp [mA per output unit], ki [mA per unit*s], kd [mA per unit/s]) instead of
@@ -132,6 +133,8 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
         what = "the env's default CLF law" if not law else ", ".join(f"{k} {v}" for k, v in law.items())
         if "dob_hz" in kw:
             what += f", disturbance observer at {kw['dob_hz']:g} Hz"
+        if "reference_delay" in kw:
+            what += f", its reference delayed by {kw['reference_delay']:g} control sample(s)"
         src = f"scripted CLF law ({what}), n = {n}" + (f", {over}" if over else "")
         return PolicySpec(name=label or name, kind="clf", runs=[{"kind": "clf", "n": n}],
                           env_kwargs={**kw, **over}, source=src)

@@ -21,6 +21,7 @@ from ehss_gym.core.unmodelled import DATASHEET_RANGES
 from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.harness import Results
 from ehss_gym.evaluation.scoring import (
+    ABSOLUTE_LEVELS,
     CLASSES,
     FIGURE_SUITES,
     FLOORS,
@@ -55,7 +56,8 @@ DEFAULT_OUT = os.path.join("reports", "comparison")
 TEMPLATE = "comparison.md.j2"
 EPISODE_COLUMNS = (("suite", "task", "policy", "run", "episode", "sweep", "level", "scenario_seed", "t_end", "noisy")
                    + RATIO_KEYS + METRIC_KEYS + ("su_iae",) + STEP_KEYS
-                   + ("peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped"))
+                   + ("peak_u", "tv_u", "divergence_reason", "t_diverged", "t_lost_track", "n_clipped", "t_tracking",
+                      "t_disturbance"))
 STEP_COLUMNS = ("task", "policy", "run", "amplitude", "step_rise_time", "step_overshoot", "step_settling_time",
                 "iae_r", "iae_bound", "bound_ratio", "diverged", "lost_track", "earlier_loop")
 
@@ -169,10 +171,27 @@ def _detail_blocks(res: Results) -> list[dict]:
     return out
 
 
+def absolute_table(block: list[dict], task: str) -> tuple[list[str], list[list]]:
+    """(header, rows) of the absolute levels beside the first screen's ratios (:func:`ehss_gym.evaluation.scoring.
+    absolute_levels`: medians over the episodes), each header with its unit and the ruler's floor; today's laws, in
+    rank order."""
+    u, e = UNITS[task], FLOORS.error[task]
+    hdr = [f"tracking RMSE [{u}] (floor {fmt(e)})", f"disturbance peak [{u}] (floor {fmt(e)})",
+           f"TV, noise-free [mA/s] (floor {fmt(FLOORS.tv)})", f"TV, noisy [mA/s] (floor {fmt(FLOORS.tv)})",
+           f"RMS current [mA] (floor {fmt(FLOORS.current)})"]
+    keys = [k for k, _, _ in ABSOLUTE_LEVELS]
+    return hdr, [[d["policy"]] + [fmt(d.get(k)) for k in keys] for d in block if not d["earlier_loop"]]
+
+
 def _first_screen(res: Results) -> dict:
-    """The first screen: per task the held-out table, then one line per other suite and task."""
-    main = [{"task": t, "rows": headline_rows(b), "n": b[0]["n_episodes"]}
-            for t in TASKS if (b := _block(res, "heldout", t))]
+    """The first screen: per task the held-out table with its absolute levels, then one line per other suite and
+    task."""
+    main = []
+    for t in TASKS:
+        if b := _block(res, "heldout", t):
+            hdr, rows = absolute_table(b, t)
+            main.append({"task": t, "rows": headline_rows(b), "n": b[0]["n_episodes"], "abs_headers": hdr,
+                         "abs_rows": rows})
     lines = [{"suite": s, "task": t, "line": suite_line(_block(res, s, t))}
              for s in FIGURE_SUITES if s != "heldout" for t in TASKS if _block(res, s, t)]
     return {"main": main, "lines": lines}
@@ -358,7 +377,7 @@ def report_context(res: Results, figs: dict, steps: list[dict], with_bound: bool
         "wall_time": res.wall_time, "timings": ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()),
         "learned": any(s.learned for s in res.specs), "notes": list(res.notes), "cfg": res.cfg,
         "policy_rows": _policy_rows(res), "env_rows": _env_rows(res), "classes": CLASSES,
-        "reference": REFERENCE_POLICY, "floors": FLOORS, "saturation_gate": SATURATION_GATE,
+        "reference": REFERENCE_POLICY, "floors": FLOORS.rows(), "saturation_gate": SATURATION_GATE,
         "robust_seed_start": ROBUST_SEED_START, "sweep_window": SWEEP_WINDOW,
         "unmodelled_seed_start": UNMODELLED_SEED_START, "unmodelled_ranges": DATASHEET_RANGES,
         "mismatch_friction": SWEEP_MISMATCH_FRICTION, "step_time": STEP_TIME, "step_seconds": STEP_SECONDS,

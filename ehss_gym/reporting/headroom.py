@@ -12,6 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from ehss_gym._version import __version__  # noqa: E402
+from ehss_gym.controllers import DCOMP_SAMPLES  # noqa: E402
 from ehss_gym.evaluation.scoring import CLASSES  # noqa: E402
 from ehss_gym.evaluation.specs import REFERENCE_POLICY  # noqa: E402
 from ehss_gym.infra.fmt import fmt_cell  # noqa: E402
@@ -31,6 +32,7 @@ from .render import render  # noqa: E402
 DEFAULT_OUT = os.path.join("reports", "headroom")
 KEYS = tuple(CLASSES) + ("figure",)  # the class figures, then the overall figure
 DOB = f"dob-n2 @{BASE_PERIOD}"  # the scripted residual's row, shown beside the best oracle
+CORRECTION_COLUMNS = ("task", "quantity", "unit", "rms", "median_rms", "max_rms", "max_abs", "episodes")
 COLUMNS = (("task", "suite", "policy", "variant", "kind", "agent_period", "failed", "n_failed", "n_used")
            + tuple(f"{k}{s}" for k in KEYS for s in ("", "_lo", "_hi")) + ("value_median", "value_moved", "observes"))
 
@@ -151,11 +153,21 @@ def write_report(res: dict, out: str, command: str) -> str:
                    for b in tb]
         tasks.append({"task": task, "head": head, "dob": dob, "largest": _largest(blocks, task), "details": details})
     cfg = res["cfg"]
-    variants = [[v.name, v.kind, _periods_text(v.periods, cfg.agent_periods), v.observes] for v in VARIANTS]
+    variants = [[v.name, v.kind, _periods_text(v.periods, cfg.agent_periods), ", ".join(v.suites) or "every suite",
+                 v.observes] for v in VARIANTS]
+    corrections = [{"task": t, "rows": [[c["quantity"], c["unit"], fmt_cell(c["rms"]), fmt_cell(c["median_rms"]),
+                                         fmt_cell(c["max_rms"]), fmt_cell(c["max_abs"])] for c in rows],
+                    "episodes": max((c["episodes"] for c in rows), default=0)}
+                   for t, rows in res.get("corrections", {}).items()]
+    if corrections:
+        atomic_write_text(os.path.join(out, "corrections.csv"),
+                          csv_text([{"task": t, **c} for t, rows in res["corrections"].items() for c in rows],
+                                   CORRECTION_COLUMNS))
     text = render("headroom.md.j2", command=command, version=__version__, res=res, cfg=cfg, tasks=tasks,
                   classes=CLASSES, variants=variants, checks=_checks(blocks), material=MATERIAL,
                   min_episodes=MIN_EPISODES, free_period=FREE_PERIOD, base_period=BASE_PERIOD,
-                  check_suite=CHECK_SUITE, bias=cfg.bias.describe(), width=cfg.width.describe())
+                  check_suite=CHECK_SUITE, bias=cfg.bias.describe(), width=cfg.width.describe(),
+                  corrections=corrections, dcomp_samples=DCOMP_SAMPLES)
     path = os.path.join(out, "HEADROOM.md")
     atomic_write_text(path, text)
     return path

@@ -208,8 +208,9 @@ RUNNERS: dict[str, Callable[[str, dict, int, float], list[dict]]] = {"law": law_
 # --- the objective -------------------------------------------------------------------------------------------
 
 
-def objective(metrics: Sequence[dict], anchor: Sequence[dict], noisy: Sequence[bool]) -> dict:
-    """The ruler's overall figure of per-episode ``metrics`` against the anchor's on the same episodes, with the gate.
+def objective(metrics: Sequence[dict], anchor: Sequence[dict], noisy: Sequence[bool], task: str) -> dict:
+    """The ruler's overall figure of per-episode ``metrics`` against the anchor's on the same episodes (of ``task``),
+    with the gate.
 
     Returns:
         {"figure" (G), "classes" ({class: G_c}), "failed", "n_failed", "saturation" (mean share), "key" (the order:
@@ -217,7 +218,7 @@ def objective(metrics: Sequence[dict], anchor: Sequence[dict], noisy: Sequence[b
     """
     logs: dict[str, list[float]] = {}
     for m, a, nz in zip(metrics, anchor, noisy):
-        for c, v in episode_log_ratios(m, a, nz).items():
+        for c, v in episode_log_ratios(m, a, nz, task).items():
             logs.setdefault(c, []).append(v)
     g, gc = figure_of(logs)
     failed, n_failed = failure(list(metrics))
@@ -337,7 +338,7 @@ def tune_row(row: Baseline, tuned: dict, cfg: TuneSettings, anchors: dict, progr
     run = RUNNERS[row.runner]
 
     def evaluate(point: dict) -> dict:
-        return objective(run(row.task, {**fixed, **point}, cfg.episodes, cfg.seconds), anchor, noisy)
+        return objective(run(row.task, {**fixed, **point}, cfg.episodes, cfg.seconds), anchor, noisy, row.task)
 
     res = search(row.axes, start, evaluate, cfg.budget, progress)
     out = res["best_out"]

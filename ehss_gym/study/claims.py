@@ -190,7 +190,7 @@ def disturbance_figures(recs: dict) -> dict:
         elif not _ok(ref):
             out[n] = math.nan
         else:
-            out[n] = math.exp(class_log_ratio(r.metrics, ref.metrics, "disturbance"))
+            out[n] = math.exp(class_log_ratio(r.metrics, ref.metrics, "disturbance", r.params["task"]))
     return out
 
 
@@ -236,15 +236,15 @@ def claim_c6(runs: dict) -> ClaimResult:
     return ClaimResult("C6", v, ev)
 
 
-def paired_disturbance(a: list, b: list, seed: int = 0) -> tuple[float, float, float, int]:
-    """The disturbance-class figure of episodes ``a`` against ``b`` (paired by position: the same episodes), with
-    its bootstrap CI over episodes (:data:`~.config.C7_CONFIDENCE`).
+def paired_disturbance(a: list, b: list, task: str, seed: int = 0) -> tuple[float, float, float, int]:
+    """The disturbance-class figure of episodes ``a`` against ``b`` (paired by position: the same episodes of
+    ``task``), with its bootstrap CI over episodes (:data:`~.config.C7_CONFIDENCE`).
 
     Returns:
         (figure, CI low, CI high, episodes used): the episodes where neither diverged and the class is defined;
         NaNs with fewer than 2.
     """
-    logs = [class_log_ratio(ma, mb, "disturbance") for ma, mb in zip(a, b)
+    logs = [class_log_ratio(ma, mb, "disturbance", task) for ma, mb in zip(a, b)
             if not ma["diverged"] and not mb["diverged"]]
     logs = np.array([v for v in logs if math.isfinite(v)])
     if logs.size < 2:
@@ -264,7 +264,7 @@ def claim_c7(heldout: dict) -> ClaimResult:
         by_n = heldout[task]
         ok, txt = True, []
         for k, n in enumerate((2, 4)):
-            g, lo, hi, used = paired_disturbance(by_n[n], by_n[6], seed=k)
+            g, lo, hi, used = paired_disturbance(by_n[n], by_n[6], task, seed=k)
             ok &= hi < 1.0  # NaN compares False: an undefined figure does not hold
             txt.append(f"n={n}/n=6 {ratio_text(g)} [{ratio_text(lo)}, {ratio_text(hi)}]")
         div = "/".join(str(sum(1 for m in by_n[n] if m["diverged"])) for n in NS)

@@ -11,7 +11,13 @@ chatter), the figures against the base law (the env's tuned n = 2 law, zero resi
   event: its current doublet centred on each edge, or started at the edge, which is what a causal policy told of the
   event could do); **best bias** (per episode, the constant residual current with the best per-episode overall figure
   of the ruler, found by a 1-D bounded search, :class:`Search1D`); **best width** (per episode, the law's smoothing
-  width w, the boundary layer, with the best per-episode overall figure, by the same search).
+  width w, the boundary layer, with the best per-episode overall figure, by the same search); on the unmodelled suite
+  (:data:`KNOWN_SUITES`), **delay known**, **valve known** and **both known**, which know the episode's own sensor delay
+  and valve threshold and hysteresis and compensate them (the law's reference delayed by the delay, the valve's inverse
+  on the law's current: :mod:`ehss_gym.core.compensators`);
+- ``dcomp-n2``, the causal counterpart of the delay compensation (the reference delayed by a fixed number of samples
+  chosen on training episodes, :data:`ehss_gym.controllers.DCOMP_SAMPLES`), beside ``dob-n2``;
+- the sizes of the ideal corrections on the unmodelled suite (:mod:`ehss_gym.study.corrections`).
 
 **The agent period.** The residuals that change their current during an episode (the feed-forward doublets) run at
 agent periods 1, 5 and 20 (:data:`AGENT_PERIODS`): a residual holds its current over the agent period. The law and
@@ -58,6 +64,9 @@ from ehss_gym.evaluation.scoring import (
 from ehss_gym.evaluation.specs import REFERENCE_POLICY
 from ehss_gym.evaluation.suites import SUITE_ENV, SUITES, TASKS, EvalConfig, build_episodes
 from ehss_gym.infra.execution import Executor, Job
+
+from .corrections import corrections_job, delay_known, valve_known
+from .corrections import summarize as summarize_corrections
 
 PROG = "ehss headroom"
 AGENT_PERIODS = (1, 5, 20)  # [control periods] the agent periods of the residuals that change their current
@@ -150,6 +159,29 @@ class SideBySide:
         return np.concatenate(acts), states
 
 
+def _grouped(kw: dict, eps: list, settings_of: Callable) -> list[dict]:
+    """The law of ``kw`` on each episode with loop settings of its own (``settings_of(episode)`` -> dict), one rollout
+    per distinct setting (a setting is the env's, the same for every episode of a rollout)."""
+    groups: dict = {}
+    for i, ep in enumerate(eps):
+        groups.setdefault(tuple(sorted(settings_of(ep).items())), []).append(i)
+    out: list = [None] * len(eps)
+    for key, idx in groups.items():
+        skw = {**kw, **dict(key)}
+        for i, m in zip(idx, rollout(CLFPolicy(EnvConfig.from_kwargs(skw)), skw, [eps[i] for i in idx])[0]):
+            out[i] = m
+    return out
+
+
+def _known(task: str, kw: dict, eps: list, search) -> dict:
+    """The oracles that know the episode's unmodelled effects: its delay, its valve, and both."""
+    delays = [delay_known(ep.physical)["reference_delay"] for ep in eps]
+    return {"delay known": (_grouped(kw, eps, lambda ep: delay_known(ep.physical)), delays),
+            "valve known": (_grouped(kw, eps, lambda ep: valve_known(ep.physical)), [None] * len(eps)),
+            "both known": (_grouped(kw, eps, lambda ep: {**delay_known(ep.physical), **valve_known(ep.physical)}),
+                           delays)}
+
+
 def _feedforward(task: str, kw: dict, eps: list, search) -> dict:
     """Both feed-forward oracles, centred on each edge and started at it, side by side in one rollout."""
     cfg, events, n = EnvConfig.from_kwargs(kw), [ep.physical["friction"] for ep in eps], len(eps)
@@ -159,15 +191,17 @@ def _feedforward(task: str, kw: dict, eps: list, search) -> dict:
     return {"ff centred": (res[:n], [None] * n), "ff at edge": (res[n:], [None] * n)}
 
 
-def _objective(m: dict, ref: dict, noisy: bool) -> float:
-    """The ruler's per-episode overall log ratio of ``m`` against ``ref``; inf for a failed episode or no class."""
+def _objective(m: dict, ref: dict, noisy: bool, task: str) -> float:
+    """The ruler's per-episode overall log ratio of ``m`` against ``ref`` (an episode of ``task``); inf for a failed
+    episode or no class."""
     if m["diverged"] or m["lost_track"]:
         return math.inf
-    logs = episode_log_ratios(m, ref, noisy)
+    logs = episode_log_ratios(m, ref, noisy, task)
     return float(np.mean(list(logs.values()))) if logs else math.inf
 
 
-def search_episodes(search: Search1D, first: float, run_values: Callable, noisy: Sequence[bool]) -> tuple[list, list]:
+def search_episodes(search: Search1D, first: float, run_values: Callable, noisy: Sequence[bool],
+                    task: str) -> tuple[list, list]:
     """:class:`Search1D` on every episode at once, minimising each episode's :func:`_objective` against its run at
     ``first`` (the base law's value, kept on ties).
 
@@ -176,6 +210,7 @@ def search_episodes(search: Search1D, first: float, run_values: Callable, noisy:
         first: the base law's value of the setting.
         run_values: (values, episode indices) -> the episodes' metrics with those values (one value per index).
         noisy: per episode, whether it has sensor noise (its effort class is chatter).
+        task: the episodes' task (the ruler's floors).
 
     Returns:
         (per episode the metrics at its best value, the best values).
@@ -196,7 +231,7 @@ def search_episodes(search: Search1D, first: float, run_values: Callable, noisy:
 
     def consider(values: list) -> None:
         for i, m in enumerate(metrics_at(values)):
-            o = _objective(m, ref[i], noisy[i])
+            o = _objective(m, ref[i], noisy[i], task)
             if o < obj[i]:
                 best[i], obj[i] = values[i], o
 
@@ -221,7 +256,7 @@ def _best_bias(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, 
     def run_values(values, idx):
         return rollout(ConstantResidualPolicy(cfg, currents=values), kw, [eps[i] for i in idx])[0]
 
-    return search_episodes(search, 0.0, run_values, _noisy(eps))
+    return search_episodes(search, 0.0, run_values, _noisy(eps), task)
 
 
 def _best_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, list]:
@@ -238,7 +273,7 @@ def _best_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list,
                 out[j] = m
         return out
 
-    return search_episodes(search, float(EnvConfig.from_kwargs(kw).loop.smoothing), run_values, _noisy(eps))
+    return search_episodes(search, float(EnvConfig.from_kwargs(kw).loop.smoothing), run_values, _noisy(eps), task)
 
 
 @dataclass(frozen=True)
@@ -258,6 +293,7 @@ class Variant:
             dict of those by variant name when it runs several variants at once.
         search: "bias" or "width": the :class:`Search1D` of :class:`HeadroomConfig` it takes; "" none.
         made_by: the variant whose run gives this one's episodes too (it has no job of its own).
+        suites: the suites it runs on (empty: every suite).
     """
 
     name: str
@@ -269,13 +305,19 @@ class Variant:
     run: Callable | None = field(repr=False, compare=False)
     search: str = ""
     made_by: str = ""
+    suites: tuple = ()
 
 
+KNOWN_SUITES = ("unmodelled",)  # where the oracles that know the unmodelled effects run (elsewhere there are none)
+CORRECTIONS_SUITE = "unmodelled"  # where the ideal corrections are measured
 VARIANTS: tuple[Variant, ...] = (
     Variant("base law", "base", "clf-n2", "check", True, "(the reference: the env's tuned n = 2 law)", _law),
     Variant("dob-n2", "scripted", "dob-n2", "check", True,
             "nothing beyond the loop: the combined error s and the applied current (causal, every control period)",
             _law),
+    Variant("dcomp-n2", "scripted", "dcomp-n2", "check", True,
+            "the delay distribution's best single compensation, chosen on training episodes (causal: the law's "
+            "reference delayed by a fixed number of samples)", _law),
     Variant("true model", "oracle", "clf-n2", "free", True,
             "the plant-model mismatch (the true plant's parameters)", _true_model),
     Variant("ff centred", "oracle", "clf-n2", "all", False,
@@ -289,6 +331,15 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("best width", "oracle", "clf-n2", "free", True,
             "the whole episode in hindsight: its best boundary-layer width (causal counterpart: a scheduling action "
             "on the width)", _best_width, "width"),
+    Variant("delay known", "oracle", "clf-n2", "free", True,
+            "the episode's sensor delay (the law's reference delayed by as many samples; causal counterpart: dcomp-n2, "
+            "or a reference action)", _known, suites=KNOWN_SUITES),
+    Variant("valve known", "oracle", "clf-n2", "free", True,
+            "the episode's valve threshold and hysteresis (their inverse on the law's current; causal counterpart: "
+            "none, the distribution's best single inverse is none)", None, made_by="delay known", suites=KNOWN_SUITES),
+    Variant("both known", "oracle", "clf-n2", "free", True,
+            "the episode's sensor delay and valve (both compensations)", None, made_by="delay known",
+            suites=KNOWN_SUITES),
 )
 VARIANT_BY_NAME = {v.name: v for v in VARIANTS}
 
@@ -377,6 +428,8 @@ def _job(config: dict, seed: int, context) -> dict:
         first = 0.0
     elif v.search == "width":
         first = float(EnvConfig.from_kwargs(config["env_kwargs"]).loop.smoothing)
+    elif v.suites == KNOWN_SUITES:
+        first = 0.0  # the base law's reference delay
     made = out if isinstance(out, dict) else {v.name: out}
     return {name: {"metrics": m, "values": vals, "first": first} for name, (m, vals) in made.items()}
 
@@ -386,20 +439,27 @@ def plan(cfg: HeadroomConfig) -> list[Job]:
     jobs = []
     for task in cfg.tasks:
         for suite, eps in suite_episodes(cfg, task).items():
-            for v in (v for v in VARIANTS if not v.made_by):
+            for v in (v for v in VARIANTS if not v.made_by and (not v.suites or suite in v.suites)):
                 for ap in cfg.periods_of(v, suite):
                     kw = {"task": task, **parse_scripted(v.policy), **SUITE_ENV.get(suite, {}), "agent_period": ap}
                     search = getattr(cfg, v.search) if v.search else None
                     config = {"variant": v.name, "task": task, "suite": suite, "agent_period": ap, "env_kwargs": kw,
                               "episodes": eps, "search": search}
                     jobs.append(Job(_job, config, seed=0, label=f"{task}/{suite}/{v.name}@{ap}"))
+        eps = suite_episodes(cfg, task).get(CORRECTIONS_SUITE)
+        if eps:  # the ideal corrections' sizes (ehss_gym.study.corrections)
+            kw = {"task": task, **parse_scripted(REFERENCE_POLICY)}
+            jobs.append(Job(corrections_job, {"corrections": True, "task": task, "suite": CORRECTIONS_SUITE,
+                                              "env_kwargs": kw, "episodes": eps, "agent_period": FREE_PERIOD,
+                                              "search": None, "variant": "corrections"}, seed=0,
+                            label=f"{task}/{CORRECTIONS_SUITE}/corrections"))
     # the longest first keeps both workers busy to the end: agent steps x searched points, roughly
     return sorted(jobs, key=lambda j: -_cost(j.config))
 
 
 def _cost(c: dict) -> float:
     seconds = sum(ep.t_end for ep in c["episodes"])
-    points = (2 if c["variant"] == "ff centred" else 1) if c["search"] is None else \
+    points = {"ff centred": 2, "delay known": 3, "corrections": 6}.get(c["variant"], 1) if c["search"] is None else \
         len(c["search"].grid) + 2 * c["search"].rounds + 1
     return seconds * points * (1.0 + 4.0 / c["agent_period"])  # the per-agent-step Python cost grows as 1/period
 
@@ -490,15 +550,18 @@ def run(cfg: HeadroomConfig | None = None, executor: Executor | None = None, pro
 
     Returns:
         {"cfg", "blocks" (per task and suite: "task", "suite", "episodes", "classes", "stats" (one row per policy:
-        :func:`_block_stats`), "headroom" (:func:`headroom`), "checks" (:func:`period_check`)), "jobs", "computed",
-        "skipped", "wall_s"}.
+        :func:`_block_stats`), "headroom" (:func:`headroom`), "checks" (:func:`period_check`)), "corrections" (per
+        task the ideal corrections' sizes on the unmodelled suite: :func:`ehss_gym.study.corrections.summarize`),
+        "jobs", "computed", "skipped", "wall_s"}.
     """
     t0 = time.perf_counter()
     cfg = cfg or HeadroomConfig()
     executor = executor or Executor(progress=progress)
     jobs = plan(cfg)
     done = list(zip(jobs, executor.map(jobs, desc=PROG)))
-    rows = _rows(done, cfg)
+    corrections = {j.config["task"]: summarize_corrections(r, j.config["task"]) for j, r in done
+                   if j.config.get("corrections")}
+    rows = _rows([(j, r) for j, r in done if not j.config.get("corrections")], cfg)
     ratio_rows(rows)
     meta = {label(v, ap, cfg): {"variant": v.name, "kind": v.kind, "agent_period": ap, "observes": v.observes,
                                 "period_free": v.period_free}
@@ -516,7 +579,7 @@ def run(cfg: HeadroomConfig | None = None, executor: Executor | None = None, pro
             n_eps = len({r["episode"] for r in rows if r["suite"] == suite and r["task"] == task})
             blocks.append({"task": task, "suite": suite, "episodes": n_eps, "classes": classes, "stats": stats,
                            "headroom": headroom(stats, classes), "checks": checks})
-    return {"cfg": cfg, "blocks": blocks, "jobs": len(jobs), "computed": executor.computed,
+    return {"cfg": cfg, "blocks": blocks, "corrections": corrections, "jobs": len(jobs), "computed": executor.computed,
             "skipped": executor.skipped, "wall_s": time.perf_counter() - t0}
 
 

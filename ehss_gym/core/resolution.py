@@ -1,0 +1,46 @@
+"""What a real rig resolves and what its servo valve responds to: the physical floors of the ruler and of the env's
+physical reward, each with its source.
+
+- **Errors**: the smallest error the task's sensor resolves. Position: one count of the finest encoder the suites
+  model, 2^20 counts per revolution (the unmodelled suite's range, :data:`ehss_gym.core.unmodelled.DATASHEET_RANGES`),
+  2 pi / 2^20 = 5.99e-6 rad. Velocity: the finest velocity signal's step the suites model, 1e-4 rad/s (a 16-bit
+  converter over +-3 rad/s).
+- **Current**: the servo valve's threshold, 0.5 % of its 10 mA rated current (Moog's datasheet bound, module
+  :mod:`ehss_gym.core.unmodelled`): 0.05 mA, the smallest current step that moves the spool.
+- **Control TV**: that threshold switched both ways once per period of the valve's bandwidth 1/(2 pi tau) (its
+  first-order lag, Table I's tau = 10 ms: 15.9 Hz): 2 x 0.05 mA x 15.9 Hz = 1.59 mA/s, the largest TV rate that can lie
+  wholly below the threshold within the valve's band.
+
+Plain data (no numba).
+"""
+
+from __future__ import annotations
+
+import math
+
+from .params import PlantParams
+from .unmodelled import DATASHEET_RANGES, DATASHEET_THRESHOLD, RATED_CURRENT
+
+ENCODER_BITS = DATASHEET_RANGES.encoder_bits[1]  # the finest encoder the suites model: 2^20 counts per revolution
+POSITION_RESOLUTION = 2.0 * math.pi / 2**ENCODER_BITS  # [rad] one count of it
+VELOCITY_RESOLUTION = DATASHEET_RANGES.velocity_step[0]  # [rad/s] the finest velocity signal's step
+ERROR_RESOLUTION = {"velocity": VELOCITY_RESOLUTION, "position": POSITION_RESOLUTION}  # task -> [output unit]
+VALVE_THRESHOLD = DATASHEET_THRESHOLD / 100.0 * RATED_CURRENT  # [mA] the valve's threshold bound, 0.5 % of 10 mA
+VALVE_BANDWIDTH = 1.0 / (2.0 * math.pi * PlantParams().tau)  # [Hz] the valve lag's corner frequency
+TV_FLOOR = 2.0 * VALVE_THRESHOLD * VALVE_BANDWIDTH  # [mA/s] the threshold, switched both ways once per band period
+CURRENT_FLOOR = VALVE_THRESHOLD  # [mA]
+FLOOR_SOURCES = {
+    "velocity": (f"the finest velocity signal the suites model, a step of {VELOCITY_RESOLUTION:g} rad/s (a 16-bit "
+                 "converter over +-3 rad/s; ehss_gym.core.unmodelled.DATASHEET_RANGES)"),
+    "position": (f"one count of a 2^{ENCODER_BITS}-count-per-revolution encoder, 2 pi / 2^{ENCODER_BITS} rad, the "
+                 "finest the suites model (ehss_gym.core.unmodelled.DATASHEET_RANGES)"),
+    "tv": (f"the valve's threshold ({DATASHEET_THRESHOLD:g} % of its {RATED_CURRENT:g} mA rated current, Moog's "
+           f"datasheet bound) switched both ways once per period of its bandwidth 1/(2 pi tau) = "
+           f"{VALVE_BANDWIDTH:.3g} Hz (tau = {PlantParams().tau:g} s, Table I): 2 x {VALVE_THRESHOLD:g} mA x "
+           f"{VALVE_BANDWIDTH:.3g} Hz"),
+    "current": (f"the valve's threshold, {DATASHEET_THRESHOLD:g} % of its {RATED_CURRENT:g} mA rated current "
+                "(Moog's datasheet bound): the smallest current step that moves the spool"),
+}
+
+__all__ = ["ENCODER_BITS", "POSITION_RESOLUTION", "VELOCITY_RESOLUTION", "ERROR_RESOLUTION", "VALVE_THRESHOLD",
+           "VALVE_BANDWIDTH", "TV_FLOOR", "CURRENT_FLOOR", "FLOOR_SOURCES"]
