@@ -20,6 +20,7 @@ import typing
 
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.registry import ESTIMATORS, LAWS, choices_help, names
+from ehss_gym.core.rig import PlantFileError, as_rig, shipped_plants
 from ehss_gym.core.settings import LOOP_SETTINGS, TASKS, Scenario
 from ehss_gym.core.signals import FAMILIES
 from ehss_gym.core.validate import check_even_n
@@ -194,6 +195,15 @@ def parse_mismatch(text: str) -> dict:
     return out
 
 
+def plant_file(text: str):
+    """argparse type: a plant file (TOML) or a shipped plant's name, read and checked (the error names the file, the
+    key, its unit and range)."""
+    try:
+        return as_rig(text)
+    except PlantFileError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def floats(name: str):
     """argparse type: comma-separated finite numbers."""
     def conv(text):
@@ -275,6 +285,14 @@ def add_backend_arguments(p) -> None:
                    help=f"where each job's result is kept under its content address, so a rerun (or a restart "
                         f"after an interruption) computes only the missing jobs (default {DEFAULT_STORE})")
     g.add_argument("--no-store", action="store_true", help="keep no job results: compute every job afresh")
+
+
+def add_plant(p, what: str = "the rig") -> None:
+    """``--plant``: a plant file (docs: "Your own servo"); default Table I."""
+    p.add_argument("--plant", type=plant_file, default=None, metavar="FILE",
+                   help=f"{what}: a TOML plant file (a [plant] table of the model's parameters or a [datasheet] "
+                        f"table; see 'Your own servo' in the docs) or a shipped plant "
+                        f"({', '.join(shipped_plants())}); default Table I")
 
 
 # --- ehss simulate: the loop settings, one flag each ---------------------------------------------------------
@@ -385,6 +403,11 @@ def add_simulate(p) -> None:
 
 
 # --- the study and report commands ------------------------------------------------------------------------
+
+
+def add_plant_command(p) -> None:
+    p.add_argument("file", type=plant_file, metavar="FILE",
+                   help=f"a TOML plant file or a shipped plant ({', '.join(shipped_plants())})")
 
 
 def add_reproduce(p) -> None:
@@ -557,6 +580,11 @@ COMMANDS = (
             "One closed-loop run of the EHSS loop. With no settings: the env's recommended loop on the paper's 20 s "
             "run (it tracks); --preset paper gives the law as printed (it diverges).", add_simulate, "simulate",
             SIMULATE_EPILOG),
+    Command("plant", "read a plant file and print the model's parameters it gives, with their derivation",
+            "Read a plant file (a [plant] table of the model's parameters, or a [datasheet] table converted by the "
+            "formulas of docs/MODEL.md, 'From a datasheet to the model's parameters') and print every parameter with "
+            "its unit and, for a datasheet, the formula it came from; a bad file exits with 2 and names the key, its "
+            "unit and range.", add_plant_command, "plant"),
     Command("reproduce", "regenerate the paper's study into a report folder",
             "Regenerate the paper's study: its runs (Figs. 5-13), its claims C1-C7 tested, sweeps of the settings it "
             "leaves out, lost-track checks, smoothing, and the recommended defaults; writes REPORT.md, figures, CSVs.",
