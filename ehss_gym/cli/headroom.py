@@ -18,7 +18,7 @@ from .common import backend_from_args, check_out_folder, store_from_args
 def settings(args) -> HeadroomConfig:
     """The study's sizes from the options (--quick's smaller form, then any option given)."""
     base = HeadroomConfig.quick_config() if args.quick else HeadroomConfig()
-    changes = {"tasks": tuple(args.task)}
+    changes = {"tasks": tuple(args.task), "plant": args.plant}
     if args.episodes:
         changes["episodes"] = args.episodes
     if args.n_boot:
@@ -40,6 +40,7 @@ def run(args) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     path = write_report(res, out, cmd)
+    print(res["cfg"].eval_config().rig.summary())
     for b in res["blocks"]:
         h = b["headroom"].get("overall")
         if h is not None:

@@ -395,6 +395,8 @@ examples:
 
 
 def add_simulate(p) -> None:
+    add_plant(p, "the rig simulated (the controller's model is its file's; its rated current the recommended "
+                 "preset's current limit)")
     add_loop_arguments(p)
     p.add_argument("--bode", action="store_true",
                    help="also estimate the closed loop's r -> y frequency response (needs --reference chirp or "
@@ -451,6 +453,8 @@ def add_evaluate(p) -> None:
                         "saved with it; PATH may be an rl-zoo3 run folder), or a shipped model name; LABEL=SPEC "
                         "names one in the report (e.g. final=residual-ppo:RUN/final/policy "
                         "best=residual-ppo:RUN/best/policy) (default: every shipped policy)")
+    add_plant(p, "the rig every suite runs on (the scripted laws act on it; without --policies only they are "
+                 "evaluated, the shipped learned policies being Table I's)")
     p.add_argument("--suite", choices=(*SUITES, "all"), default="all", help="which suites to run")
     p.add_argument("--task", type=task_list, default=tuple(TASKS),
                    help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
@@ -483,6 +487,7 @@ def add_factors(p) -> None:
 
 
 def add_headroom(p) -> None:
+    add_plant(p, "the rig the suites run on")
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
                    help="episodes per task and suite at most; a larger suite is subsampled evenly (default 32; "
                         "--quick 2)")

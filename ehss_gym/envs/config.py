@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from ehss_gym.core.registry import LAWS, names
+from ehss_gym.core.rig import TABLE_I, Rig, as_rig
 from ehss_gym.core.scenarios import controller_mismatch, paper_scenario
 from ehss_gym.core.settings import LOOP_SETTINGS, PHYSICAL_FIELDS, TASKS, Scenario
 from ehss_gym.core.validate import check_bool, check_choice, check_finite, check_int, check_positive
@@ -28,6 +29,8 @@ from ehss_gym.core.validate import check_bool, check_choice, check_finite, check
 # 96.5 % (velocity) and 100 % (position) of the held-out suite's pooled squared error. The response to such a jump
 # is measured on its own, by the step suite of `ehss evaluate`; its paper suite keeps the paper's start.
 BUMPLESS_DEFAULT = True
+# current_limit="rated" (the env's default): the plant's rated current (Table I: 10 mA, EnvDefaults.current_limit)
+RATED = "rated"
 
 
 @dataclass(frozen=True)
@@ -133,7 +136,8 @@ class EnvDefaults:
     Attributes:
         n: CLF power factor.
         mode: "residual" or "direct".
-        current_limit: valve current limit [mA].
+        current_limit: valve current limit [mA] of Table I's loop (its plant file's rated current; another plant's
+            rated current replaces it unless a limit is given).
         control_period: controller sample time h [s].
         substeps: RK4 plant steps per control period.
         agent_period: control periods per agent step.
@@ -188,12 +192,13 @@ REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence", "class", "
 FIXED_LOOP = ("ref_model_hz", "omega_max", "pressure_bound")
 # The env's settings: the loop settings it exposes, then its own.
 LOOP_KEYS = tuple(k for k in LOOP_SETTINGS if k not in FIXED_LOOP)
-ENV_KEYS = ("mode", "residual_scale", "agent_period", "scenario", "reward_weights", "error_scale", "episode_seconds",
-            "terminate_on_lost_track", "unmodelled_effects", "memory_tau")
-# What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends.
+ENV_KEYS = ("plant", "mode", "residual_scale", "agent_period", "scenario", "reward_weights", "error_scale",
+            "episode_seconds", "terminate_on_lost_track", "unmodelled_effects", "memory_tau")
+# What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends, and the
+# plant (the rig an exported policy was trained on is recorded when it was given: agents.specs.resolved_env_kwargs).
 POLICY_KEYS = tuple(k for k in LOOP_KEYS + ENV_KEYS
                     if k not in ("scenario", "episode_seconds", "lost_track", "terminate_on_lost_track",
-                                 "unmodelled_effects"))
+                                 "unmodelled_effects", "plant"))
 # Settings whose default depends on the task (residual_scale: on the current limit, sigma: on the law too); None
 # selects that default.
 TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_by_law") + ("residual_scale",)
@@ -234,6 +239,7 @@ class EnvConfig:
     terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track
     unmodelled_effects: bool = DEFAULTS.unmodelled_effects
     memory_tau: float | None = DEFAULTS.memory_tau
+    plant: Rig = TABLE_I
 
     KEYS = LOOP_KEYS + ENV_KEYS
 
@@ -250,6 +256,7 @@ class EnvConfig:
         if unknown:
             raise ValueError(f"unknown keyword argument(s) {unknown}; valid: {list(cls.KEYS) + ['render_mode']}")
         d = DEFAULTS
+        rig = plant_of(kwargs.get("plant"))
         task = check_choice("task", kwargs.get("task", "velocity"), tuple(TASKS))
         td: TaskDefaults = getattr(d, task)
         mode = check_choice("mode", kwargs.get("mode", d.mode), MODES)
@@ -261,17 +268,22 @@ class EnvConfig:
         if "sigma" not in kwargs and law != td.law:
             loop["sigma"] = td.sigma_for(law)
         loop.update(task=task, law=law)
+        if isinstance(loop["current_limit"], str) and loop["current_limit"] == RATED:
+            loop["current_limit"] = rig.rated_current
+        elif "current_limit" not in kwargs:
+            loop["current_limit"] = rig.rated_current  # Table I's: EnvDefaults.current_limit
         # the env's ranges beyond the Scenario's own checks
         loop["control_period"] = check_finite("control_period", loop["control_period"], low=1e-7, high=1e-2)
         loop["substeps"] = check_int("substeps", loop["substeps"], 1)
-        template = paper_scenario(Scenario(**loop))  # every loop setting checked, with the core record's messages
+        # every loop setting checked, with the core record's messages; the template carries the rig
+        template = paper_scenario(Scenario(**loop, plant=rig.plant, model=rig.model))
         limit = template.current_limit
         scale = kwargs.get("residual_scale")
         if scale is None:
             scale = d.residual_scale if limit is None else limit
         scale = check_positive("residual_scale", scale)
         agent_period = check_int("agent_period", kwargs.get("agent_period", d.agent_period), 1)
-        cfg = cls(loop=template, mode=mode, residual_scale=scale, agent_period=agent_period,
+        cfg = cls(loop=template, mode=mode, residual_scale=scale, agent_period=agent_period, plant=rig,
                   **_episode_settings(kwargs, td, d, template.control_period * agent_period))
         if isinstance(cfg.scenario, Scenario):
             cfg.check_pinned(cfg.scenario)
@@ -287,7 +299,8 @@ class EnvConfig:
         return self.agent_period * self.control_period
 
     def template(self) -> Scenario:
-        """A Scenario with these controller settings (its physical fields are the paper's)."""
+        """A Scenario with these controller settings (its physical fields are the paper's run on the env's plant, with
+        the controller's model of it)."""
         return self.loop
 
     def check_pinned(self, sc: Scenario) -> None:
@@ -305,6 +318,16 @@ class EnvConfig:
 
 
 _SCENARIO_DEFAULTS = {f.name: f.default for f in fields(Scenario)}
+
+
+def plant_of(value) -> Rig:
+    """The env's rig from its ``plant`` setting (:func:`ehss_gym.core.rig.as_rig`: None = Table I, a Rig, a
+    PlantParams, a dict, a TOML file path or a shipped plant's name); ValueError naming the setting otherwise."""
+    try:
+        return as_rig(value)
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith("plant") else f"plant: {msg}") from None
 
 
 def _default(key: str, td: TaskDefaults, d: EnvDefaults):
@@ -347,13 +370,15 @@ def _episode_settings(kwargs: dict, td: TaskDefaults, d: EnvDefaults, agent_dt: 
 # The unit of each setting in the defaults table (U = the task's output unit: rad/s velocity, rad position; "" for a
 # choice or a flag).
 SETTING_UNITS = {
-    "n": "-", "fr": "Hz", "sigma": "unit of s", "smoothing": "unit of s", "current_limit": "mA (None: unlimited)",
+    "n": "-", "fr": "Hz", "sigma": "unit of s", "smoothing": "unit of s",
+    "current_limit": "mA (None: unlimited; default: the plant's rated current)",
     "control_period": "s", "substeps": "RK4 steps per period", "estimator_hz": "Hz", "estimator": "",
     "observer_hz": "Hz",
     "law": "", "layer_gain": "-", "bumpless": "", "ref_accel": "rad/s^2 (0: none)", "pressure_domain": "x P_s",
     "lost_track": "x reference amplitude", "dob_hz": "Hz (0: off)",
     "lyapunov_kappa": "- (None: off)",
-    "mode": "", "residual_scale": "mA", "agent_period": "control periods",
+    "plant": "TOML file, dict, PlantParams or Rig", "mode": "", "residual_scale": "mA",
+    "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
     "terminate_on_lost_track": "", "unmodelled_effects": "", "memory_tau": "s (None: no memory features)",
 }
@@ -363,6 +388,8 @@ def _cell(v) -> str:
     """A default as the table shows it."""
     if v is None or isinstance(v, (bool, np.bool_, int)):
         return str(v)
+    if isinstance(v, Rig):
+        return v.name
     if isinstance(v, float):
         if v != 0.0 and not 1e-3 <= abs(v) < 1e4:  # 1e5, 5e-5: the way the docs write them
             m, e = f"{v:.6e}".split("e")
@@ -402,7 +429,7 @@ def defaults_table() -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
+__all__ = ["RATED", "plant_of", "LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
            "TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
            "ENV_KEYS", "POLICY_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
            "in_legacy_loop", "SETTING_UNITS", "defaults_table"]

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ehss_gym.core.response import step_metrics
+from ehss_gym.core.rig import as_rig
 from ehss_gym.envs.rollouts import rollout as run_rollout
 from ehss_gym.infra.execution import Backend, Executor, Job, canonical, pin_blas, usable_cores
 
@@ -221,13 +222,28 @@ def run_batches(batches: Sequence[EpisodeBatch], items: dict, executor: Executor
 
 
 def _complete_specs(specs: list, cfg: EvalConfig, notes: list) -> list:
-    """The specs with the reference law added."""
+    """The specs with the reference law added, the scripted ones on the evaluation's plant."""
     check_unique_names(specs)
     names = [s.name for s in specs]
     if REFERENCE_POLICY not in names:
         specs.insert(0, scripted_spec(REFERENCE_POLICY))
         notes.append(f"{REFERENCE_POLICY} was added: every ratio is taken to it.")
-    return specs
+    return [on_plant(s, cfg, notes) for s in specs]
+
+
+def on_plant(spec: PolicySpec, cfg: EvalConfig, notes: list) -> PolicySpec:
+    """A scripted law acts on the evaluation's plant (its current limit the rig's rated current, the PID tuned on it);
+    a learned policy keeps the settings it was trained with (a note says when its plant is not the evaluated one)."""
+    env = cfg.env_kwargs()
+    if not env:
+        return spec
+    if spec.kind in ("clf", "pid"):
+        return replace(spec, env_kwargs={**spec.env_kwargs, **env})
+    trained = spec.env_kwargs.get("plant")
+    if trained is None or as_rig(trained) != cfg.rig:
+        notes.append(f"{spec.name} acts with the settings it was trained with, on plant "
+                     f"{'Table I' if trained is None else as_rig(trained).label}; the episodes are {cfg.rig.label}'s.")
+    return spec
 
 
 def _check_tasks(specs: list, cfg: EvalConfig, named: set, notes: list) -> None:

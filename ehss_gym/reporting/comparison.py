@@ -16,7 +16,7 @@ import time
 from collections.abc import Sequence
 
 from ehss_gym._version import __version__
-from ehss_gym.core.params import PlantParams
+from ehss_gym.core.rig import TABLE_I
 from ehss_gym.core.unmodelled import DATASHEET_RANGES
 from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.harness import Results
@@ -218,18 +218,19 @@ def step_rows(res: Results, bound=None, notes: list | None = None) -> list[dict]
         if bound is not None:
             key = (r["task"], r["level"])
             if key not in cache:
-                cache[key] = _bound_of(bound, r["task"], r["level"], notes)
+                cache[key] = _bound_of(bound, r["task"], r["level"], notes, res.cfg.rig)
             d["iae_bound"] = cache[key]
             d["bound_ratio"] = r["iae_r"] / cache[key] if cache[key] > 0 else math.nan
         out.append(d)
     return out
 
 
-def _bound_of(bound, task: str, amplitude: float, notes: list | None) -> float:
-    """The bound's IAE [output unit * s] of one step of the suite, NaN (and a note) where the bound refuses it."""
-    limit = EnvConfig.from_kwargs({"task": task}).current_limit
+def _bound_of(bound, task: str, amplitude: float, notes: list | None, rig=TABLE_I) -> float:
+    """The bound's IAE [output unit * s] of one step of the suite on the rig's plant under its current limit, NaN
+    (and a note) where the bound refuses it."""
+    limit = EnvConfig.from_kwargs({"task": task, "plant": rig}).current_limit
     try:
-        return float(bound(task, amplitude, t_step=STEP_TIME, t_end=STEP_SECONDS[task], plant=PlantParams(),
+        return float(bound(task, amplitude, t_step=STEP_TIME, t_end=STEP_SECONDS[task], plant=rig.plant,
                            current_limit=limit).iae_bound)
     except ValueError as exc:
         if notes is not None:
@@ -293,7 +294,7 @@ def _env_rows(res: Results) -> list[list]:
     """Rows of the env-defaults table, one per evaluated task (frequencies [Hz], currents [mA], periods [s])."""
     out = []
     for task in res.cfg.tasks:
-        c = EnvConfig.from_kwargs({"task": task})
+        c = EnvConfig.from_kwargs({"task": task, **res.cfg.env_kwargs()})
         out.append([task, f"{c.fr:g}", f"{c.sigma:g}", f"{c.smoothing:g}", c.current_limit, f"{c.control_period:g}",
                     c.substeps, c.agent_period, c.estimator, f"{c.layer_gain:g}", c.bumpless, f"{c.ref_accel:g}"])
     return out
@@ -329,6 +330,7 @@ def report_context(res: Results, figs: dict, steps: list[dict], with_bound: bool
     metric_header, metric_rows = _metric_table(res)
     return {
         "command": res.command, "version": __version__, "n_episodes": len(res.rows), "workers": res.workers,
+        "plant": res.cfg.rig.summary(), "plant_given": res.cfg.plant is not None,
         "wall_time": res.wall_time, "timings": ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()),
         "learned": any(s.learned for s in res.specs), "notes": list(res.notes), "cfg": res.cfg,
         "policy_rows": _policy_rows(res), "env_rows": _env_rows(res), "classes": CLASSES,
@@ -351,6 +353,15 @@ def report_text(res: Results, figs: dict, steps: list[dict] | None = None, with_
     return render(TEMPLATE, **report_context(res, figs, steps or [], with_bound), bound_notes=list(bound_notes))
 
 
+def _plant_column(res: Results):
+    """(rows, columns) -> (rows, columns) with a ``plant`` column (the rig's label: name, file, hash of its values)
+    when the evaluation was given a plant; unchanged otherwise (Table I's CSVs as before plant files)."""
+    if res.cfg.plant is None:
+        return lambda rows, columns: (rows, columns)
+    label = res.cfg.rig.label
+    return lambda rows, columns: ([{**r, "plant": label} for r in rows], ["plant", *columns])
+
+
 def write_report(res: Results, out: str) -> str:
     """Write REPORT.md, episodes.csv, summary.csv, comparisons.csv, steps.csv and figures/ under ``out``; returns
     REPORT.md.
@@ -359,15 +370,17 @@ def write_report(res: Results, out: str) -> str:
     figures' wall time [s] is added to ``res.timings["figures"]``.
     """
     os.makedirs(os.path.join(out, "figures"), exist_ok=True)
-    atomic_write_text(os.path.join(out, "episodes.csv"), csv_text(res.rows, EPISODE_COLUMNS))
-    atomic_write_text(os.path.join(out, "summary.csv"), csv_text(res.summary, _columns(res.summary)))
+    tag = _plant_column(res)
+    atomic_write_text(os.path.join(out, "episodes.csv"), csv_text(*tag(res.rows, EPISODE_COLUMNS)))
+    atomic_write_text(os.path.join(out, "summary.csv"), csv_text(*tag(res.summary, _columns(res.summary))))
     if res.comparisons:
-        atomic_write_text(os.path.join(out, "comparisons.csv"), csv_text(res.comparisons, _columns(res.comparisons)))
+        atomic_write_text(os.path.join(out, "comparisons.csv"),
+                          csv_text(*tag(res.comparisons, _columns(res.comparisons))))
     bound = bound_function() if any(r["suite"] == "step" for r in res.rows) else None
     bound_notes: list = []
     steps = step_rows(res, bound, bound_notes)
     if steps:
-        atomic_write_text(os.path.join(out, "steps.csv"), csv_text(steps, STEP_COLUMNS))
+        atomic_write_text(os.path.join(out, "steps.csv"), csv_text(*tag(steps, STEP_COLUMNS)))
     t0 = time.perf_counter()
     figs = make_figures(res, os.path.join(out, "figures"))
     res.timings["figures"] = time.perf_counter() - t0

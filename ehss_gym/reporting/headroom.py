@@ -155,7 +155,8 @@ def write_report(res: dict, out: str, command: str) -> str:
     text = render("headroom.md.j2", command=command, version=__version__, res=res, cfg=cfg, tasks=tasks,
                   classes=CLASSES, variants=variants, checks=_checks(blocks), material=MATERIAL,
                   min_episodes=MIN_EPISODES, free_period=FREE_PERIOD, base_period=BASE_PERIOD,
-                  check_suite=CHECK_SUITE, bias=cfg.bias.describe(), width=cfg.width.describe())
+                  check_suite=CHECK_SUITE, bias=cfg.bias.describe(), width=cfg.width.describe(),
+                  plant=cfg.eval_config().rig.summary())
     path = os.path.join(out, "HEADROOM.md")
     atomic_write_text(path, text)
     return path

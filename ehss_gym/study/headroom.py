@@ -44,6 +44,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ehss_gym.controllers import CLFPolicy, ConstantResidualPolicy, FrictionFeedforwardPolicy, parse_scripted
+from ehss_gym.core.rig import Rig
 from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.config import DEFAULTS
 from ehss_gym.evaluation.harness import rollout
@@ -308,6 +309,8 @@ class HeadroomConfig:
         quick: the CI form (:meth:`quick_config`).
         n_boot: bootstrap replicates.
         seed: bootstrap seed.
+        plant: the rig the suites run on and the laws act on (``ehss evaluate``'s ``EvalConfig.plant``); None =
+            Table I.
     """
 
     episodes: int = EPISODES
@@ -318,6 +321,7 @@ class HeadroomConfig:
     quick: bool = False
     n_boot: int = 2000
     seed: int = 0
+    plant: Rig | None = None
 
     @classmethod
     def quick_config(cls, **changes) -> HeadroomConfig:
@@ -341,8 +345,9 @@ class HeadroomConfig:
         """The suites' sizes (``ehss evaluate``'s, or its quick form's)."""
         if self.quick:
             return EvalConfig.quick(tasks=self.tasks, heldout_episodes=self.episodes, paper_seconds=2.0,
-                                    friction_levels=(1.8,), mismatch_levels=(0.2,), step_amplitudes=(0.5,))
-        return EvalConfig(tasks=self.tasks, heldout_episodes=self.episodes)
+                                    friction_levels=(1.8,), mismatch_levels=(0.2,), step_amplitudes=(0.5,),
+                                    plant=self.plant)
+        return EvalConfig(tasks=self.tasks, heldout_episodes=self.episodes, plant=self.plant)
 
     def periods_of(self, v: Variant, suite: str = CHECK_SUITE) -> tuple:
         """The agent periods variant ``v`` runs at on ``suite`` (:attr:`Variant.periods`)."""
@@ -388,7 +393,8 @@ def plan(cfg: HeadroomConfig) -> list[Job]:
         for suite, eps in suite_episodes(cfg, task).items():
             for v in (v for v in VARIANTS if not v.made_by):
                 for ap in cfg.periods_of(v, suite):
-                    kw = {"task": task, **parse_scripted(v.policy), **SUITE_ENV.get(suite, {}), "agent_period": ap}
+                    kw = {"task": task, **parse_scripted(v.policy), **SUITE_ENV.get(suite, {}), "agent_period": ap,
+                          **cfg.eval_config().env_kwargs()}
                     search = getattr(cfg, v.search) if v.search else None
                     config = {"variant": v.name, "task": task, "suite": suite, "agent_period": ap, "env_kwargs": kw,
                               "episodes": eps, "search": search}
