@@ -5,6 +5,8 @@ headroom, train), each output naming it; Table I's loop unchanged without one.""
 from __future__ import annotations
 
 import csv
+import json
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -18,7 +20,13 @@ from ehss_gym.core.params import PlantParams
 from ehss_gym.core.rig import TABLE_I, as_rig, shipped_plants
 from ehss_gym.core.scenarios import MISMATCH_PARAMS, controller_mismatch
 from ehss_gym.envs import EnvConfig
+from ehss_gym.envs.config import PlantWarning
 from ehss_gym.envs.lanes import Lanes
+from ehss_gym.envs.law_table import LawSettingsError, load_law_table
+from ehss_gym.evaluation import harness
+from ehss_gym.evaluation.loading import load_run
+from ehss_gym.evaluation.specs import scripted_spec
+from ehss_gym.evaluation.suites import EvalConfig
 from ehss_gym.study.headroom import HeadroomConfig, plan
 from ehss_gym.train.config import Config
 
@@ -150,3 +158,65 @@ def test_headroom_and_train_take_the_plant():
     assert run.run_name() != Config(timesteps=1).run_name()
     with pytest.raises(Exception, match=r"--plant: .*file not found"):
         Config(plant="nothere.toml").validate()
+
+
+# --- law settings tuned for the plant -------------------------------------------------------------------------
+
+LAWS = {"plant": {"label": RIG.label, "hash": RIG.hash},
+        "velocity": {"default_n": 2, "clf-n2": {"sigma": 7e5, "fr": 100.0, "smoothing": 50.0, "layer_gain": 4.0},
+                     "clf-n4": {"sigma": 2e6, "fr": 90.0, "smoothing": 0.0, "layer_gain": 0.0},
+                     "dob-n2": {"dob_hz": 35.0, "smoothing": 60.0, "layer_gain": 5.0},
+                     "pid": {"kp": 0.2, "ki": 0.5, "kd": 0.004}}}
+
+
+def test_the_env_takes_the_law_settings_row_of_its_n_and_warns_without_them(tmp_path):
+    path = tmp_path / "law_settings.json"
+    path.write_text(json.dumps(LAWS))
+    for value in (str(path), LAWS, load_law_table(path)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", PlantWarning)  # tuned for this plant: no warning
+            cfg = gym.make("ehss_gym:EHSSTracking-v0", plant=RIG, law_settings=value).unwrapped.config
+        assert (cfg.sigma, cfg.fr, cfg.smoothing, cfg.layer_gain) == (7e5, 100.0, 50.0, 4.0)
+    four = EnvConfig.from_kwargs({"plant": RIG, "law_settings": LAWS, "n": 4, "smoothing": 9.0})
+    assert (four.sigma, four.fr, four.smoothing) == (2e6, 90.0, 9.0)  # an explicit setting wins
+    six = EnvConfig.from_kwargs({"plant": RIG, "law_settings": LAWS, "n": 6})
+    assert six.sigma == 7e5  # an n without a row: the default n's
+    with pytest.warns(PlantWarning, match=r"tuned for Table I, and the plant is compact 140 bar rig"):
+        gym.make("ehss_gym:EHSSTracking-v0", plant=RIG)
+    with pytest.warns(PlantWarning, match=r"tuned on compact 140 bar rig .* and the plant is Table I"):
+        gym.make("ehss_gym:EHSSTracking-v0", law_settings=LAWS)
+    with pytest.raises(ValueError, match=r"law_settings: law settings \(dict\) have no row for task 'position'"):
+        EnvConfig.from_kwargs({"task": "position", "law_settings": LAWS})
+
+
+@pytest.mark.parametrize("content, pattern", [
+    ({"velocity": {"clf-n2": {"sigma": "7e5", "fr": 1.0, "smoothing": 0.0, "layer_gain": 0.0}}},
+     r"velocity.clf-n2.sigma \[unit of s\] must be a finite number in \(0, inf\), got '7e5'"),
+    ({"velocity": {"clf-n3": {"sigma": 1.0, "fr": 1.0, "smoothing": 0.0, "layer_gain": 0.0}}},
+     r"clf-n3's n must be an even integer"),
+    ({"velocity": {"clf-n2": {"sigma": 1.0, "fr": 1.0}}}, r"velocity.clf-n2: missing key\(s\) \['smoothing'"),
+    ({"velocity": {"clf-n2": {"sigma": 1.0, "fr": 1.0, "smoothing": 0.0, "layer_gain": 0.0}, "pid": {"kp": -1}}},
+     r"velocity: pid: missing key|velocity.pid"),
+    ({"torque": {}}, r"unknown key\(s\) \['torque'\]"),
+    ({"velocity": {"default_n": 4, "clf-n2": {"sigma": 1.0, "fr": 1.0, "smoothing": 0.0, "layer_gain": 0.0}}},
+     r"default_n = 4 has no clf-n4 row"),
+])
+def test_a_bad_law_settings_file_is_a_clear_error(content, pattern, tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(content))
+    with pytest.raises(LawSettingsError, match=pattern):
+        load_law_table(path)
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--law-settings", str(path), "--out", str(tmp_path / "x")])
+
+
+def test_evaluate_gives_each_scripted_law_its_tuned_row(tmp_path):
+    """--law-settings: clf-n<k> takes its n's row, dob-n2 its observer row per task, the PID its gains."""
+    cfg = EvalConfig(plant=RIG, law_settings=LAWS, tasks=("velocity",))
+    specs = {s.name: harness.on_plant(s, cfg, []) for s in map(scripted_spec, ("clf-n4", "dob-n2", "pid"))}
+    kw4 = EnvConfig.from_kwargs(specs["clf-n4"].env_kwargs_for("velocity"))
+    assert (kw4.sigma, kw4.fr, kw4.current_limit) == (2e6, 90.0, 15.0)
+    dob = EnvConfig.from_kwargs(specs["dob-n2"].env_kwargs_for("velocity"))
+    assert (dob.dob_hz, dob.smoothing, dob.layer_gain, dob.sigma) == (35.0, 60.0, 5.0, 7e5)
+    pid = load_run(specs["pid"].runs[0], "velocity", specs["pid"].env_kwargs_for("velocity"))
+    assert (pid.kp, pid.ki, pid.kd) == (0.2, 0.5, 0.004) and pid.config.plant == RIG

@@ -6,6 +6,7 @@ import os
 import sys
 
 from ehss_gym.infra.execution import DEFAULT_STORE, Backend, Store
+from ehss_gym.infra.util import report_folder
 
 
 def backend_from_args(args, workers: int | None = None) -> Backend:
@@ -16,6 +17,16 @@ def backend_from_args(args, workers: int | None = None) -> Backend:
 def store_from_args(args) -> Store | None:
     """The :class:`~ehss_gym.infra.execution.Store` of ``--store`` (default runs/jobs), or None with ``--no-store``."""
     return None if args.no_store else Store(args.store or DEFAULT_STORE)
+
+
+def plant_out_folder(out: str | None, quick: bool, shipped: str, plant) -> str:
+    """A report command's output folder (:func:`ehss_gym.infra.util.report_folder`), but on another plant than Table
+    I without ``--out``: ``runs/<plant's file stem>/<report>`` (``runs/quick/...`` for a quick run), so a run on
+    another plant never writes into the committed Table I reports."""
+    if out is not None or plant is None:
+        return report_folder(out, quick, shipped)
+    stem = os.path.splitext(os.path.basename(plant.source))[0] if plant.source else plant.hash
+    return os.path.join("runs", *(("quick",) if quick else ()), stem, os.path.basename(os.path.normpath(shipped)))
 
 
 def check_out_folder(prog: str, out: str) -> bool:
@@ -29,4 +40,4 @@ def check_out_folder(prog: str, out: str) -> bool:
     return True
 
 
-__all__ = ["backend_from_args", "store_from_args", "check_out_folder"]
+__all__ = ["backend_from_args", "store_from_args", "check_out_folder", "plant_out_folder"]

@@ -11,10 +11,9 @@ from dataclasses import replace
 from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, PolicyWarning, default_specs, evaluate, parse_policies
 from ehss_gym.evaluation.specs import SCRIPTED_DEFAULT, scripted_spec
 from ehss_gym.infra.execution import Executor
-from ehss_gym.infra.util import report_folder
 from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
 
-from .common import backend_from_args, store_from_args
+from .common import backend_from_args, plant_out_folder, store_from_args
 
 
 def _command_line(args) -> str:
@@ -30,6 +29,8 @@ def _command_line(args) -> str:
         parts.append("--task " + ",".join(args.task))
     if args.plant is not None:
         parts.append(f"--plant {args.plant.source or args.plant.name}")
+    if args.law_settings is not None:
+        parts.append(f"--law-settings {args.law_settings.source}")
     for flag, v in (("--episodes", args.episodes), ("--sweep-episodes", args.sweep_episodes),
                     ("--workers", args.workers), ("--n-boot", args.n_boot)):
         if v is not None:
@@ -46,7 +47,7 @@ def _command_line(args) -> str:
 def config_from_args(args) -> EvalConfig:
     """The evaluation's sizes from the options (``--quick`` first, the explicit sizes on top)."""
     changes = {"suites": SUITES if args.suite == "all" else (args.suite,), "tasks": tuple(args.task),
-               "seed": args.seed, "plant": args.plant}
+               "seed": args.seed, "plant": args.plant, "law_settings": args.law_settings}
     for key, v in (("heldout_episodes", args.episodes), ("sweep_episodes", args.sweep_episodes),
                    ("n_boot", args.n_boot)):
         if v is not None:
@@ -89,10 +90,10 @@ def run(args) -> int:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
     print(f"{prog}: {executor.computed} job(s) computed, {executor.skipped} from the store", file=sys.stderr)
-    print(cfg.rig.summary())
+    print(cfg.rig.summary() + ("" if cfg.law_settings is None else f"; {cfg.law_settings.describe()}"))
     for note in res.notes:
         print(f"{prog}: note: {note}", file=sys.stderr)
-    path = write_report(res, report_folder(args.out, args.quick, DEFAULT_OUT))
+    path = write_report(res, plant_out_folder(args.out, args.quick, DEFAULT_OUT, args.plant))
     print(f"{len(res.rows)} episodes in {res.wall_time:.1f} s ({res.workers} workers; "
           + ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()) + f"); wrote {path}")
     for suite in SUITES:

@@ -24,6 +24,7 @@ from ehss_gym.core.rig import PlantFileError, as_rig, shipped_plants
 from ehss_gym.core.settings import LOOP_SETTINGS, TASKS, Scenario
 from ehss_gym.core.signals import FAMILIES
 from ehss_gym.core.validate import check_even_n
+from ehss_gym.envs.law_table import LawSettingsError, as_law_table
 from ehss_gym.evaluation.suites import SUITES, EvalConfig
 from ehss_gym.infra import BACKENDS, DEFAULT_STORE, RAY_INSTALL
 from ehss_gym.train.config import build_parser as add_train_config
@@ -204,6 +205,14 @@ def plant_file(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def law_settings_file(text: str):
+    """argparse type: a law-settings file (``ehss baselines`` writes law_settings.json), read and checked."""
+    try:
+        return as_law_table(text)
+    except LawSettingsError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def floats(name: str):
     """argparse type: comma-separated finite numbers."""
     def conv(text):
@@ -287,12 +296,18 @@ def add_backend_arguments(p) -> None:
     g.add_argument("--no-store", action="store_true", help="keep no job results: compute every job afresh")
 
 
-def add_plant(p, what: str = "the rig") -> None:
-    """``--plant``: a plant file (docs: "Your own servo"); default Table I."""
+def add_plant(p, what: str = "the rig", law_settings: bool = True) -> None:
+    """``--plant``: a plant file (docs: "Your own servo"); default Table I. With ``law_settings``, also
+    ``--law-settings``: the CLF law's settings tuned for it."""
     p.add_argument("--plant", type=plant_file, default=None, metavar="FILE",
                    help=f"{what}: a TOML plant file (a [plant] table of the model's parameters or a [datasheet] "
                         f"table; see 'Your own servo' in the docs) or a shipped plant "
                         f"({', '.join(shipped_plants())}); default Table I")
+    if law_settings:
+        p.add_argument("--law-settings", type=law_settings_file, default=None, metavar="JSON",
+                       help="the scripted laws' settings tuned for the plant: the law_settings.json of `ehss "
+                            "baselines --plant FILE` (per n the CLF law's sigma, f_r, smoothing, layer gain; "
+                            "dob-n2's observer; the PID's gains); default: the built-in ones, tuned for Table I")
 
 
 # --- ehss simulate: the loop settings, one flag each ---------------------------------------------------------
@@ -407,7 +422,7 @@ def add_simulate(p) -> None:
 # --- the study and report commands ------------------------------------------------------------------------
 
 
-def add_plant_command(p) -> None:
+def add_plant_command(p) -> None:  # ehss plant FILE
     p.add_argument("file", type=plant_file, metavar="FILE",
                    help=f"a TOML plant file or a shipped plant ({', '.join(shipped_plants())})")
 
@@ -504,14 +519,20 @@ def add_headroom(p) -> None:
 
 
 def add_baselines(p) -> None:
+    add_plant(p, "the rig the training scenarios are drawn around (its tuned settings go to law_settings.json)",
+              law_settings=False)
     p.add_argument("--budget", type=int_at_least("--budget", 1), default=None,
-                   help="evaluations per baseline (default 64; --quick 6)")
+                   help="evaluations per baseline (default 64; --quick 32)")
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
-                   help="training scenarios, seeds 0..EPISODES-1 (default 48; --quick 3)")
+                   help="training scenarios, seeds 0..EPISODES-1 (default 48; --quick 12)")
     p.add_argument("--seconds", type=finite("--seconds", 0.0), default=None,
-                   help="episode duration [s] (default 2; --quick 0.3)")
+                   help="episode duration [s] (default 2)")
+    p.add_argument("--check-episodes", type=int_at_least("--check-episodes", 0), default=None,
+                   help="held-out episodes of the check of the tuned n = 2 law after the search (saturation, limit "
+                        "cycles through the friction events; default 48; 0: no check)")
     add_out(p, "output folder", os.path.join("reports", "baselines"))
-    add_quick(p, "3 episodes of 0.3 s and 6 evaluations per baseline (CI smoke run; numbers not meaningful)")
+    add_quick(p, "12 training episodes of 2 s and 32 evaluations per baseline: a few minutes on two cores, "
+                 "coarser than the full run")
     add_progress(p)
 
 

@@ -43,11 +43,11 @@ def _reference(args, t_end: float):
     return multisine(args.amplitudes, args.omegas, args.phases, args.offset)
 
 
-def preset_scenario(preset: str, task: str, rig: Rig = TABLE_I) -> Scenario:
-    """The loop of a preset on the rig: the env's defaults ("recommended": the rig's rated current as the limit) or
-    the law as printed ("paper")."""
+def preset_scenario(preset: str, task: str, rig: Rig = TABLE_I, law_settings=None) -> Scenario:
+    """The loop of a preset on the rig: the env's defaults ("recommended": the rig's rated current as the limit, the
+    law's settings from ``law_settings`` if given) or the law as printed ("paper")."""
     if preset == "recommended":
-        return EnvConfig.from_kwargs({"task": task, "plant": rig}).template()
+        return EnvConfig.from_kwargs({"task": task, "plant": rig, "law_settings": law_settings}).template()
     return Scenario(task=task, plant=rig.plant, model=rig.model)
 
 
@@ -64,7 +64,7 @@ def scenario_from_args(args) -> Scenario:
         ValueError: a setting the Scenario refuses (the message names it).
     """
     rig = rig_of(args)
-    base = preset_scenario(args.preset, args.task, rig)
+    base = preset_scenario(args.preset, args.task, rig, getattr(args, "law_settings", None))
     changes = {k: getattr(args, k) for k in LOOP_SETTINGS if k != "task" and getattr(args, k, None) is not None}
     for k, v in changes.items():
         if v == NONE or (k == "current_limit" and v == math.inf):  # the setting switched off
@@ -105,12 +105,13 @@ def _write_outputs(traj, base: str, made_by: str, rig: Rig) -> None:
     plot_trajectory(traj, base + ".png", made_by=f"{made_by}; plant {rig.label}")
 
 
-def _write_bode(traj, base: str, made_by: str) -> str:
-    """The closed loop's r -> y frequency response of a chirp or multi-sine run: PATH_bode.png and .csv."""
+def _write_bode(traj, base: str, made_by: str, rig: Rig) -> str:
+    """The closed loop's r -> y frequency response of a chirp or multi-sine run: PATH_bode.png and .csv (its first
+    line ``# plant: ...``, as the run's CSV)."""
     fr = frequency_response(traj.t, traj.r, traj.y)
     rows = np.column_stack([fr.freq, fr.magnitude_db, fr.phase_deg, fr.coherence])
-    atomic_write_text(base + "_bode.csv", "frequency [Hz],magnitude [dB],phase [deg],coherence [-]\n"
-                      + "\n".join(",".join(f"{v:.8g}" for v in row) for row in rows) + "\n")
+    header = f"# {rig.summary()}\nfrequency [Hz],magnitude [dB],phase [deg],coherence [-]\n"
+    atomic_write_text(base + "_bode.csv", header + "\n".join(",".join(f"{v:.8g}" for v in row) for row in rows) + "\n")
     sc = traj.scenario
     target = (fr.freq, reference_model_response(sc.order, sc.ref_model_hz, fr.freq))
     plot_frequency_response(fr, base + "_bode.png", sc, made_by=made_by, reference=target)
@@ -134,7 +135,8 @@ def run(args) -> int:
     made_by = _command(getattr(args, "argv", None))
     rig = rig_of(args)
     _write_outputs(traj, base, made_by, rig)
-    print(rig.summary() + (f"; the plant's {', '.join(args.mismatch)} scaled by --mismatch" if args.mismatch else ""))
+    print(rig.summary() + (f"; the plant's {', '.join(args.mismatch)} scaled by --mismatch" if args.mismatch else "")
+          + ("" if getattr(args, "law_settings", None) is None else f"; {args.law_settings.describe()}"))
     lim = "none" if sc.current_limit is None else f"{sc.current_limit:g} mA"
     print(f"{sc.task} task ({args.preset} preset), n={sc.n}, f_r={sc.fr:g} Hz, sigma={sc.sigma:g}, "
           f"smoothing={sc.smoothing:g}, h={sc.control_period:g} s, substeps={sc.substeps}, limit={lim}, "
@@ -145,7 +147,7 @@ def run(args) -> int:
     print(format_summary(m, UNITS[sc.task]))
     written = [base + ".png", base + ".npz", base + ".csv"]
     if args.bode and not traj.diverged:
-        written.append(_write_bode(traj, base, made_by))
+        written.append(_write_bode(traj, base, made_by, rig))
     print("wrote " + ", ".join(written))
     if m["diverged"]:
         return EXIT_DIVERGED

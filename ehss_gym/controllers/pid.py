@@ -124,6 +124,7 @@ def tune_pid(env_or_config=None, relay_ma: float = 0.05, relay_seconds: float = 
     cfg = _tuning_config(env_or_config)
     kw = _env_kwargs(cfg)
     kw["plant"] = (cfg.plant.plant, cfg.plant.model, cfg.plant.rated_current)  # its values, not its name
+    kw.pop("law_settings")  # its rows are in the law's settings above
     key = json.dumps(canonical([kw, float(relay_ma), float(relay_seconds)]))
     if key not in _TUNED:
         _TUNED[key] = _tune(cfg, relay_ma, relay_seconds, progress)
@@ -206,5 +207,6 @@ def default_pid_gains(cfg: EnvConfig, progress: bool = True) -> tuple[float, flo
 
 def _is_default(cfg: EnvConfig) -> bool:
     ref = EnvConfig.from_kwargs({"task": cfg.task, "mode": cfg.mode})
-    skip = ("scenario", "episode_seconds", "reward_weights", "error_scale")  # the plant counts (by its values)
+    # the plant counts (by its values); the law table's effect is in the law's settings, which count
+    skip = ("scenario", "episode_seconds", "reward_weights", "error_scale", "law_settings")
     return all(getattr(cfg, k) == getattr(ref, k) for k in EnvConfig.KEYS if k not in skip)

@@ -13,6 +13,7 @@ evaluation ruler's choice (:data:`BUMPLESS_DEFAULT`). The evidence is in docs/EN
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -22,6 +23,8 @@ from ehss_gym.core.rig import TABLE_I, Rig, as_rig
 from ehss_gym.core.scenarios import controller_mismatch, paper_scenario
 from ehss_gym.core.settings import LOOP_SETTINGS, PHYSICAL_FIELDS, TASKS, Scenario
 from ehss_gym.core.validate import check_bool, check_choice, check_finite, check_int, check_positive
+
+from .law_table import LawTable, as_law_table
 
 # The bumpless start (the reference model starts at the measured output and its estimated derivatives, as servo
 # drives do) is the default of both tasks because of the evaluation's ruler, not the noise study: with the paper's
@@ -192,13 +195,13 @@ REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence", "class", "
 FIXED_LOOP = ("ref_model_hz", "omega_max", "pressure_bound")
 # The env's settings: the loop settings it exposes, then its own.
 LOOP_KEYS = tuple(k for k in LOOP_SETTINGS if k not in FIXED_LOOP)
-ENV_KEYS = ("plant", "mode", "residual_scale", "agent_period", "scenario", "reward_weights", "error_scale",
-            "episode_seconds", "terminate_on_lost_track", "unmodelled_effects", "memory_tau")
+ENV_KEYS = ("plant", "law_settings", "mode", "residual_scale", "agent_period", "scenario", "reward_weights",
+            "error_scale", "episode_seconds", "terminate_on_lost_track", "unmodelled_effects", "memory_tau")
 # What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends, and the
 # plant (the rig an exported policy was trained on is recorded when it was given: agents.specs.resolved_env_kwargs).
 POLICY_KEYS = tuple(k for k in LOOP_KEYS + ENV_KEYS
                     if k not in ("scenario", "episode_seconds", "lost_track", "terminate_on_lost_track",
-                                 "unmodelled_effects", "plant"))
+                                 "unmodelled_effects", "plant", "law_settings"))
 # Settings whose default depends on the task (residual_scale: on the current limit, sigma: on the law too); None
 # selects that default.
 TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_by_law") + ("residual_scale",)
@@ -240,6 +243,7 @@ class EnvConfig:
     unmodelled_effects: bool = DEFAULTS.unmodelled_effects
     memory_tau: float | None = DEFAULTS.memory_tau
     plant: Rig = TABLE_I
+    law_settings: LawTable | None = None
 
     KEYS = LOOP_KEYS + ENV_KEYS
 
@@ -257,14 +261,15 @@ class EnvConfig:
             raise ValueError(f"unknown keyword argument(s) {unknown}; valid: {list(cls.KEYS) + ['render_mode']}")
         d = DEFAULTS
         rig = plant_of(kwargs.get("plant"))
+        table = law_table_of(kwargs.get("law_settings"))
         task = check_choice("task", kwargs.get("task", "velocity"), tuple(TASKS))
         td: TaskDefaults = getattr(d, task)
         mode = check_choice("mode", kwargs.get("mode", d.mode), MODES)
         law = check_choice("law", kwargs.get("law", td.law), names(LAWS))
         loop = {k: kwargs[k] if k in kwargs else _default(k, td, d) for k in LOOP_KEYS}
         # the law's settings not given: the row of the env's n (tuned per n); another law's sigma: its own
-        per_n = law_defaults(task, loop["n"])
-        loop.update({k: getattr(per_n, k) for k in LAW_KEYS if k not in kwargs})
+        per_n = law_row(table, task, loop["n"])
+        loop.update({k: per_n[k] for k in LAW_KEYS if k not in kwargs})
         if "sigma" not in kwargs and law != td.law:
             loop["sigma"] = td.sigma_for(law)
         loop.update(task=task, law=law)
@@ -284,6 +289,7 @@ class EnvConfig:
         scale = check_positive("residual_scale", scale)
         agent_period = check_int("agent_period", kwargs.get("agent_period", d.agent_period), 1)
         cfg = cls(loop=template, mode=mode, residual_scale=scale, agent_period=agent_period, plant=rig,
+                  law_settings=table,
                   **_episode_settings(kwargs, td, d, template.control_period * agent_period))
         if isinstance(cfg.scenario, Scenario):
             cfg.check_pinned(cfg.scenario)
@@ -318,6 +324,55 @@ class EnvConfig:
 
 
 _SCENARIO_DEFAULTS = {f.name: f.default for f in fields(Scenario)}
+
+
+class PlantWarning(UserWarning):
+    """The CLF law's settings were not tuned for the env's plant (Table I's on another rig, or a file tuned on
+    another plant): the loop may saturate or chatter; ``ehss baselines --plant FILE`` tunes them."""
+
+
+def law_table_of(value) -> LawTable | None:
+    """The env's law table from its ``law_settings`` setting (None: the built-in per-n table, Table I's tuning);
+    ValueError naming the setting otherwise."""
+    try:
+        return as_law_table(value)
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith("law") else f"law_settings: {msg}") from None
+
+
+def law_row(table: LawTable | None, task: str, n) -> dict:
+    """The CLF law's settings (sigma, f_r, smoothing, layer_gain) of ``task`` at ``n``: the law table's row, or the
+    built-in :data:`LAW_DEFAULTS` (Table I's tuning) without one."""
+    if table is None:
+        ls = law_defaults(task, n)
+        return {k: getattr(ls, k) for k in LAW_KEYS}
+    try:
+        return table.row(task, n)
+    except ValueError as exc:
+        raise ValueError(f"law_settings: {exc}") from None
+
+
+def untuned_note(cfg: EnvConfig, given) -> str | None:
+    """Why the CLF law's settings of ``cfg`` were not tuned for its plant (Table I's rows on another rig, or a law
+    table tuned on another plant), or None; ``given``: the settings given explicitly (all four law settings given:
+    None). The direct mode, where the law's current is not applied, has no such note."""
+    if all(k in given for k in LAW_KEYS) or cfg.mode == "direct":
+        return None
+    rig, table = cfg.plant, cfg.law_settings
+    if table is None and not rig.is_table_i:
+        return (f"the CLF law's settings are those tuned for Table I, and the plant is {rig.label}: tune them for it "
+                "with `ehss baselines --plant FILE` and pass its law_settings.json (law_settings=..., --law-settings)")
+    if table is not None and table.plant_hash and table.plant_hash != rig.hash:
+        return f"the law settings {table.source} were tuned on {table.plant_label}, and the plant is {rig.label}"
+    return None
+
+
+def warn_untuned(cfg: EnvConfig, given) -> None:
+    """A :class:`PlantWarning` with :func:`untuned_note`, if any (the envs' constructors call it)."""
+    note = untuned_note(cfg, given)
+    if note:
+        warnings.warn(note, PlantWarning, stacklevel=3)
 
 
 def plant_of(value) -> Rig:
@@ -377,7 +432,8 @@ SETTING_UNITS = {
     "law": "", "layer_gain": "-", "bumpless": "", "ref_accel": "rad/s^2 (0: none)", "pressure_domain": "x P_s",
     "lost_track": "x reference amplitude", "dob_hz": "Hz (0: off)",
     "lyapunov_kappa": "- (None: off)",
-    "plant": "TOML file, dict, PlantParams or Rig", "mode": "", "residual_scale": "mA",
+    "plant": "TOML file, dict, PlantParams or Rig", "law_settings": "JSON file or dict (None: Table I's tuning)",
+    "mode": "", "residual_scale": "mA",
     "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
     "terminate_on_lost_track": "", "unmodelled_effects": "", "memory_tau": "s (None: no memory features)",
@@ -429,7 +485,8 @@ def defaults_table() -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["RATED", "plant_of", "LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
+__all__ = ["RATED", "plant_of", "law_table_of", "law_row", "PlantWarning", "untuned_note", "warn_untuned",
+           "LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
            "TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
            "ENV_KEYS", "POLICY_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
            "in_legacy_loop", "SETTING_UNITS", "defaults_table"]

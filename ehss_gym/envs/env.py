@@ -18,7 +18,7 @@ from ehss_gym.core.layout import I_E, I_R, I_T, I_TF, I_UAPP, I_UBASE, I_URES, I
 from ehss_gym.core.settings import Scenario
 
 from .buffers import F_REW, F_STATS, S_N, S_UMAX, S_UMIN
-from .config import DEFAULTS, NONE_IS_A_VALUE, RATED, EnvConfig
+from .config import DEFAULTS, NONE_IS_A_VALUE, RATED, EnvConfig, warn_untuned
 from .lanes import Lanes, step_info
 from .observation import OBS_BOUND
 
@@ -165,6 +165,7 @@ class EHSSTrackingEnv(gym.Env):
     | `lyapunov_kappa` | None | None | - (None: off) |
     | `lost_track` | 1 | 1 | x reference amplitude |
     | `plant` | Table I | Table I | TOML file, dict, PlantParams or Rig |
+    | `law_settings` | None | None | JSON file or dict (None: Table I's tuning) |
     | `mode` | `"residual"` | `"residual"` |  |
     | `residual_scale` | 10 | 10 | mA |
     | `agent_period` | 5 | 5 | control periods |
@@ -203,6 +204,11 @@ class EHSSTrackingEnv(gym.Env):
             mismatch around it, and the controller's model is the file's (its [model] table, else the plant's
             nominal parameters); its rated current is the default current limit. A bad file or value raises
             ValueError naming the key, its unit and range.
+        law_settings: the CLF law's settings tuned for the plant (:mod:`ehss_gym.envs.law_table`): the
+            ``law_settings.json`` that ``ehss baselines --plant FILE`` writes (a path, its content as a dict, or a
+            :class:`~ehss_gym.envs.law_table.LawTable`); the env takes its row for n for every law setting (sigma,
+            fr, smoothing, layer_gain) not given. None: the built-in rows, tuned for Table I (a
+            :class:`~ehss_gym.envs.config.PlantWarning` says so on another plant).
         n: CLF power factor, even >= 2.
         fr: combined-error cutoff f_r [Hz].
         sigma: CLF scale [unit of s] (1 = the paper's law).
@@ -293,7 +299,8 @@ class EHSSTrackingEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
-    def __init__(self, *, task: str = "velocity", plant=None, mode: str = DEFAULTS.mode, n: int = DEFAULTS.n,
+    def __init__(self, *, task: str = "velocity", plant=None, law_settings=None, mode: str = DEFAULTS.mode,
+                 n: int = DEFAULTS.n,
                  fr: float | None = None, sigma: float | None = None, smoothing: float | None = None,
                  current_limit: float | str | None = RATED, control_period: float = DEFAULTS.control_period,
                  substeps: int = DEFAULTS.substeps, estimator: str | None = None,
@@ -317,6 +324,7 @@ class EHSSTrackingEnv(gym.Env):
         # None selects the default, except where None is a value (current_limit=None means unlimited)
         given = {k: v for k, v in given.items() if v is not None or k in NONE_IS_A_VALUE}
         self.config = cfg = EnvConfig.from_kwargs({**given, **unknown})
+        warn_untuned(cfg, given)
         self._lanes = Lanes(cfg, 1)
         self.observation_layout = self._lanes.layout
         D = len(self.observation_layout)

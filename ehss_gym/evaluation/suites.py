@@ -45,6 +45,8 @@ from ehss_gym.core.scenarios import (
 from ehss_gym.core.settings import UNITS  # task -> unit of its output y (re-exported: the report's tables use it)
 from ehss_gym.core.signals import step
 from ehss_gym.envs import EnvConfig
+from ehss_gym.envs.config import law_table_of
+from ehss_gym.envs.law_table import LawTable
 
 TASKS = ("velocity", "position")
 SUITES = ("paper", "heldout", "robustness", "step", "unmodelled")
@@ -80,6 +82,8 @@ class EvalConfig:
         chunk: episodes per job (one job = one policy run on up to ``chunk`` episodes of one suite/task).
         plant: the rig every suite runs on (:func:`ehss_gym.core.rig.as_rig`: a Rig, a plant file, ...); None =
             Table I, not given (the outputs then carry no plant column, as before plant files).
+        law_settings: the scripted laws' settings tuned for the plant (:mod:`ehss_gym.envs.law_table`: a
+            law-settings file, its content or a LawTable); None = the env's built-in rows (Table I's tuning).
     """
 
     suites: tuple = SUITES
@@ -95,6 +99,7 @@ class EvalConfig:
     seed: int = 0
     chunk: int = 24
     plant: Rig | None = None
+    law_settings: LawTable | None = None
 
     @property
     def rig(self) -> Rig:
@@ -102,8 +107,10 @@ class EvalConfig:
         return as_rig(self.plant)
 
     def env_kwargs(self) -> dict:
-        """The env settings every policy of the evaluation gets from it: the plant, when one was given."""
-        return {} if self.plant is None else {"plant": self.plant}
+        """The env settings the scripted policies of the evaluation get from it: the plant and the law settings,
+        where given."""
+        out = {} if self.plant is None else {"plant": self.plant}
+        return out if self.law_settings is None else {**out, "law_settings": self.law_settings}
 
     @classmethod
     def quick(cls, **changes) -> EvalConfig:
@@ -147,6 +154,7 @@ class EvalConfig:
             except ValueError as exc:
                 msg = str(exc)
                 raise ValueError(msg if msg.startswith("plant") else f"plant: {msg}") from None
+        object.__setattr__(self, "law_settings", law_table_of(self.law_settings))
         if self.episode_seconds <= SWEEP_WINDOW[1] and "robustness" in self.suites:
             raise ValueError(f"episode_seconds must be > {SWEEP_WINDOW[1]} s for the robustness sweeps, got "
                              f"{self.episode_seconds}")

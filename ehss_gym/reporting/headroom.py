@@ -138,7 +138,10 @@ def write_report(res: dict, out: str, command: str) -> str:
     """Write HEADROOM.md, headroom.csv and headroom.png under ``out``; returns HEADROOM.md's path."""
     os.makedirs(out, exist_ok=True)
     blocks = res["blocks"]
-    atomic_write_text(os.path.join(out, "headroom.csv"), csv_text([d for b in blocks for d in b["stats"]], COLUMNS))
+    stats = [d for b in blocks for d in b["stats"]]
+    plant = res["cfg"].plant  # a plant given: a column naming it (Table I's CSV as before plant files)
+    atomic_write_text(os.path.join(out, "headroom.csv"), csv_text(stats, COLUMNS) if plant is None else
+                      csv_text([{**d, "plant": plant.label} for d in stats], ("plant", *COLUMNS)))
     plot_headroom(blocks, os.path.join(out, "headroom.png"), command)
     tasks = []
     for task in dict.fromkeys(b["task"] for b in blocks):
