@@ -114,8 +114,10 @@ def test_the_pids_relay_experiment_runs_on_the_plant_it_will_control(monkeypatch
 def test_simulate_names_the_plant_in_its_summary_csv_and_npz(tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["simulate", "--plant", "compact140", "--t-end", "0.3", "--out", str(out)]) == 0
-    text = capsys.readouterr().out
+    captured = capsys.readouterr()
+    text = captured.out
     assert f"plant: {RIG.label}, rated current 15 mA" in text and "limit=15 mA" in text
+    assert "note: the CLF law's settings are those tuned for Table I" in captured.err
     assert open(f"{out}.csv").readline().startswith(f"# plant: {RIG.label}")
     data = np.load(f"{out}.npz")
     assert str(data["plant"]) == RIG.label and str(data["plant_hash"]) == RIG.hash
@@ -143,7 +145,7 @@ def test_evaluate_runs_every_suite_on_the_plant_and_its_csvs_and_report_name_it(
         rows = list(csv.DictReader(f))
     assert rows and all(r["plant"] == RIG.label for r in rows)
     assert open(out / "summary.csv").readline().startswith("plant,")
-    assert f"**Plant**: plant: {RIG.label}" in (out / "REPORT.md").read_text()
+    assert f"**Plant**: {RIG.label}" in (out / "REPORT.md").read_text()
 
 
 def test_headroom_and_train_take_the_plant():
@@ -220,3 +222,8 @@ def test_evaluate_gives_each_scripted_law_its_tuned_row(tmp_path):
     assert (dob.dob_hz, dob.smoothing, dob.layer_gain, dob.sigma) == (35.0, 60.0, 5.0, 7e5)
     pid = load_run(specs["pid"].runs[0], "velocity", specs["pid"].env_kwargs_for("velocity"))
     assert (pid.kp, pid.ki, pid.kd) == (0.2, 0.5, 0.004) and pid.config.plant == RIG
+
+
+def test_reproduce_refuses_a_plant_and_says_where_to_go(capsys):
+    assert main(["reproduce", "--plant", "compact140", "--quick"]) == 2
+    assert "ehss evaluate --plant FILE" in capsys.readouterr().err

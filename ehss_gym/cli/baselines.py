@@ -20,8 +20,10 @@ from .common import plant_out_folder
 def settings(args) -> TuneSettings:
     """The search's settings from the options (--quick's smaller form, then any option given)."""
     base = TuneSettings.quick() if args.quick else TuneSettings()
+    rows = () if set(args.task) == {r.task for r in BASELINES} else tuple(r.name for r in BASELINES
+                                                                          if r.task in args.task)
     return replace(base, budget=args.budget or base.budget, episodes=args.episodes or base.episodes,
-                   seconds=args.seconds or base.seconds, plant=args.plant,
+                   seconds=args.seconds or base.seconds, plant=args.plant, rows=rows,
                    check_episodes=base.check_episodes if args.check_episodes is None else args.check_episodes)
 
 
@@ -30,7 +32,7 @@ def run(args) -> int:
     cfg = settings(args)
     cmd = " ".join([PROG] + [a for a in getattr(args, "argv", [])[1:]])
     t0 = time.perf_counter()
-    with tqdm(total=cfg.budget * len(BASELINES), desc=PROG, disable=args.no_progress) as bar:
+    with tqdm(total=cfg.budget * len(cfg.rows or BASELINES), desc=PROG, disable=args.no_progress) as bar:
         res = tune(cfg, progress=bar.update)
     out = plant_out_folder(args.out, args.quick, DEFAULT_OUT, args.plant)
     path = write_report(res, out, cmd, time.perf_counter() - t0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import sys
 
+from ehss_gym.core.rig import TABLE_I
 from ehss_gym.infra.execution import DEFAULT_STORE, Backend, Store
 from ehss_gym.infra.util import report_folder
 
@@ -29,6 +30,17 @@ def plant_out_folder(out: str | None, quick: bool, shipped: str, plant) -> str:
     return os.path.join("runs", *(("quick",) if quick else ()), stem, os.path.basename(os.path.normpath(shipped)))
 
 
+def plant_note(prog: str, plant, law_settings) -> None:
+    """A note on stderr when the scripted laws' settings were not tuned for ``plant`` (Table I's on another rig, or
+    a law-settings file tuned on another plant): the env's :class:`~ehss_gym.envs.config.PlantWarning`, said once."""
+    rig = plant or TABLE_I
+    if law_settings is None and not rig.is_table_i:
+        print(f"{prog}: note: the CLF law's settings are those tuned for Table I, and the plant is {rig.label}; tune "
+              "them with `ehss baselines --plant FILE` and pass --law-settings law_settings.json", file=sys.stderr)
+    elif law_settings is not None and law_settings.plant_hash and law_settings.plant_hash != rig.hash:
+        print(f"{prog}: note: {law_settings.describe()}, and the plant is {rig.label}", file=sys.stderr)
+
+
 def check_out_folder(prog: str, out: str) -> bool:
     """False (with a message naming ``--out``) unless ``out`` is a non-empty path that is not a file."""
     if not out or not str(out).strip():
@@ -40,4 +52,4 @@ def check_out_folder(prog: str, out: str) -> bool:
     return True
 
 
-__all__ = ["backend_from_args", "store_from_args", "check_out_folder", "plant_out_folder"]
+__all__ = ["backend_from_args", "store_from_args", "check_out_folder", "plant_out_folder", "plant_note"]

@@ -13,7 +13,7 @@ from ehss_gym.evaluation.specs import SCRIPTED_DEFAULT, scripted_spec
 from ehss_gym.infra.execution import Executor
 from ehss_gym.reporting.comparison import DEFAULT_OUT, write_report
 
-from .common import backend_from_args, plant_out_folder, store_from_args
+from .common import backend_from_args, plant_note, plant_out_folder, store_from_args
 
 
 def _command_line(args) -> str:
@@ -76,6 +76,7 @@ def run(args) -> int:
         with warnings.catch_warnings(record=True) as caught:  # printed below as the CLI's own warnings
             warnings.simplefilter("always", PolicyWarning)
             cfg = config_from_args(args)
+            plant_note(prog, args.plant, args.law_settings)
             specs = default_policies(args) if args.policies is None else parse_policies(args.policies)
             for w in caught:
                 print(f"{prog}: warning: {w.message}", file=sys.stderr)

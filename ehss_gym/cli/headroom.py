@@ -11,7 +11,7 @@ from ehss_gym.reporting.headroom import DEFAULT_OUT, write_report
 from ehss_gym.study.headroom import PROG, HeadroomConfig
 from ehss_gym.study.headroom import run as measure
 
-from .common import backend_from_args, check_out_folder, plant_out_folder, store_from_args
+from .common import backend_from_args, check_out_folder, plant_note, plant_out_folder, store_from_args
 
 
 def settings(args) -> HeadroomConfig:
@@ -31,6 +31,7 @@ def run(args) -> int:
     if not check_out_folder(PROG, out):
         return 2
     cmd = " ".join([PROG] + [a for a in getattr(args, "argv", [])[1:]])
+    plant_note(PROG, args.plant, args.law_settings)
     try:
         with Executor(backend_from_args(args, args.workers), store_from_args(args),
                       progress=not args.no_progress) as executor:

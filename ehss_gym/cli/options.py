@@ -428,6 +428,10 @@ def add_plant_command(p) -> None:  # ehss plant FILE
 
 
 def add_reproduce(p) -> None:
+    p.add_argument("--plant", default=None, metavar="FILE",
+                   help="not taken: the reproduction study is the paper's, on its rig (Table I); on your plant, `ehss "
+                        "evaluate --plant FILE` runs the paper's scenario among its suites and compares n = 2/4/6 "
+                        "(docs: 'Your own servo')")
     add_out(p, "output folder", os.path.join("reports", "paper"))
     add_quick(p, "tiny grids and durations (CI smoke run; numbers not meaningful)")
     add_progress(p)
@@ -521,6 +525,9 @@ def add_headroom(p) -> None:
 def add_baselines(p) -> None:
     add_plant(p, "the rig the training scenarios are drawn around (its tuned settings go to law_settings.json)",
               law_settings=False)
+    p.add_argument("--task", type=task_list, default=tuple(TASKS),
+                   help=f"comma-separated subset of {','.join(TASKS)}: the tasks whose baselines are tuned "
+                        "(default: both)")
     p.add_argument("--budget", type=int_at_least("--budget", 1), default=None,
                    help="evaluations per baseline (default 64; --quick 32)")
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,

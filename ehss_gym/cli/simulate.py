@@ -24,6 +24,7 @@ from ehss_gym.envs.config import EnvConfig
 from ehss_gym.infra.util import atomic_write, atomic_write_text, out_paths
 from ehss_gym.reporting.trajectory_figures import plot_frequency_response, plot_trajectory
 
+from .common import plant_note
 from .options import NONE
 
 EXIT_DIVERGED = 3
@@ -130,6 +131,7 @@ def run(args) -> int:
         print(f"{prog}: error: --bode needs a broadband reference (--reference chirp or multisine), got "
               f"{sc.reference.family}", file=sys.stderr)
         return 2
+    plant_note(prog, args.plant, args.law_settings)
     traj = simulate(sc)
     base = out_paths(args.out)
     made_by = _command(getattr(args, "argv", None))

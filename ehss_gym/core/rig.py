@@ -167,7 +167,11 @@ class Rig:
 
     def summary(self) -> str:
         """One line for a command's summary: the plant and the controller's model."""
-        return f"plant: {self.label}, rated current {self.rated_current:g} mA; controller's model: {self.model_text()}"
+        return f"plant: {self.text()}"
+
+    def text(self) -> str:
+        """The rig in a sentence: its label, its rated current and the controller's model."""
+        return f"{self.label}, rated current {self.rated_current:g} mA; controller's model: {self.model_text()}"
 
     def describe(self) -> dict:
         """The rig as plain data for a report, a CSV column or an NPZ: name, file, hash, values."""

@@ -330,7 +330,7 @@ def report_context(res: Results, figs: dict, steps: list[dict], with_bound: bool
     metric_header, metric_rows = _metric_table(res)
     return {
         "command": res.command, "version": __version__, "n_episodes": len(res.rows), "workers": res.workers,
-        "plant": res.cfg.rig.summary(), "plant_given": res.cfg.plant is not None,
+        "plant": res.cfg.rig.text(), "plant_given": res.cfg.plant is not None,
         "law_settings": None if res.cfg.law_settings is None else res.cfg.law_settings.describe(),
         "wall_time": res.wall_time, "timings": ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()),
         "learned": any(s.learned for s in res.specs), "notes": list(res.notes), "cfg": res.cfg,

@@ -159,7 +159,7 @@ def write_report(res: dict, out: str, command: str) -> str:
                   classes=CLASSES, variants=variants, checks=_checks(blocks), material=MATERIAL,
                   min_episodes=MIN_EPISODES, free_period=FREE_PERIOD, base_period=BASE_PERIOD,
                   check_suite=CHECK_SUITE, bias=cfg.bias.describe(), width=cfg.width.describe(),
-                  plant=cfg.eval_config().rig.summary())
+                  plant=cfg.eval_config().rig.text())
     path = os.path.join(out, "HEADROOM.md")
     atomic_write_text(path, text)
     return path
