@@ -1,8 +1,10 @@
 """Every default of ``EHSSTracking-v0`` and the one validated record of an env's settings (:class:`EnvConfig`).
 
 The env's settings are the loop settings of :class:`ehss_gym.core.settings.Scenario` (:data:`LOOP_KEYS`; a setting
-without an env default here takes the Scenario's) and the env's own (:data:`ENV_KEYS`: mode, reward, episode). The
-defaults are the recommendation of three studies, restated here (tests check each): the baselines' tuning
+without an env default here takes the Scenario's) and the env's own (:data:`ENV_KEYS`: the plant and the law settings
+tuned for it, mode, reward, episode). The defaults, all for Table I's plant (another plant's come from its file and
+from ``ehss baselines --plant FILE``: :mod:`ehss_gym.core.rig`, :mod:`ehss_gym.envs.law_table`), are the
+recommendation of three studies, restated here (tests check each): the baselines' tuning
 (``reports/baselines/tuned.json``, made by ``ehss baselines``: per task and n the CLF law's sigma, f_r, smoothing
 width and boundary-layer gain, :data:`LAW_DEFAULTS`, and by its written rule the default n), the reproduction study
 (``reports/paper/recommended_defaults.json``, made by ``ehss reproduce``: period, substeps, current limit, the SVF

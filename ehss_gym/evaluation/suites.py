@@ -81,7 +81,7 @@ class EvalConfig:
         seed: bootstrap seed.
         chunk: episodes per job (one job = one policy run on up to ``chunk`` episodes of one suite/task).
         plant: the rig every suite runs on (:func:`ehss_gym.core.rig.as_rig`: a Rig, a plant file, ...); None =
-            Table I, not given (the outputs then carry no plant column, as before plant files).
+            Table I, not given (the CSVs then carry no plant column).
         law_settings: the scripted laws' settings tuned for the plant (:mod:`ehss_gym.envs.law_table`: a
             law-settings file, its content or a LawTable); None = the env's built-in rows (Table I's tuning).
     """

@@ -356,7 +356,7 @@ def report_text(res: Results, figs: dict, steps: list[dict] | None = None, with_
 
 def _plant_column(res: Results):
     """(rows, columns) -> (rows, columns) with a ``plant`` column (the rig's label: name, file, hash of its values)
-    when the evaluation was given a plant; unchanged otherwise (Table I's CSVs as before plant files)."""
+    when the evaluation was given a plant; unchanged otherwise (no plant given: the columns of Table I's CSVs)."""
     if res.cfg.plant is None:
         return lambda rows, columns: (rows, columns)
     label = res.cfg.rig.label

@@ -139,7 +139,7 @@ def write_report(res: dict, out: str, command: str) -> str:
     os.makedirs(out, exist_ok=True)
     blocks = res["blocks"]
     stats = [d for b in blocks for d in b["stats"]]
-    plant = res["cfg"].plant  # a plant given: a column naming it (Table I's CSV as before plant files)
+    plant = res["cfg"].plant  # a plant given: a column naming it (none: Table I's columns)
     atomic_write_text(os.path.join(out, "headroom.csv"), csv_text(stats, COLUMNS) if plant is None else
                       csv_text([{**d, "plant": plant.label} for d in stats], ("plant", *COLUMNS)))
     plot_headroom(blocks, os.path.join(out, "headroom.png"), command)
