@@ -191,7 +191,7 @@ BAD_FILES = [  # (what, file content or raw text, the pattern its message must h
     ("a missing model parameter", _with(GOOD_PLANT, "plant", tau=_DROP), r"\[plant\]: missing key\(s\) \['tau'\]"),
     ("an unknown model parameter", _with(GOOD_PLANT, "plant", Jm=1.0), r"\[plant\]: unknown key\(s\) \['Jm'\]"),
     ("a pressure as text", _with(GOOD_PLANT, "plant", P_s="90 bar"), r"\[plant\]: P_s \(supply pressure\) \[Pa\]"),
-    ("no damping", _with(GOOD_PLANT, "plant", B=-1.0), r"\[plant\]: B \(viscous damping"),
+    ("a negative damping", _with(GOOD_PLANT, "plant", B=-1.0), r"\[plant\]: B \(viscous damping"),
     ("a zero rated current", _with(GOOD_PLANT, None, rated_current_mA=0), r"rated_current .*\[mA\] .*\(0, 5000\]"),
     ("an unknown table", {**GOOD_PLANT, "plnat": {}}, r"unknown key\(s\) \['plnat'\]"),
     ("a name that is a number", _with(GOOD_PLANT, None, name=5), r"name must be a string"),
