@@ -274,6 +274,8 @@ def resolved_env_kwargs(env_kwargs: dict) -> dict:
     cfg = EnvConfig.from_kwargs(env_kwargs)
     out = {k: getattr(cfg, k) for k in PINNED_ENV_KEYS}
     out["reward_weights"] = dict(cfg.reward_weights)
+    if env_kwargs.get("plant") is not None:  # the rig trained on, as values (a file may change or be gone)
+        out["plant"] = cfg.plant.as_dict()
     for k, v in env_kwargs.items():  # anything else given explicitly (e.g. episode_seconds) is kept
         out.setdefault(k, v)
     return out

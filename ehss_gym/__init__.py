@@ -19,6 +19,7 @@ from .infra.lazy import lazy_exports
 
 _EXPORTS = {
     "PlantParams": ".core.params", "make_plant_params": ".core.params",
+    "Rig": ".core.rig", "load_rig": ".core.rig", "as_rig": ".core.rig",
     "Reference": ".core.signals", "sine": ".core.signals", "step": ".core.signals", "chirp": ".core.signals",
     "multisine": ".core.signals", "from_array": ".core.signals", "from_function": ".core.signals",
     "paper_reference": ".core.signals",

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from ehss_gym.cli import main
+from ehss_gym.core.params import PlantParams
 
 
 def test_simulate_writes_png_npz_csv_and_summary(tmp_path, capsys):
@@ -20,10 +21,13 @@ def test_simulate_writes_png_npz_csv_and_summary(tmp_path, capsys):
     data = np.load(f"{out}.npz")
     for name in ("t", "y", "y_ref", "e", "u", "u_applied", "s"):
         assert name in data and len(data[name]) == 500
-    header = open(f"{out}.csv").readline().strip().split(",")
+    first, second = open(f"{out}.csv").readlines()[:2]
+    assert first.startswith("# plant: Table I (built in, #") and "controller's model: the plant's parameters" in first
+    header = second.strip().split(",")
     assert header[:7] == ["t [s]", "y [rad/s]", "y_ref [rad/s]", "e [rad/s]", "u [mA]", "u_applied [mA]",
-                          "u_base [mA]"]  # issue 16: the CSV header carries units
-    csv = np.loadtxt(f"{out}.csv", delimiter=",", skiprows=1)
+                          "u_base [mA]"]  # the CSV header carries units
+    csv = np.loadtxt(f"{out}.csv", delimiter=",", skiprows=2)
+    assert str(data["plant"]).startswith("Table I") and data["plant_values"].tolist() == list(PlantParams())
     np.testing.assert_allclose(csv[:, header.index("e [rad/s]")], data["e"], rtol=1e-9, atol=1e-15)
     assert (tmp_path / "run.png").stat().st_size > 10_000
 

@@ -452,9 +452,12 @@ def test_constructor_signature_is_the_config_record():
     named = {k: p for k, p in params.items() if k not in ("self", "unknown")}
     assert set(named) == set(EnvConfig.KEYS) | {"render_mode"}
     assert all(p.kind is inspect.Parameter.KEYWORD_ONLY for p in named.values())
-    for key in ("mode", "n", "current_limit", "control_period", "substeps", "agent_period", "pressure_domain",
-                "scenario"):
+    for key in ("mode", "n", "control_period", "substeps", "agent_period", "pressure_domain", "scenario"):
         assert named[key].default == getattr(DEFAULTS, key), key
+    # the current limit defaults to the plant's rated current: Table I's is the env's documented 10 mA
+    assert named["current_limit"].default == "rated" and named["plant"].default is None
+    assert EnvConfig.from_kwargs({}).current_limit == DEFAULTS.current_limit == EnvConfig.from_kwargs(
+        {"plant": "compact140", "current_limit": DEFAULTS.current_limit}).current_limit
     for key in TASK_DEPENDENT:
         assert named[key].default is None, key
     assert named["task"].default == "velocity"

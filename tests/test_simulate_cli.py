@@ -112,8 +112,9 @@ def test_bode_needs_a_broadband_reference(tmp_path, capsys):
                "--bode", "--out", str(tmp_path / "c")])
     assert rc == 0
     assert (tmp_path / "c_bode.png").stat().st_size > 10_000
-    rows = np.loadtxt(tmp_path / "c_bode.csv", delimiter=",", skiprows=1)
-    assert open(tmp_path / "c_bode.csv").readline().startswith("frequency [Hz],magnitude [dB],phase [deg]")
+    rows = np.loadtxt(tmp_path / "c_bode.csv", delimiter=",", skiprows=2)
+    first, second = open(tmp_path / "c_bode.csv").readlines()[:2]
+    assert first.startswith("# plant: Table I") and second.startswith("frequency [Hz],magnitude [dB],phase [deg]")
     assert rows.shape[1] == 4 and np.all(np.isfinite(rows))
 
 

@@ -18,7 +18,7 @@ from ehss_gym.agents.specs import AGENTS, agent_names, env_kwargs_for, get_spec
 from ehss_gym.core.settings import TASKS
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID
-from ehss_gym.envs.config import EnvConfig
+from ehss_gym.envs.config import EnvConfig, law_table_of, plant_of
 from ehss_gym.infra import BACKENDS
 
 from . import options, runs
@@ -52,6 +52,12 @@ class Config:
     """agent steps between checkpoints (rounded up to a rollout boundary)"""
     n_envs: int | None = None
     """parallel envs (None = the agent's default)"""
+    plant: str | None = None
+    """the rig trained on: a TOML plant file or a shipped plant (table1, compact140); None = Table I. Its values are
+    recorded in the run's env settings, so the run and its exported policy do not depend on the file afterwards"""
+    law_settings: str | None = None
+    """the base law's settings tuned for the plant: the law_settings.json of ehss baselines --plant FILE (its row for
+    the task and n); None = the env's built-in settings (tuned for Table I). Recorded as values, like the plant"""
     hp: dict = dataclasses.field(default_factory=dict)
     """overrides of the agent's hyperparameters (fields of ehss_gym.agents.specs.AgentSpec) as KEY=JSON, e.g. --hp
     gamma=0.99 --hp 'env_kwargs={"agent_period": 20}'"""
@@ -89,11 +95,22 @@ class Config:
         if self.n_envs is not None and (isinstance(self.n_envs, bool) or not isinstance(self.n_envs, int)
                                         or self.n_envs < 1):
             raise runs.RunError(f"--n-envs must be an integer >= 1, got {self.n_envs!r}")
-        try:  # the env's own validation of the kwargs the agent will train with
-            EnvConfig.from_kwargs(env_kwargs_for(self.spec(), self.task, self.n))
+        try:  # the env's own validation of the kwargs the agent will train with (the plant file read once, here)
+            EnvConfig.from_kwargs(self.env_kwargs())
         except ValueError as exc:
-            raise runs.RunError(f"env settings: {exc}") from None
+            flag = "--plant" if self.plant is not None and "plant" in str(exc) else (
+                "--law-settings" if self.law_settings is not None and "law" in str(exc) else "env settings")
+            raise runs.RunError(f"{flag}: {exc}") from None
         return self
+
+    def env_kwargs(self) -> dict:
+        """The env settings the agent trains with: the agent's, and the plant's values (its file's content)."""
+        kw = env_kwargs_for(self.spec(), self.task, self.n)
+        if self.plant is not None:
+            kw["plant"] = plant_of(self.plant).as_dict()
+        if self.law_settings is not None:
+            kw["law_settings"] = law_table_of(self.law_settings).as_dict()
+        return kw
 
     def spec(self):
         """The agent's :class:`~ehss_gym.agents.specs.AgentSpec` with this run's overrides (``hp``, ``n_envs``)."""
@@ -108,8 +125,11 @@ class Config:
     def full(self) -> dict:
         """The config plus the agent's hyperparameters and env kwargs: what config.json holds."""
         spec = self.spec()
-        return {**dataclasses.asdict(self), "agent_spec": spec.as_dict(),
-                "env_kwargs": env_kwargs_for(spec, self.task, self.n), "env_id": ENV_ID}
+        fields = dataclasses.asdict(self)
+        for k in ("plant", "law_settings"):  # absent when not given: the runs before these settings keep their names
+            if fields[k] is None:
+                fields.pop(k)
+        return {**fields, "agent_spec": spec.as_dict(), "env_kwargs": self.env_kwargs(), "env_id": ENV_ID}
 
     def run_name(self) -> str:
         """``<agent>_<task>_n<n>_s<seed>_<hash8>`` (:func:`ehss_gym.train.runs.run_name`)."""

@@ -45,6 +45,7 @@ from ehss_gym.agents.export import export_policy
 from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import resolved_env_kwargs
 from ehss_gym.envs import ENV_ID
+from ehss_gym.envs.config import plant_of
 from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
 from ehss_gym.infra.execution import pin_blas
 from ehss_gym.infra.fmt import fmt_num
@@ -220,6 +221,11 @@ def train(cfg: Config, on_eval: Callable[[dict], None] | None = None) -> dict:
     return summary
 
 
+def full_plant(cfg: Config):
+    """The plant a run trains on, as its env settings record it (None = Table I)."""
+    return cfg.full()["env_kwargs"].get("plant")
+
+
 def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wall_s: float) -> dict:
     """Export the final and the best model; write and return ``summary.json``."""
     run_dir = cfg.run_dir()
@@ -231,7 +237,7 @@ def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wa
     export_model(best_model, best_vn, os.path.join(run_dir, "best"), cfg,
                  {"step": int(evaluator.best_step), "validation": best})
     summary = {"run_name": cfg.run_name(), "run_dir": run_dir, "agent": cfg.agent, "algo": cfg.spec().algo,
-               "task": cfg.task, "n": cfg.n,
+               "task": cfg.task, "n": cfg.n, "plant": plant_of(full_plant(cfg)).label,
                "seed": cfg.seed, "timesteps": int(model.num_timesteps), "wall_s": round(wall_s, 2),
                "best_step": evaluator.best_step, "best_validation": best,
                "best_is_untrained": evaluator.best_step == evaluator.history[0]["step"] == 0,
@@ -260,6 +266,8 @@ def describe(summary: dict) -> str:
                      "itself); no later evaluation beat it, so best/ holds no training")
     files = ("policy.json + .safetensors: safe weights" if summary.get("algo", "ppo") == "ppo" else
              "model.zip + vecnormalize.pkl: score with sb3:<folder>/model.zip")
+    if "plant" in summary:
+        lines.append(f"plant: {summary['plant']}")
     lines.append(f"run folder: {summary['run_dir']} (best/ and final/{files})")
     return "\n".join(lines)
 

@@ -11,11 +11,11 @@ import warnings
 from dataclasses import replace
 
 from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, PolicyWarning, default_specs, evaluate, parse_policies
+from ehss_gym.evaluation.specs import SCRIPTED_DEFAULT, scripted_spec
 from ehss_gym.infra.execution import Executor
-from ehss_gym.infra.util import report_folder
 from ehss_gym.reporting.comparison import DEFAULT_OUT, prefetch_bounds, write_report
 
-from .common import backend_from_args, store_from_args
+from .common import backend_from_args, plant_note, plant_out_folder, store_from_args
 
 
 def _command_line(args) -> str:
@@ -29,6 +29,10 @@ def _command_line(args) -> str:
         parts.append(f"--suite {args.suite}")
     if tuple(args.task) != TASKS:
         parts.append("--task " + ",".join(args.task))
+    if args.plant is not None:
+        parts.append(f"--plant {args.plant.source or args.plant.name}")
+    if args.law_settings is not None:
+        parts.append(f"--law-settings {args.law_settings.source}")
     for flag, v in (("--episodes", args.episodes), ("--sweep-episodes", args.sweep_episodes),
                     ("--workers", args.workers), ("--n-boot", args.n_boot)):
         if v is not None:
@@ -45,12 +49,22 @@ def _command_line(args) -> str:
 def config_from_args(args) -> EvalConfig:
     """The evaluation's sizes from the options (``--quick`` first, the explicit sizes on top)."""
     changes = {"suites": SUITES if args.suite == "all" else (args.suite,), "tasks": tuple(args.task),
-               "seed": args.seed}
+               "seed": args.seed, "plant": args.plant, "law_settings": args.law_settings}
     for key, v in (("heldout_episodes", args.episodes), ("sweep_episodes", args.sweep_episodes),
                    ("n_boot", args.n_boot)):
         if v is not None:
             changes[key] = v
     return EvalConfig.quick(**changes) if args.quick else replace(EvalConfig(), **changes)
+
+
+def default_policies(args) -> list:
+    """The policies evaluated without --policies: every shipped one on Table I; the scripted laws on another plant (the
+    shipped learned policies were trained on Table I: name them with --policies to see them there)."""
+    if args.plant is None:
+        return default_specs()
+    print("ehss evaluate: note: with --plant and no --policies the scripted laws are evaluated ("
+          f"{', '.join(SCRIPTED_DEFAULT)}); the shipped learned policies were trained on Table I", file=sys.stderr)
+    return [scripted_spec(n) for n in SCRIPTED_DEFAULT]
 
 
 def run(args) -> int:
@@ -64,7 +78,8 @@ def run(args) -> int:
         with warnings.catch_warnings(record=True) as caught:  # printed below as the CLI's own warnings
             warnings.simplefilter("always", PolicyWarning)
             cfg = config_from_args(args)
-            specs = default_specs() if args.policies is None else parse_policies(args.policies)
+            plant_note(prog, args.plant, args.law_settings)
+            specs = default_policies(args) if args.policies is None else parse_policies(args.policies)
             for w in caught:
                 print(f"{prog}: warning: {w.message}", file=sys.stderr)
             with Executor(backend_from_args(args, args.workers), store_from_args(args),
@@ -82,13 +97,14 @@ def run(args) -> int:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 1
     print(f"{prog}: {executor.computed} job(s) computed, {executor.skipped} from the store", file=sys.stderr)
+    print(cfg.rig.summary() + ("" if cfg.law_settings is None else f"; {cfg.law_settings.describe()}"))
     for note in res.notes:
         print(f"{prog}: note: {note}", file=sys.stderr)
     started = getattr(args, "started", math.nan)
     if math.isfinite(started):  # the command's imports and parsing before the evaluation began
         res.timings = {"start-up": res.started - started, **res.timings}
         res.started = started
-    path = write_report(res, report_folder(args.out, args.quick, DEFAULT_OUT))
+    path = write_report(res, plant_out_folder(args.out, args.quick, DEFAULT_OUT, args.plant))
     print(f"{len(res.rows)} episodes in {res.wall_time:.1f} s ({res.workers} workers; "
           + ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()) + f"); wrote {path}")
     for suite in SUITES:

@@ -7,18 +7,17 @@ import sys
 from dataclasses import replace
 
 from ehss_gym.infra.execution import ExecutionError, Executor
-from ehss_gym.infra.util import report_folder
 from ehss_gym.reporting.headroom import DEFAULT_OUT, write_report
 from ehss_gym.study.headroom import PROG, HeadroomConfig
 from ehss_gym.study.headroom import run as measure
 
-from .common import backend_from_args, check_out_folder, store_from_args
+from .common import backend_from_args, check_out_folder, plant_note, plant_out_folder, store_from_args
 
 
 def settings(args) -> HeadroomConfig:
     """The study's sizes from the options (--quick's smaller form, then any option given)."""
     base = HeadroomConfig.quick_config() if args.quick else HeadroomConfig()
-    changes = {"tasks": tuple(args.task)}
+    changes = {"tasks": tuple(args.task), "plant": args.plant, "law_settings": args.law_settings}
     if args.episodes:
         changes["episodes"] = args.episodes
     if args.n_boot:
@@ -28,10 +27,11 @@ def settings(args) -> HeadroomConfig:
 
 def run(args) -> int:
     """Measure, write the report and print each task's largest overall headroom; 2 for a bad setting."""
-    out = report_folder(args.out, args.quick, DEFAULT_OUT)
+    out = plant_out_folder(args.out, args.quick, DEFAULT_OUT, args.plant)
     if not check_out_folder(PROG, out):
         return 2
     cmd = " ".join([PROG] + [a for a in getattr(args, "argv", [])[1:]])
+    plant_note(PROG, args.plant, args.law_settings)
     try:
         with Executor(backend_from_args(args, args.workers), store_from_args(args),
                       progress=not args.no_progress) as executor:
@@ -40,6 +40,7 @@ def run(args) -> int:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
     path = write_report(res, out, cmd)
+    print(res["cfg"].eval_config().rig.summary())
     for b in res["blocks"]:
         h = b["headroom"].get("overall")
         if h is not None:

@@ -20,9 +20,11 @@ import typing
 
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.registry import ESTIMATORS, LAWS, choices_help, names
+from ehss_gym.core.rig import PlantFileError, as_rig, shipped_plants
 from ehss_gym.core.settings import LOOP_SETTINGS, TASKS, Scenario
 from ehss_gym.core.signals import FAMILIES
 from ehss_gym.core.validate import check_even_n
+from ehss_gym.envs.law_table import LawSettingsError, as_law_table
 from ehss_gym.evaluation.suites import SUITES, EvalConfig
 from ehss_gym.infra import BACKENDS, DEFAULT_STORE, RAY_INSTALL
 from ehss_gym.train.config import build_parser as add_train_config
@@ -194,6 +196,23 @@ def parse_mismatch(text: str) -> dict:
     return out
 
 
+def plant_file(text: str):
+    """argparse type: a plant file (TOML) or a shipped plant's name, read and checked (the error names the file, the
+    key, its unit and range)."""
+    try:
+        return as_rig(text)
+    except PlantFileError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def law_settings_file(text: str):
+    """argparse type: a law-settings file (``ehss baselines`` writes law_settings.json), read and checked."""
+    try:
+        return as_law_table(text)
+    except LawSettingsError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def floats(name: str):
     """argparse type: comma-separated finite numbers."""
     def conv(text):
@@ -275,6 +294,20 @@ def add_backend_arguments(p) -> None:
                    help=f"where each job's result is kept under its content address, so a rerun (or a restart "
                         f"after an interruption) computes only the missing jobs (default {DEFAULT_STORE})")
     g.add_argument("--no-store", action="store_true", help="keep no job results: compute every job afresh")
+
+
+def add_plant(p, what: str = "the rig", law_settings: bool = True) -> None:
+    """``--plant``: a plant file (docs: "Your own servo"); default Table I. With ``law_settings``, also
+    ``--law-settings``: the CLF law's settings tuned for it."""
+    p.add_argument("--plant", type=plant_file, default=None, metavar="FILE",
+                   help=f"{what}: a TOML plant file (a [plant] table of the model's parameters or a [datasheet] "
+                        f"table; see 'Your own servo' in the docs) or a shipped plant "
+                        f"({', '.join(shipped_plants())}); default Table I")
+    if law_settings:
+        p.add_argument("--law-settings", type=law_settings_file, default=None, metavar="JSON",
+                       help="the scripted laws' settings tuned for the plant: the law_settings.json of `ehss "
+                            "baselines --plant FILE` (per n the CLF law's sigma, f_r, smoothing, layer gain; "
+                            "dob-n2's observer; the PID's gains); default: the built-in ones, tuned for Table I")
 
 
 # --- ehss simulate: the loop settings, one flag each ---------------------------------------------------------
@@ -379,6 +412,8 @@ examples:
 
 
 def add_simulate(p) -> None:
+    add_plant(p, "the rig simulated (the controller's model is its file's; its rated current the recommended "
+                 "preset's current limit)")
     add_loop_arguments(p)
     p.add_argument("--bode", action="store_true",
                    help="also estimate the closed loop's r -> y frequency response (needs --reference chirp or "
@@ -389,7 +424,16 @@ def add_simulate(p) -> None:
 # --- the study and report commands ------------------------------------------------------------------------
 
 
+def add_plant_command(p) -> None:  # ehss plant FILE
+    p.add_argument("file", type=plant_file, metavar="FILE",
+                   help=f"a TOML plant file or a shipped plant ({', '.join(shipped_plants())})")
+
+
 def add_reproduce(p) -> None:
+    p.add_argument("--plant", default=None, metavar="FILE",
+                   help="not taken: the reproduction study is the paper's, on its rig (Table I); on your plant, `ehss "
+                        "evaluate --plant FILE` runs the paper's scenario among its suites and compares n = 2/4/6 "
+                        "(docs: 'Your own servo')")
     add_out(p, "output folder", os.path.join("reports", "paper"))
     add_quick(p, "tiny grids and durations (CI smoke run; numbers not meaningful)")
     add_progress(p)
@@ -430,6 +474,8 @@ def add_evaluate(p) -> None:
                         "saved with it; PATH may be an rl-zoo3 run folder), or a shipped model name; LABEL=SPEC "
                         "names one in the report (e.g. final=residual-ppo:RUN/final/policy "
                         "best=residual-ppo:RUN/best/policy) (default: every shipped policy)")
+    add_plant(p, "the rig every suite runs on (the scripted laws act on it; without --policies only they are "
+                 "evaluated, the shipped learned policies being Table I's)")
     p.add_argument("--suite", choices=(*SUITES, "all"), default="all", help="which suites to run")
     p.add_argument("--task", type=task_list, default=tuple(TASKS),
                    help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
@@ -464,6 +510,7 @@ def add_factors(p) -> None:
 
 
 def add_headroom(p) -> None:
+    add_plant(p, "the rig the suites run on")
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
                    help="episodes per task and suite at most; a larger suite is subsampled evenly (default 32; "
                         "--quick 2)")
@@ -480,14 +527,23 @@ def add_headroom(p) -> None:
 
 
 def add_baselines(p) -> None:
+    add_plant(p, "the rig the training scenarios are drawn around (its tuned settings go to law_settings.json)",
+              law_settings=False)
+    p.add_argument("--task", type=task_list, default=tuple(TASKS),
+                   help=f"comma-separated subset of {','.join(TASKS)}: the tasks whose baselines are tuned "
+                        "(default: both)")
     p.add_argument("--budget", type=int_at_least("--budget", 1), default=None,
-                   help="evaluations per baseline (default 64; --quick 6)")
+                   help="evaluations per baseline (default 64; --quick 32)")
     p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=None,
-                   help="training scenarios, seeds 0..EPISODES-1 (default 48; --quick 3)")
+                   help="training scenarios, seeds 0..EPISODES-1 (default 48; --quick 12)")
     p.add_argument("--seconds", type=finite("--seconds", 0.0), default=None,
-                   help="episode duration [s] (default 2; --quick 0.3)")
+                   help="episode duration [s] (default 2)")
+    p.add_argument("--check-episodes", type=int_at_least("--check-episodes", 0), default=None,
+                   help="held-out episodes of the check of the tuned n = 2 law after the search (saturation, limit "
+                        "cycles through the friction events; default 48; 0: no check)")
     add_out(p, "output folder", os.path.join("reports", "baselines"))
-    add_quick(p, "3 episodes of 0.3 s and 6 evaluations per baseline (CI smoke run; numbers not meaningful)")
+    add_quick(p, "12 training episodes of 2 s and 32 evaluations per baseline: a few minutes on two cores, "
+                 "coarser than the full run")
     add_progress(p)
 
 
@@ -561,6 +617,11 @@ COMMANDS = (
             "One closed-loop run of the EHSS loop. With no settings: the env's recommended loop on the paper's 20 s "
             "run (it tracks); --preset paper gives the law as printed (it diverges).", add_simulate, "simulate",
             SIMULATE_EPILOG),
+    Command("plant", "read a plant file and print the model's parameters it gives, with their derivation",
+            "Read a plant file (a [plant] table of the model's parameters, or a [datasheet] table converted by the "
+            "formulas of docs/MODEL.md, 'From a datasheet to the model's parameters') and print every parameter with "
+            "its unit and, for a datasheet, the formula it came from; a bad file exits with 2 and names the key, its "
+            "unit and range.", add_plant_command, "plant"),
     Command("reproduce", "regenerate the paper's study into a report folder",
             "Regenerate the paper's study: its runs (Figs. 5-13), its claims C1-C7 tested, sweeps of the settings it "
             "leaves out, lost-track checks, smoothing, and the recommended defaults; writes REPORT.md, figures, CSVs.",

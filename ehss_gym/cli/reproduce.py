@@ -40,6 +40,12 @@ SHIPPED = os.path.join("reports", "paper")
 
 def run(args) -> int:
     """Run the study and write its report; 2 (with a message) for a bad ``--out`` or execution setting."""
+    if args.plant is not None:
+        print("ehss reproduce: error: --plant is not taken: the reproduction study tests the paper's claims on the "
+              "paper's rig (Table I); on your plant, `ehss evaluate --plant FILE` runs the paper's scenario among its "
+              "suites and compares n = 2/4/6, after `ehss baselines --plant FILE` (docs: 'Your own servo')",
+              file=sys.stderr)
+        return 2
     out = report_folder(args.out, args.quick, SHIPPED)
     if not check_out_folder("ehss reproduce", out):
         return 2

@@ -16,6 +16,7 @@ import numpy as np
 from ehss_gym.core.metrics import format_summary
 from ehss_gym.core.params import PlantParams
 from ehss_gym.core.response import frequency_response, reference_model_response
+from ehss_gym.core.rig import TABLE_I, Rig
 from ehss_gym.core.settings import LOOP_SETTINGS, PAPER_FRICTION, UNITS, Scenario
 from ehss_gym.core.signals import chirp, multisine, sine, step
 from ehss_gym.core.sim import simulate
@@ -23,6 +24,7 @@ from ehss_gym.envs.config import EnvConfig
 from ehss_gym.infra.util import atomic_write, atomic_write_text, out_paths
 from ehss_gym.reporting.trajectory_figures import plot_frequency_response, plot_trajectory
 
+from .common import plant_note
 from .options import NONE
 
 EXIT_DIVERGED = 3
@@ -42,11 +44,12 @@ def _reference(args, t_end: float):
     return multisine(args.amplitudes, args.omegas, args.phases, args.offset)
 
 
-def preset_scenario(preset: str, task: str) -> Scenario:
-    """The loop of a preset: the env's defaults ("recommended") or the law as printed ("paper")."""
+def preset_scenario(preset: str, task: str, rig: Rig = TABLE_I, law_settings=None) -> Scenario:
+    """The loop of a preset on the rig: the env's defaults ("recommended": the rig's rated current as the limit, the
+    law's settings from ``law_settings`` if given) or the law as printed ("paper")."""
     if preset == "recommended":
-        return EnvConfig.from_kwargs({"task": task}).template()
-    return Scenario(task=task)
+        return EnvConfig.from_kwargs({"task": task, "plant": rig, "law_settings": law_settings}).template()
+    return Scenario(task=task, plant=rig.plant, model=rig.model)
 
 
 def default_friction(reference: str) -> tuple:
@@ -61,39 +64,55 @@ def scenario_from_args(args) -> Scenario:
     Raises:
         ValueError: a setting the Scenario refuses (the message names it).
     """
-    base = preset_scenario(args.preset, args.task)
+    rig = rig_of(args)
+    base = preset_scenario(args.preset, args.task, rig, getattr(args, "law_settings", None))
     changes = {k: getattr(args, k) for k in LOOP_SETTINGS if k != "task" and getattr(args, k, None) is not None}
     for k, v in changes.items():
         if v == NONE or (k == "current_limit" and v == math.inf):  # the setting switched off
             changes[k] = None
-    plant = PlantParams().scaled(**args.mismatch) if args.mismatch else PlantParams()
+    plant = rig.plant.scaled(**args.mismatch) if args.mismatch else rig.plant  # the controller keeps the rig's model
     return base.replace(**changes, t_end=args.t_end, reference=_reference(args, args.t_end),
                         friction=default_friction(args.reference) if args.friction is None else tuple(args.friction),
                         noise_std=args.noise or (0.0, 0.0, 0.0, 0.0), seed=args.seed, plant=plant,
-                        model=PlantParams() if args.mismatch else None)
+                        model=rig.controller_model if args.mismatch else rig.model)
+
+
+def rig_of(args) -> Rig:
+    """The rig of ``--plant`` (Table I without it)."""
+    return getattr(args, "plant", None) or TABLE_I
 
 
 def _command(argv) -> str:
     return "ehss " + " ".join(argv) if argv else "ehss simulate"
 
 
-def _write_outputs(traj, base: str, made_by: str) -> None:
-    """PATH.npz (plain names), PATH.csv (a header with units, e.g. ``t [s]``) and PATH.png."""
+def plant_arrays(rig: Rig) -> dict[str, np.ndarray]:
+    """The rig as NPZ entries: its label (name, file, hash of its values), the plant's and the controller's model's
+    values in the order of ``plant_fields`` (SI units, :data:`ehss_gym.core.params.FIELDS`), the rated current [mA]."""
+    return {"plant": np.array(rig.label), "plant_hash": np.array(rig.hash),
+            "plant_fields": np.array(PlantParams._fields), "plant_values": rig.plant.as_array(),
+            "model_values": rig.controller_model.as_array(), "rated_current_mA": np.array(rig.rated_current)}
+
+
+def _write_outputs(traj, base: str, made_by: str, rig: Rig) -> None:
+    """PATH.npz (plain names, and the plant: :func:`plant_arrays`), PATH.csv (a first line ``# plant: ...``, then a
+    header with units, e.g. ``t [s]``) and PATH.png."""
     arrays = traj.arrays()
     units = traj.units()
-    atomic_write(base + ".npz", lambda f: np.savez(f, **arrays))
-    header = ",".join(f"{k} [{units[k]}]" for k in arrays)
+    atomic_write(base + ".npz", lambda f: np.savez(f, **arrays, **plant_arrays(rig)))
+    header = f"# {rig.summary()}\n" + ",".join(f"{k} [{units[k]}]" for k in arrays)
     table = np.column_stack(list(arrays.values()))
     atomic_write(base + ".csv", lambda f: np.savetxt(f, table, delimiter=",", header=header, comments="", fmt="%.10g"))
-    plot_trajectory(traj, base + ".png", made_by=made_by)
+    plot_trajectory(traj, base + ".png", made_by=f"{made_by}; plant {rig.label}")
 
 
-def _write_bode(traj, base: str, made_by: str) -> str:
-    """The closed loop's r -> y frequency response of a chirp or multi-sine run: PATH_bode.png and .csv."""
+def _write_bode(traj, base: str, made_by: str, rig: Rig) -> str:
+    """The closed loop's r -> y frequency response of a chirp or multi-sine run: PATH_bode.png and .csv (its first
+    line ``# plant: ...``, as the run's CSV)."""
     fr = frequency_response(traj.t, traj.r, traj.y)
     rows = np.column_stack([fr.freq, fr.magnitude_db, fr.phase_deg, fr.coherence])
-    atomic_write_text(base + "_bode.csv", "frequency [Hz],magnitude [dB],phase [deg],coherence [-]\n"
-                      + "\n".join(",".join(f"{v:.8g}" for v in row) for row in rows) + "\n")
+    header = f"# {rig.summary()}\nfrequency [Hz],magnitude [dB],phase [deg],coherence [-]\n"
+    atomic_write_text(base + "_bode.csv", header + "\n".join(",".join(f"{v:.8g}" for v in row) for row in rows) + "\n")
     sc = traj.scenario
     target = (fr.freq, reference_model_response(sc.order, sc.ref_model_hz, fr.freq))
     plot_frequency_response(fr, base + "_bode.png", sc, made_by=made_by, reference=target)
@@ -112,10 +131,14 @@ def run(args) -> int:
         print(f"{prog}: error: --bode needs a broadband reference (--reference chirp or multisine), got "
               f"{sc.reference.family}", file=sys.stderr)
         return 2
+    plant_note(prog, args.plant, args.law_settings)
     traj = simulate(sc)
     base = out_paths(args.out)
     made_by = _command(getattr(args, "argv", None))
-    _write_outputs(traj, base, made_by)
+    rig = rig_of(args)
+    _write_outputs(traj, base, made_by, rig)
+    print(rig.summary() + (f"; the plant's {', '.join(args.mismatch)} scaled by --mismatch" if args.mismatch else "")
+          + ("" if getattr(args, "law_settings", None) is None else f"; {args.law_settings.describe()}"))
     lim = "none" if sc.current_limit is None else f"{sc.current_limit:g} mA"
     print(f"{sc.task} task ({args.preset} preset), n={sc.n}, f_r={sc.fr:g} Hz, sigma={sc.sigma:g}, "
           f"smoothing={sc.smoothing:g}, h={sc.control_period:g} s, substeps={sc.substeps}, limit={lim}, "
@@ -126,11 +149,12 @@ def run(args) -> int:
     print(format_summary(m, UNITS[sc.task]))
     written = [base + ".png", base + ".npz", base + ".csv"]
     if args.bode and not traj.diverged:
-        written.append(_write_bode(traj, base, made_by))
+        written.append(_write_bode(traj, base, made_by, rig))
     print("wrote " + ", ".join(written))
     if m["diverged"]:
         return EXIT_DIVERGED
     return EXIT_LOST_TRACK if m["lost_track"] else 0
 
 
-__all__ = ["run", "scenario_from_args", "preset_scenario", "EXIT_DIVERGED", "EXIT_LOST_TRACK"]
+__all__ = ["run", "scenario_from_args", "preset_scenario", "plant_arrays", "rig_of", "EXIT_DIVERGED",
+           "EXIT_LOST_TRACK"]

@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 
-from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import lie_derivatives
 
 from .base import ScriptedPolicy
@@ -41,8 +40,9 @@ class FrictionFeedforwardPolicy(ScriptedPolicy):
         self.friction_by_lane = None if friction_by_lane is None else tuple(_events(f) for f in friction_by_lane)
         self.amplitude = self.config.residual_scale if amplitude is None else float(amplitude)
         self.start_at_edge = bool(start_at_edge)
-        self.model = PlantParams().as_array()
-        self.J = PlantParams().J
+        model = self.config.plant.controller_model  # the controller's model of the env's rig
+        self.model = model.as_array()
+        self.J = model.J
 
     def _edges(self, b: int):
         for amp, t0, t1 in self.friction if self.friction_by_lane is None else self.friction_by_lane[b]:

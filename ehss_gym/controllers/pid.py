@@ -4,11 +4,14 @@ The procedure (Astrom-Hagglund relay experiment, classic rules, selection, refin
 :mod:`ehss_gym.controllers`; :data:`PID_RELAY_GAINS` stores its output for the env's default settings
 (``tests/test_policies.py`` re-runs it); :data:`PID_GAINS`, the gains in use, are those, the direct mode's refined by
 the baselines' tuning (``ehss baselines``). Every tuning run goes through the one rollout loop
-(:func:`ehss_gym.envs.rollouts.rollout`).
+(:func:`ehss_gym.envs.rollouts.rollout`), on the env's plant (its ``plant`` setting: the relay experiment and the
+tuning runs are the env's "paper"-style episodes on that rig), and its result is remembered in this process per env
+settings, the plant's values included (:func:`tune_pid`).
 """
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -16,6 +19,7 @@ from tqdm import tqdm
 
 from ehss_gym.core.signals import sine
 from ehss_gym.envs import EnvConfig, rollout
+from ehss_gym.infra.execution import canonical
 
 from .base import ScriptedPolicy, _config_of
 
@@ -99,8 +103,12 @@ def relay_experiment(env_or_config=None, relay_ma: float = 0.05, relay_seconds: 
     return 4.0 * relay_ma / (math.pi * a), Tu, a
 
 
+_TUNED: dict[str, dict] = {}  # tune_pid's results in this process, by env settings (the plant's values included)
+
+
 def tune_pid(env_or_config=None, relay_ma: float = 0.05, relay_seconds: float = 2.0, progress: bool = True) -> dict:
-    """Run the PID tuning procedure of the module docstring for an env's settings.
+    """Run the PID tuning procedure of the module docstring for an env's settings, on its plant; a second call with
+    the same settings (the plant's values, the relay's) returns the first one's result.
 
     Args:
         env_or_config: an EHSSTracking env or EnvConfig (default: the default velocity residual env).
@@ -114,6 +122,17 @@ def tune_pid(env_or_config=None, relay_ma: float = 0.05, relay_seconds: float = 
         candidate rule).
     """
     cfg = _tuning_config(env_or_config)
+    kw = _env_kwargs(cfg)
+    kw["plant"] = (cfg.plant.plant, cfg.plant.model, cfg.plant.rated_current)  # its values, not its name
+    kw.pop("law_settings")  # its rows are in the law's settings above
+    key = json.dumps(canonical([kw, float(relay_ma), float(relay_seconds)]))
+    if key not in _TUNED:
+        _TUNED[key] = _tune(cfg, relay_ma, relay_seconds, progress)
+    return dict(_TUNED[key])
+
+
+def _tune(cfg: EnvConfig, relay_ma: float, relay_seconds: float, progress: bool) -> dict:
+    """:func:`tune_pid`'s procedure."""
     bar = tqdm(total=1 + len(RULES) + REFINE_ROUNDS * 3 * len(REFINE_FACTORS), desc="tune_pid", disable=not progress,
                leave=False)
     Ku, Tu, a = relay_experiment(cfg, relay_ma, relay_seconds)
@@ -188,5 +207,6 @@ def default_pid_gains(cfg: EnvConfig, progress: bool = True) -> tuple[float, flo
 
 def _is_default(cfg: EnvConfig) -> bool:
     ref = EnvConfig.from_kwargs({"task": cfg.task, "mode": cfg.mode})
-    skip = ("scenario", "episode_seconds", "reward_weights", "error_scale")
+    # the plant counts (by its values); the law table's effect is in the law's settings, which count
+    skip = ("scenario", "episode_seconds", "reward_weights", "error_scale", "law_settings")
     return all(getattr(cfg, k) == getattr(ref, k) for k in EnvConfig.KEYS if k not in skip)

@@ -24,8 +24,10 @@ frequency           log-uniform 0.5 .. 20 rad/s velocity, 0.5 .. 5 rad/s positio
 friction events     0, 1, 2, 3 events with probabilities 0.1, 0.4, 0.3, 0.2; amplitude uniform
                     0 .. 3.6 N*m (up to 2x the paper's 1.8); start uniform over the episode;
                     duration uniform 0.05 .. 1 s (may run past the end); events may overlap (add)
-model mismatch      true plant beta, J, B, c_sm, P_s each scaled by uniform 0.8 .. 1.2; the
-                    controller keeps Table I (the model the law was designed with)
+model mismatch      true plant beta, J, B, c_sm, P_s each scaled by uniform 0.8 .. 1.2 around the
+                    template's plant (Table I, or a plant file's: the env's ``plant``); the controller
+                    keeps the template's model (the model the law was designed with: the plant's
+                    nominal parameters unless a plant file gives its own)
 sensor noise        with probability 0.5, Gaussian noise with std uniform 0 .. 1 times
                     (1e-5 rad, 1e-4 rad/s, 2e3 Pa, 1e-10 m^2) on the measured x1..x4
 duration            ``episode_seconds`` (default 2 s)
@@ -94,15 +96,16 @@ UNMODELLED_DISTRIBUTION = Distribution(unmodelled=DATASHEET_RANGES)  # the env's
 
 
 def paper_scenario(template: Scenario, t_end: float | None = None) -> Scenario:
-    """The paper's run on the controller settings of ``template``.
+    """The paper's run on the controller settings and the plant of ``template``.
 
     Args:
-        template: a Scenario carrying the controller settings (task, n, sigma, ...).
+        template: a Scenario carrying the controller settings (task, n, sigma, ...) and the rig: its ``plant`` and
+            the controller's ``model`` (None: the plant's), kept as they are (Table I's unless the template was made
+            for another plant, ``EnvConfig(plant=...)``).
         t_end: duration [s]; None = the paper's 20 s.
     """
-    return template.replace(reference=paper_reference(), friction=PAPER_FRICTION, plant=PlantParams(), model=None,
-                            noise_std=(0.0, 0.0, 0.0, 0.0), seed=0, t_end=PAPER_T_END if t_end is None else t_end,
-                            unmodelled=NONE)
+    return template.replace(reference=paper_reference(), friction=PAPER_FRICTION, noise_std=(0.0, 0.0, 0.0, 0.0),
+                            seed=0, t_end=PAPER_T_END if t_end is None else t_end, unmodelled=NONE)
 
 
 def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -115,7 +118,8 @@ def sample_scenario(scenario_seed: int, template: Scenario, episode_seconds: flo
 
     Args:
         scenario_seed: integer >= 0 (training uses [0, TRAIN_SEED_LIMIT)).
-        template: a Scenario carrying the controller settings.
+        template: a Scenario carrying the controller settings and the rig: the plant's mismatch is drawn around
+            ``template.plant``, and the controller keeps ``template.model`` (the plant's parameters if None).
         episode_seconds: duration [s]; None = ``dist.episode_seconds``.
         dist: the distribution.
     """
@@ -148,7 +152,7 @@ def sample_scenario(scenario_seed: int, template: Scenario, episode_seconds: flo
         fa = float(rng.uniform(*dist.friction_amplitude))
         events.append((fa, t0, t0 + float(rng.uniform(*dist.friction_duration))))
     events.sort(key=lambda ev: ev[1])
-    nominal = PlantParams()
+    nominal = template.plant
     factors = {name: float(rng.uniform(1.0 - dist.mismatch, 1.0 + dist.mismatch)) for name in MISMATCH_PARAMS}
     plant = nominal.scaled(**factors)
     if rng.uniform() < dist.noise_probability:
@@ -157,7 +161,8 @@ def sample_scenario(scenario_seed: int, template: Scenario, episode_seconds: flo
         noise = (0.0, 0.0, 0.0, 0.0)
     noise_seed = int(rng.integers(0, 2**52))
     unmodelled = NONE if dist.unmodelled is None else draw_unmodelled(int(scenario_seed), dist.unmodelled)
-    return template.replace(reference=ref, friction=tuple(events), plant=plant, model=nominal, noise_std=noise,
+    model = nominal if template.model is None else template.model
+    return template.replace(reference=ref, friction=tuple(events), plant=plant, model=model, noise_std=noise,
                             seed=noise_seed, t_end=T, unmodelled=unmodelled)
 
 
@@ -179,14 +184,25 @@ def heldout_scenarios(count: int, template: Scenario, episode_seconds: float | N
     return [sample_scenario(HELDOUT_SEED_BASE + int(start) + i, template, episode_seconds, dist) for i in range(count)]
 
 
-def describe(sc: Scenario) -> dict:
-    """What an episode drew, as plain Python values (for ``info``)."""
-    nominal = PlantParams()
+def _ratio(a: float, b: float) -> float:
+    """a / b, with 0 / 0 = 1 (a parameter the rig has at 0: no damping, no leakage, stays 0)."""
+    return a / b if b != 0.0 else (1.0 if a == 0.0 else math.inf)
+
+
+def describe(sc: Scenario, nominal: PlantParams | None = None) -> dict:
+    """What an episode drew, as plain Python values (for ``info``).
+
+    Args:
+        sc: the episode.
+        nominal: the plant its mismatch was drawn around (default Table I): ``plant_scaling`` is the episode's plant
+            over it, parameter by parameter.
+    """
+    nominal = PlantParams() if nominal is None else nominal
     return {
         "reference": sc.reference.description,
         "reference_family": sc.reference.family,
         "friction": [tuple(ev) for ev in sc.friction],
-        "plant_scaling": {name: getattr(sc.plant, name) / getattr(nominal, name) for name in MISMATCH_PARAMS},
+        "plant_scaling": {name: _ratio(getattr(sc.plant, name), getattr(nominal, name)) for name in MISMATCH_PARAMS},
         "model_mismatch": sc.model is not None and sc.model != sc.plant,
         "noise_std": tuple(sc.noise_std),
         "noise_seed": int(sc.seed),

@@ -22,9 +22,7 @@ def check_finite(name: str, value, *, low=None, high=None, low_open=False, high_
         low, high: bounds (None = unbounded).
         low_open, high_open: whether the bound itself is excluded.
     """
-    lo = "-inf" if low is None else f"{low:g}"
-    hi = "inf" if high is None else f"{high:g}"
-    rng = f"{'(' if low is None or low_open else '['}{lo}, {hi}{')' if high is None or high_open else ']'}"
+    rng = range_text(low, high, low_open, high_open)
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -35,6 +33,33 @@ def check_finite(name: str, value, *, low=None, high=None, low_open=False, high_
         raise ValueError(f"{name} must be in {rng}, got {v:g}")
     if high is not None and (v > high or (high_open and v == high)):
         raise ValueError(f"{name} must be in {rng}, got {v:g}")
+    return v
+
+
+def range_text(low: float | None, high: float | None, low_open: bool = False, high_open: bool = False) -> str:
+    """An interval as the errors write it, e.g. ``(0, 1000]`` or ``[0, inf)``."""
+    lo = "-inf" if low is None else f"{low:g}"
+    hi = "inf" if high is None else f"{high:g}"
+    return f"{'(' if low is None or low_open else '['}{lo}, {hi}{')' if high is None or high_open else ']'}"
+
+
+def check_number(name: str, value, *, unit: str, low=None, high=None, low_open=False, high_open=False) -> float:
+    """A real number (an int or a float, NumPy's too; not a bool or a string) in the range, as a float.
+
+    Unlike :func:`check_finite`, text that looks like a number (``"0.02"``) is refused: a record built from a file or a
+    dict must not depend on how a parser typed its values.
+
+    Raises:
+        ValueError: naming ``name``, its unit and the accepted range.
+    """
+    rng = range_text(low, high, low_open, high_open)
+    what = f"{name} [{unit}] must be a finite number in {rng}"
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{what}, got {value!r} (a {type(value).__name__})")
+    v = float(value)
+    if not math.isfinite(v) or (low is not None and (v < low or (low_open and v == low))) \
+            or (high is not None and (v > high or (high_open and v == high))):
+        raise ValueError(f"{what}, got {v:g}")
     return v
 
 

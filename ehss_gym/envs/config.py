@@ -1,8 +1,10 @@
 """Every default of ``EHSSTracking-v0`` and the one validated record of an env's settings (:class:`EnvConfig`).
 
 The env's settings are the loop settings of :class:`ehss_gym.core.settings.Scenario` (:data:`LOOP_KEYS`; a setting
-without an env default here takes the Scenario's) and the env's own (:data:`ENV_KEYS`: mode, reward, episode). The
-defaults are the recommendation of three studies, restated here (tests check each): the baselines' tuning
+without an env default here takes the Scenario's) and the env's own (:data:`ENV_KEYS`: the plant and the law settings
+tuned for it, mode, reward, episode). The defaults, all for Table I's plant (another plant's come from its file and
+from ``ehss baselines --plant FILE``: :mod:`ehss_gym.core.rig`, :mod:`ehss_gym.envs.law_table`), are the
+recommendation of three studies, restated here (tests check each): the baselines' tuning
 (``reports/baselines/tuned.json``, made by ``ehss baselines``: per task and n the CLF law's sigma, f_r, smoothing
 width and boundary-layer gain, :data:`LAW_DEFAULTS`, and by its written rule the default n), the reproduction study
 (``reports/paper/recommended_defaults.json``, made by ``ehss reproduce``: period, substeps, current limit, the SVF
@@ -13,16 +15,19 @@ evaluation ruler's choice (:data:`BUMPLESS_DEFAULT`). The evidence is in docs/EN
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, fields
 
 import numpy as np
 
 from ehss_gym.core.registry import ESTIMATORS, LAWS, entry, names
+from ehss_gym.core.rig import TABLE_I, Rig, as_rig
 from ehss_gym.core.scenarios import controller_mismatch, paper_scenario
 from ehss_gym.core.settings import LOOP_SETTINGS, PHYSICAL_FIELDS, TASKS, Scenario
 from ehss_gym.core.validate import check_bool, check_choice, check_finite, check_int, check_positive
 
 from .actions import ACTIONS, action_mode
+from .law_table import LawTable, as_law_table
 
 # The bumpless start (the reference model starts at the measured output and its estimated derivatives, as servo
 # drives do) is the default of both tasks because of the evaluation's ruler, not the noise study: with the paper's
@@ -30,6 +35,8 @@ from .actions import ACTIONS, action_mode
 # 96.5 % (velocity) and 100 % (position) of the held-out suite's pooled squared error. The response to such a jump
 # is measured on its own, by the step suite of `ehss evaluate`; its paper suite keeps the paper's start.
 BUMPLESS_DEFAULT = True
+# current_limit="rated" (the env's default): the plant's rated current (Table I: 10 mA, EnvDefaults.current_limit)
+RATED = "rated"
 
 
 @dataclass(frozen=True)
@@ -135,7 +142,8 @@ class EnvDefaults:
     Attributes:
         n: CLF power factor.
         mode: "residual" or "direct".
-        current_limit: valve current limit [mA].
+        current_limit: valve current limit [mA] of Table I's loop (its plant file's rated current; another plant's
+            rated current replaces it unless a limit is given).
         control_period: controller sample time h [s].
         substeps: RK4 plant steps per control period.
         agent_period: control periods per agent step.
@@ -192,12 +200,14 @@ REWARD_KEYS = ("track", "effort", "rate", "tv", "tv_u", "divergence", "class", "
 FIXED_LOOP = ("ref_model_hz", "omega_max", "pressure_bound")
 # The env's settings: the loop settings it exposes, then its own.
 LOOP_KEYS = tuple(k for k in LOOP_SETTINGS if k not in FIXED_LOOP)
-ENV_KEYS = ("mode", "residual_scale", "agent_period", "scenario", "reward_weights", "error_scale", "episode_seconds",
-            "terminate_on_lost_track", "unmodelled_effects", "memory_tau", "action", "action_bound")
-# What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends.
+ENV_KEYS = ("plant", "law_settings", "mode", "residual_scale", "agent_period", "scenario", "reward_weights",
+            "error_scale", "episode_seconds", "terminate_on_lost_track", "unmodelled_effects", "memory_tau", "action",
+            "action_bound")
+# What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends, and the
+# plant (the rig an exported policy was trained on is recorded when it was given: agents.specs.resolved_env_kwargs).
 POLICY_KEYS = tuple(k for k in LOOP_KEYS + ENV_KEYS
                     if k not in ("scenario", "episode_seconds", "lost_track", "terminate_on_lost_track",
-                                 "unmodelled_effects"))
+                                 "unmodelled_effects", "plant", "law_settings"))
 # Settings whose default depends on the task (residual_scale: on the current limit, sigma: on the law too); None
 # selects that default.
 TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_by_law") + ("residual_scale",)
@@ -240,6 +250,8 @@ class EnvConfig:
     memory_tau: float | None = DEFAULTS.memory_tau
     action: str = DEFAULTS.action
     action_bound: float | None = None
+    plant: Rig = TABLE_I
+    law_settings: LawTable | None = None
 
     KEYS = LOOP_KEYS + ENV_KEYS
 
@@ -256,28 +268,36 @@ class EnvConfig:
         if unknown:
             raise ValueError(f"unknown keyword argument(s) {unknown}; valid: {list(cls.KEYS) + ['render_mode']}")
         d = DEFAULTS
+        rig = plant_of(kwargs.get("plant"))
+        table = law_table_of(kwargs.get("law_settings"))
         task = check_choice("task", kwargs.get("task", "velocity"), tuple(TASKS))
         td: TaskDefaults = getattr(d, task)
         mode = check_choice("mode", kwargs.get("mode", d.mode), MODES)
         law = check_choice("law", kwargs.get("law", td.law), names(LAWS))
         loop = {k: kwargs[k] if k in kwargs else _default(k, td, d) for k in LOOP_KEYS}
         # the law's settings not given: the row of the env's n (tuned per n); another law's sigma: its own
-        per_n = law_defaults(task, loop["n"])
-        loop.update({k: getattr(per_n, k) for k in LAW_KEYS if k not in kwargs})
+        per_n = law_row(table, task, loop["n"])
+        loop.update({k: per_n[k] for k in LAW_KEYS if k not in kwargs})
         if "sigma" not in kwargs and law != td.law:
             loop["sigma"] = td.sigma_for(law)
         loop.update(task=task, law=law)
+        if isinstance(loop["current_limit"], str) and loop["current_limit"] == RATED:
+            loop["current_limit"] = rig.rated_current
+        elif "current_limit" not in kwargs:
+            loop["current_limit"] = rig.rated_current  # Table I's: EnvDefaults.current_limit
         # the env's ranges beyond the Scenario's own checks
         loop["control_period"] = check_finite("control_period", loop["control_period"], low=1e-7, high=1e-2)
         loop["substeps"] = check_int("substeps", loop["substeps"], 1)
-        template = paper_scenario(Scenario(**loop))  # every loop setting checked, with the core record's messages
+        # every loop setting checked, with the core record's messages; the template carries the rig
+        template = paper_scenario(Scenario(**loop, plant=rig.plant, model=rig.model))
         limit = template.current_limit
         scale = kwargs.get("residual_scale")
         if scale is None:
             scale = d.residual_scale if limit is None else limit
         scale = check_positive("residual_scale", scale)
         agent_period = check_int("agent_period", kwargs.get("agent_period", d.agent_period), 1)
-        cfg = cls(loop=template, mode=mode, residual_scale=scale, agent_period=agent_period,
+        cfg = cls(loop=template, mode=mode, residual_scale=scale, agent_period=agent_period, plant=rig,
+                  law_settings=table,
                   **_episode_settings(kwargs, td, d, template.control_period * agent_period),
                   **_action_settings(kwargs, d, template, mode))
         if isinstance(cfg.scenario, Scenario):
@@ -294,7 +314,8 @@ class EnvConfig:
         return self.agent_period * self.control_period
 
     def template(self) -> Scenario:
-        """A Scenario with these controller settings (its physical fields are the paper's)."""
+        """A Scenario with these controller settings (its physical fields are the paper's run on the env's plant, with
+        the controller's model of it)."""
         return self.loop
 
     def check_pinned(self, sc: Scenario) -> None:
@@ -312,6 +333,65 @@ class EnvConfig:
 
 
 _SCENARIO_DEFAULTS = {f.name: f.default for f in fields(Scenario)}
+
+
+class PlantWarning(UserWarning):
+    """The CLF law's settings were not tuned for the env's plant (Table I's on another rig, or a file tuned on
+    another plant): the loop may saturate or chatter; ``ehss baselines --plant FILE`` tunes them."""
+
+
+def law_table_of(value) -> LawTable | None:
+    """The env's law table from its ``law_settings`` setting (None: the built-in per-n table, Table I's tuning);
+    ValueError naming the setting otherwise."""
+    try:
+        return as_law_table(value)
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith("law") else f"law_settings: {msg}") from None
+
+
+def law_row(table: LawTable | None, task: str, n) -> dict:
+    """The CLF law's settings (sigma, f_r, smoothing, layer_gain) of ``task`` at ``n``: the law table's row, or the
+    built-in :data:`LAW_DEFAULTS` (Table I's tuning) without one."""
+    if table is None:
+        ls = law_defaults(task, n)
+        return {k: getattr(ls, k) for k in LAW_KEYS}
+    try:
+        return table.row(task, n)
+    except ValueError as exc:
+        raise ValueError(f"law_settings: {exc}") from None
+
+
+def untuned_note(cfg: EnvConfig, given) -> str | None:
+    """Why the CLF law's settings of ``cfg`` were not tuned for its plant (Table I's rows on another rig, or a law
+    table tuned on another plant), or None; ``given``: the settings given explicitly (all four law settings given:
+    None). The direct mode, where the law's current is not applied, has no such note."""
+    if all(k in given for k in LAW_KEYS) or cfg.mode == "direct":
+        return None
+    rig, table = cfg.plant, cfg.law_settings
+    if table is None and not rig.is_table_i:
+        return (f"the CLF law's settings are those tuned for Table I, and the plant is {rig.label}: tune them for it "
+                "with `ehss baselines --plant FILE` and pass its law_settings.json (law_settings=..., --law-settings)")
+    if table is not None and table.plant_hash and table.plant_hash != rig.hash:
+        return f"the law settings {table.source} were tuned on {table.plant_label}, and the plant is {rig.label}"
+    return None
+
+
+def warn_untuned(cfg: EnvConfig, given) -> None:
+    """A :class:`PlantWarning` with :func:`untuned_note`, if any (the envs' constructors call it)."""
+    note = untuned_note(cfg, given)
+    if note:
+        warnings.warn(note, PlantWarning, stacklevel=3)
+
+
+def plant_of(value) -> Rig:
+    """The env's rig from its ``plant`` setting (:func:`ehss_gym.core.rig.as_rig`: None = Table I, a Rig, a
+    PlantParams, a dict, a TOML file path or a shipped plant's name); ValueError naming the setting otherwise."""
+    try:
+        return as_rig(value)
+    except ValueError as exc:
+        msg = str(exc)
+        raise ValueError(msg if msg.startswith("plant") else f"plant: {msg}") from None
 
 
 def _default(key: str, td: TaskDefaults, d: EnvDefaults):
@@ -374,13 +454,15 @@ def _action_settings(kwargs: dict, d: EnvDefaults, template: Scenario, mode: str
 # The unit of each setting in the defaults table (U = the task's output unit: rad/s velocity, rad position; "" for a
 # choice or a flag).
 SETTING_UNITS = {
-    "n": "-", "fr": "Hz", "sigma": "unit of s", "smoothing": "unit of s", "current_limit": "mA (None: unlimited)",
+    "n": "-", "fr": "Hz", "sigma": "unit of s", "smoothing": "unit of s",
+    "current_limit": "mA (None: unlimited; default: the plant's rated current)",
     "control_period": "s", "substeps": "RK4 steps per period", "estimator_hz": "Hz", "estimator": "",
     "observer_hz": "Hz",
     "law": "", "layer_gain": "-", "bumpless": "", "ref_accel": "rad/s^2 (0: none)", "pressure_domain": "x P_s",
     "lost_track": "x reference amplitude", "dob_hz": "Hz (0: off)",
     "lyapunov_kappa": "- (None: off)", "reference_delay": "control samples (0: off)",
     "inverse_threshold": "% of rated current (0: none)", "inverse_hysteresis": "% of rated current (0: none)",
+    "plant": "TOML file, dict, PlantParams or Rig", "law_settings": "JSON file or dict (None: Table I's tuning)",
     "mode": "", "residual_scale": "mA", "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
     "terminate_on_lost_track": "", "unmodelled_effects": "", "memory_tau": "s (None: no memory features)",
@@ -392,6 +474,8 @@ def _cell(v) -> str:
     """A default as the table shows it."""
     if v is None or isinstance(v, (bool, np.bool_, int)):
         return str(v)
+    if isinstance(v, Rig):
+        return v.name
     if isinstance(v, float):
         if v != 0.0 and not 1e-3 <= abs(v) < 1e4:  # 1e5, 5e-5: the way the docs write them
             m, e = f"{v:.6e}".split("e")
@@ -435,7 +519,8 @@ def defaults_table() -> str:
     return "\n".join(rows) + "\n"
 
 
-__all__ = ["LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
+__all__ = ["RATED", "plant_of", "law_table_of", "law_row", "PlantWarning", "untuned_note", "warn_untuned",
+           "LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
            "TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
            "ENV_KEYS", "POLICY_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
            "in_legacy_loop", "SETTING_UNITS", "defaults_table"]

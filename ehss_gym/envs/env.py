@@ -18,7 +18,7 @@ from ehss_gym.core.layout import I_E, I_R, I_T, I_TF, I_UAPP, I_UBASE, I_URES, I
 from ehss_gym.core.settings import Scenario
 
 from .buffers import F_REW, F_STATS, S_N, S_UMAX, S_UMIN
-from .config import DEFAULTS, NONE_IS_A_VALUE, EnvConfig
+from .config import DEFAULTS, NONE_IS_A_VALUE, RATED, EnvConfig, warn_untuned
 from .lanes import Lanes, step_info
 from .observation import OBS_BOUND
 
@@ -111,7 +111,7 @@ class EHSSTrackingEnv(gym.Env):
     that sample's sensor noise), so the agent acts on the freshest measurement; ``u_applied`` and
     ``last_action`` are those of the last period run (0 after reset). e^(i) are the estimator's
     values. Decode with :func:`decode_observation`. Output unit U = rad/s (velocity) or rad
-    (position); w_r = 2 pi f_r.
+    (position); w_r = 2 pi f_r; P_s and K are the controller's model's (of the env's ``plant``).
 
     =============================  ============================  ===============================
     entries                        quantity                      scale
@@ -120,8 +120,8 @@ class EHSSTrackingEnv(gym.Env):
     s                              combined error [U/s^(m-1)]    error_scale * w_r^(m-1)
     y_ref, y_ref_d1, .., y_ref_dm  y_d^(i) [U/s^i]               1 * (10 rad/s)^i
     x1, x2                         measured x1 [rad], x2 [rad/s] 1
-    x3                             measured x3 [Pa]              P_s = 9e6 Pa
-    x4                             measured x4 [m^2]             K * 0.1 mA = 8e-8 m^2
+    x3                             measured x3 [Pa]              P_s (Table I: 9e6 Pa)
+    x4                             measured x4 [m^2]             K * 0.1 mA (Table I: 8e-8 m^2)
     u_applied                      applied current [mA]          0.1 mA
     u_base                         Sontag current [mA] (also     0.1 mA
                                    computed, not applied, in
@@ -204,7 +204,7 @@ class EHSSTrackingEnv(gym.Env):
     | `fr` | 127.561 | 60 | Hz |
     | `sigma` | 6.978306e4 | 1.036633e5 | unit of s |
     | `smoothing` | 64.9382 | 36.5174 | unit of s |
-    | `current_limit` | 10 | 10 | mA (None: unlimited) |
+    | `current_limit` | 10 | 10 | mA (None: unlimited; default: the plant's rated current) |
     | `control_period` | 5e-5 | 5e-5 | s |
     | `substeps` | 1 | 1 | RK4 steps per period |
     | `estimator_hz` | 1000 | 1000 | Hz |
@@ -221,6 +221,8 @@ class EHSSTrackingEnv(gym.Env):
     | `inverse_threshold` | 0 | 0 | % of rated current (0: none) |
     | `inverse_hysteresis` | 0 | 0 | % of rated current (0: none) |
     | `lost_track` | 1 | 1 | x reference amplitude |
+    | `plant` | Table I | Table I | TOML file, dict, PlantParams or Rig |
+    | `law_settings` | None | None | JSON file or dict (None: Table I's tuning) |
     | `mode` | `"residual"` | `"residual"` |  |
     | `residual_scale` | 10 | 10 | mA |
     | `agent_period` | 5 | 5 | control periods |
@@ -258,6 +260,18 @@ class EHSSTrackingEnv(gym.Env):
     Args (keyword only; unknown names or bad values raise ValueError listing what is valid; defaults in the
     table above):
         task: "velocity" (the default) or "position" (see docs/ENV.md for what each task's base law achieves).
+        plant: the rig (:func:`ehss_gym.core.rig.as_rig`): a TOML plant file's path (a [plant] table of the model's
+            parameters or a [datasheet] table; docs "Your own servo"), a shipped plant's name ("table1",
+            "compact140"), a dict of the same content, a :class:`~ehss_gym.core.params.PlantParams` or a
+            :class:`~ehss_gym.core.rig.Rig`; None = Table I. "paper" episodes run on it, "random" episodes draw their
+            mismatch around it, and the controller's model is the file's (its [model] table, else the plant's
+            nominal parameters); its rated current is the default current limit. A bad file or value raises
+            ValueError naming the key, its unit and range.
+        law_settings: the CLF law's settings tuned for the plant (:mod:`ehss_gym.envs.law_table`): the
+            ``law_settings.json`` that ``ehss baselines --plant FILE`` writes (a path, its content as a dict, or a
+            :class:`~ehss_gym.envs.law_table.LawTable`); the env takes its row for n for every law setting (sigma,
+            fr, smoothing, layer_gain) not given. None: the built-in rows, tuned for Table I (a
+            :class:`~ehss_gym.envs.config.PlantWarning` says so on another plant).
         n: CLF power factor, even >= 2.
         fr: combined-error cutoff f_r [Hz].
         sigma: CLF scale [unit of s] (1 = the paper's law).
@@ -267,7 +281,8 @@ class EHSSTrackingEnv(gym.Env):
         agent_period: control periods per agent step, >= 1.
         control_period: h [s], in [1e-7, 1e-2].
         substeps: RK4 plant steps per control period, >= 1.
-        current_limit: |u| limit [mA] or None = unlimited.
+        current_limit: |u| limit [mA] or None = unlimited; "rated" (the default): the plant's rated current (Table I's
+            loop: 10 mA).
         estimator_hz: cutoff of the paper's state-variable filter (SVF) [Hz] (the paper's: 1000).
         estimator: how the output derivatives are estimated, a row of :data:`ehss_gym.core.registry.ESTIMATORS`:
             "foh" (the paper's SVF, first-order-hold discretisation,
@@ -362,9 +377,10 @@ class EHSSTrackingEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
-    def __init__(self, *, task: str = "velocity", mode: str = DEFAULTS.mode, n: int = DEFAULTS.n,
+    def __init__(self, *, task: str = "velocity", plant=None, law_settings=None, mode: str = DEFAULTS.mode,
+                 n: int = DEFAULTS.n,
                  fr: float | None = None, sigma: float | None = None, smoothing: float | None = None,
-                 current_limit: float | None = DEFAULTS.current_limit, control_period: float = DEFAULTS.control_period,
+                 current_limit: float | str | None = RATED, control_period: float = DEFAULTS.control_period,
                  substeps: int = DEFAULTS.substeps, estimator: str | None = None,
                  estimator_hz: float | None = None, observer_hz: float | None = None, law: str | None = None,
                  layer_gain: float | None = None, bumpless: bool | None = None, ref_accel: float | None = None,
@@ -386,6 +402,7 @@ class EHSSTrackingEnv(gym.Env):
         # None selects the default, except where None is a value (current_limit=None means unlimited)
         given = {k: v for k, v in given.items() if v is not None or k in NONE_IS_A_VALUE}
         self.config = cfg = EnvConfig.from_kwargs({**given, **unknown})
+        warn_untuned(cfg, given)
         self._lanes = Lanes(cfg, 1)
         self.observation_layout = self._lanes.layout
         D = len(self.observation_layout)

@@ -4,6 +4,7 @@ info it reports (:func:`step_info`)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -38,7 +39,6 @@ from ehss_gym.core.layout import (
 )
 from ehss_gym.core.loop import N_LWORK, init_filters
 from ehss_gym.core.metrics import init_accumulator, summarize_acc
-from ehss_gym.core.params import PlantParams
 from ehss_gym.core.physics import N_LANE_CONST, lane_constants
 from ehss_gym.core.references import reference_value
 from ehss_gym.core.registry import REFERENCE_FAMILIES
@@ -227,7 +227,7 @@ class Lanes:
         self.action_dims = action_dims(self.action, cfg.dob_hz)
         base[C_SHIFT_ON] = 1.0 if self.action.name == "reference" else 0.0
         self.ctrl_base = base
-        nominal = PlantParams().as_array()
+        nominal = cfg.plant.plant.as_array()  # the rows before a lane's first episode: the rig's
         self.F = np.zeros((B, N_F))
         self.IB = np.zeros((B, N_IB), dtype=np.int64)
         self.BB = np.zeros((B, N_BB), dtype=np.bool_)
@@ -250,7 +250,7 @@ class Lanes:
         self.nstep = self.IB[:, IB_NSTEP]
         self.run = self.BB[:, BB_RUN]
         self.plant[:] = nominal
-        self.model[:] = nominal
+        self.model[:] = cfg.plant.controller_model.as_array()
         self.ctrl[:] = base
         self.events = self._empty_events(B, MAX_EVENTS)
         self.filt = np.tile(filter_block(cfg.order, tmpl.ref_model_hz, cfg.estimator_hz, cfg.control_period,
@@ -418,6 +418,9 @@ class Lanes:
             seed = int(rng.integers(0, TRAIN_SEED_LIMIT))
             sc = sample_scenario(seed, tmpl, cfg.episode_seconds,
                                  UNMODELLED_DISTRIBUTION if cfg.unmodelled_effects else DEFAULT_DISTRIBUTION)
+            if cfg.unmodelled_effects and sc.unmodelled.rated_current != cfg.plant.rated_current:
+                # the valve's threshold and hysteresis are percent of the rig's rated current
+                sc = sc.replace(unmodelled=replace(sc.unmodelled, rated_current=cfg.plant.rated_current))
             info["scenario_name"] = "random"
             info["scenario_seed"] = seed
         else:
@@ -425,7 +428,7 @@ class Lanes:
                              f"{list(PHYSICAL_FIELDS)} or a Scenario, got {choice!r}")
         if sc.n_steps < cfg.agent_period:
             raise ValueError(f"scenario t_end ({sc.t_end:g} s) is shorter than one agent step ({cfg.agent_dt:g} s)")
-        info["scenario"] = describe(sc)
+        info["scenario"] = describe(sc, tmpl.plant)
         return sc, info
 
     @property

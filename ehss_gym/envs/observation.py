@@ -7,7 +7,6 @@ import math
 import numpy as np
 
 from ehss_gym.core.layout import I_E, I_S, I_SHIFT, I_UAPP, I_UBASE, I_URES, I_W, I_XM, I_YD
-from ehss_gym.core.params import PlantParams
 from ehss_gym.core.settings import UNITS
 
 from .actions import SCHEDULE_RANGES, action_dims, action_mode
@@ -26,7 +25,7 @@ def observation_layout(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]
     m = cfg.order
     unit = UNITS[cfg.task]
     wr = 2.0 * math.pi * cfg.fr
-    p = PlantParams()
+    p = cfg.plant.controller_model  # the scales the designer knows: the controller's model of the rig
     out = []
     for i in range(m):
         out.append((f"e_d{i}" if i else "e", I_E + i, cfg.error_scale * wr**i, True, f"{unit}/s^{i}"))

@@ -36,7 +36,7 @@ from gymnasium.vector.utils import batch_space
 
 from ehss_gym.core.layout import M_LOST
 
-from .config import EnvConfig
+from .config import EnvConfig, warn_untuned
 from .lanes import Lanes, step_info
 from .observation import OBS_BOUND
 
@@ -94,6 +94,7 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         self.render_mode = None
         self.num_envs = N = int(num_envs)
         self.config = cfg = EnvConfig.from_kwargs(kwargs)
+        warn_untuned(cfg, kwargs)
         self._lanes = Lanes(cfg, N, int(chunk))
         self.observation_layout = self._lanes.layout
         D = len(self.observation_layout)

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ehss_gym.core.response import step_metrics
+from ehss_gym.core.rig import as_rig
 from ehss_gym.envs.rollouts import rollout as run_rollout
 from ehss_gym.infra.execution import Backend, Executor, Job, canonical, pin_blas, usable_cores
 
@@ -225,13 +226,47 @@ def run_batches(batches: Sequence[EpisodeBatch], items: dict, executor: Executor
 
 
 def _complete_specs(specs: list, cfg: EvalConfig, notes: list) -> list:
-    """The specs with the reference law added."""
+    """The specs with the reference law added, the scripted ones on the evaluation's plant."""
     check_unique_names(specs)
     names = [s.name for s in specs]
     if REFERENCE_POLICY not in names:
         specs.insert(0, scripted_spec(REFERENCE_POLICY))
         notes.append(f"{REFERENCE_POLICY} was added: every ratio is taken to it.")
-    return specs
+    return [on_plant(s, cfg, notes) for s in specs]
+
+
+def on_plant(spec: PolicySpec, cfg: EvalConfig, notes: list) -> PolicySpec:
+    """A scripted law acts on the evaluation's plant (its current limit the rig's rated current, the PID tuned on it)
+    with the evaluation's law settings (the CLF law's row of its n, the observer's and the PID's rows per task); a
+    learned policy keeps the settings it was trained with (a note says when its plant is not the evaluated one)."""
+    env = cfg.env_kwargs()
+    if not env:
+        return spec
+    if spec.kind in ("clf", "pid"):
+        return _tuned_rows(replace(spec, env_kwargs={**spec.env_kwargs, **env}), cfg.law_settings)
+    trained = spec.env_kwargs.get("plant")
+    if cfg.plant is None:
+        return spec
+    if trained is None or as_rig(trained) != cfg.rig:
+        notes.append(f"{spec.name} acts with the settings it was trained with, on plant "
+                     f"{'Table I' if trained is None else as_rig(trained).label}; the episodes are {cfg.rig.label}'s.")
+    return spec
+
+
+def _tuned_rows(spec: PolicySpec, table) -> PolicySpec:
+    """A scripted spec with a law table's per-task rows: ``dob-n2``'s observer bandwidth, smoothing and layer, the
+    PID's gains (unless the spec gives its own); the CLF law's rows come with the table itself (env ``law_settings``).
+    """
+    if table is None:
+        return spec
+    if spec.kind == "clf" and spec.env_kwargs.get("dob_hz") and spec.env_kwargs.get("n") == 2:
+        rows = {t: dict(table.tasks[t].dob) for t in spec.tasks if t in table.tasks and table.tasks[t].dob}
+        return replace(spec, task_kwargs=rows, source=spec.source + f"; observer rows of {table.describe()}")
+    if spec.kind == "pid" and not spec.runs[0].get("gains"):
+        gains = {t: table.tasks[t].pid for t in spec.tasks if t in table.tasks and table.tasks[t].pid}
+        return replace(spec, runs=[{**spec.runs[0], "gains": gains}], source=spec.source + f"; gains of "
+                                                                                          f"{table.describe()}")
+    return replace(spec, source=spec.source + f"; {table.describe()}")
 
 
 def _check_tasks(specs: list, cfg: EvalConfig, named: set, notes: list) -> None:

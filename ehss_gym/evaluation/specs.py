@@ -27,7 +27,7 @@ import os
 import re
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -67,6 +67,8 @@ class PolicySpec:
             policies, which run on every task).
         tasks: tasks it runs on.
         source: human-readable origin (for the report).
+        task_kwargs: task -> env kwargs for that task on top of ``env_kwargs`` (a scripted law's settings tuned per
+            task, from a law-settings file).
     """
 
     name: str
@@ -75,6 +77,7 @@ class PolicySpec:
     env_kwargs: dict
     tasks: tuple = TASKS
     source: str = ""
+    task_kwargs: dict = field(default_factory=dict)
 
     @property
     def learned(self) -> bool:
@@ -83,7 +86,7 @@ class PolicySpec:
 
     def env_kwargs_for(self, task: str) -> dict:
         """The env kwargs of this policy on ``task``."""
-        kw = dict(self.env_kwargs)
+        kw = {**self.env_kwargs, **self.task_kwargs.get(task, {})}
         kw["task"] = task
         return kw
 

@@ -21,6 +21,10 @@ Per task (the physical episodes come from :mod:`ehss_gym.core.scenarios`):
 
 The paper suite keeps the paper's start (:data:`SUITE_ENV`: the reference model at its steady state for r(0));
 the others run at the env's default, the bumpless start.
+
+Every suite runs on the evaluation's plant (``EvalConfig.plant``: Table I unless a plant file is given): its episodes'
+plants are that rig's (the held-out and robustness mismatch drawn around it), the controller's model is the rig's, and
+the valve's threshold and hysteresis in the unmodelled suite are percent of its rated current.
 """
 
 from __future__ import annotations
@@ -30,7 +34,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ehss_gym.core.params import PlantParams
+from ehss_gym.core.rig import Rig, as_rig
 from ehss_gym.core.scenarios import (
     HELDOUT_SEED_BASE,
     PHYSICAL_FIELDS,
@@ -41,6 +45,8 @@ from ehss_gym.core.scenarios import (
 from ehss_gym.core.settings import UNITS  # task -> unit of its output y (re-exported: the report's tables use it)
 from ehss_gym.core.signals import step
 from ehss_gym.envs import EnvConfig
+from ehss_gym.envs.config import law_table_of
+from ehss_gym.envs.law_table import LawTable
 
 TASKS = ("velocity", "position")
 SUITES = ("paper", "heldout", "robustness", "step", "unmodelled")
@@ -74,6 +80,10 @@ class EvalConfig:
         n_boot: bootstrap replicates.
         seed: bootstrap seed.
         chunk: episodes per job (one job = one policy run on up to ``chunk`` episodes of one suite/task).
+        plant: the rig every suite runs on (:func:`ehss_gym.core.rig.as_rig`: a Rig, a plant file, ...); None =
+            Table I, not given (the CSVs then carry no plant column).
+        law_settings: the scripted laws' settings tuned for the plant (:mod:`ehss_gym.envs.law_table`: a
+            law-settings file, its content or a LawTable); None = the env's built-in rows (Table I's tuning).
     """
 
     suites: tuple = SUITES
@@ -88,6 +98,19 @@ class EvalConfig:
     n_boot: int = 2000
     seed: int = 0
     chunk: int = 24
+    plant: Rig | None = None
+    law_settings: LawTable | None = None
+
+    @property
+    def rig(self) -> Rig:
+        """The rig the suites run on (Table I if no plant was given)."""
+        return as_rig(self.plant)
+
+    def env_kwargs(self) -> dict:
+        """The env settings the scripted policies of the evaluation get from it: the plant and the law settings,
+        where given."""
+        out = {} if self.plant is None else {"plant": self.plant}
+        return out if self.law_settings is None else {**out, "law_settings": self.law_settings}
 
     @classmethod
     def quick(cls, **changes) -> EvalConfig:
@@ -125,6 +148,13 @@ class EvalConfig:
                              f"{self.step_amplitudes}")
         if any(not math.isfinite(m) or not 0 <= m < 1 for m in self.mismatch_levels) or not self.mismatch_levels:
             raise ValueError(f"mismatch_levels must be in [0, 1), got {self.mismatch_levels}")
+        if self.plant is not None:
+            try:
+                object.__setattr__(self, "plant", as_rig(self.plant))
+            except ValueError as exc:
+                msg = str(exc)
+                raise ValueError(msg if msg.startswith("plant") else f"plant: {msg}") from None
+        object.__setattr__(self, "law_settings", law_table_of(self.law_settings))
         if self.episode_seconds <= SWEEP_WINDOW[1] and "robustness" in self.suites:
             raise ValueError(f"episode_seconds must be > {SWEEP_WINDOW[1]} s for the robustness sweeps, got "
                              f"{self.episode_seconds}")
@@ -167,20 +197,20 @@ def _physical(sc) -> dict:
 def _robustness_episodes(cfg: EvalConfig, task: str, tmpl) -> list[Episode]:
     """The friction sweep (plant = model) and the mismatch sweep of one task, noise removed."""
     out: list[Episode] = []
-    nominal = PlantParams()
+    nominal, model = tmpl.plant, tmpl.model or tmpl.plant  # the rig's plant and the controller's model of it
     base = heldout_scenarios(cfg.sweep_episodes, tmpl, cfg.episode_seconds, start=ROBUST_SEED_START)
     t0, t1 = SWEEP_WINDOW
     seed0 = HELDOUT_SEED_BASE + ROBUST_SEED_START
     for amp in cfg.friction_levels:
         for i, sc in enumerate(base):
-            sc2 = sc.replace(friction=((float(amp), t0, t1),), plant=nominal, model=nominal, noise_std=NO_NOISE)
+            sc2 = sc.replace(friction=((float(amp), t0, t1),), plant=nominal, model=model, noise_std=NO_NOISE)
             out.append(Episode("robustness", task, f"friction={amp:g}#{i}", _physical(sc2), "friction", float(amp),
                                seed0 + i))
     for lvl in cfg.mismatch_levels:
         for i, sc in enumerate(base):
             signs = np.random.default_rng(ROBUST_SEED_START + i).choice([-1.0, 1.0], len(MISMATCH_PARAMS))
             plant = nominal.scaled(**{p: 1.0 + float(lvl) * s for p, s in zip(MISMATCH_PARAMS, signs)})
-            sc2 = sc.replace(friction=((SWEEP_MISMATCH_FRICTION, t0, t1),), plant=plant, model=nominal,
+            sc2 = sc.replace(friction=((SWEEP_MISMATCH_FRICTION, t0, t1),), plant=plant, model=model,
                              noise_std=NO_NOISE)
             out.append(Episode("robustness", task, f"mismatch={lvl:g}#{i}", _physical(sc2), "mismatch", float(lvl),
                                seed0 + i))
@@ -191,8 +221,8 @@ def _step_episodes(cfg: EvalConfig, task: str, tmpl) -> list[Episode]:
     """The step suite of one task: one episode per amplitude, from rest."""
     out = []
     for a in cfg.step_amplitudes:
-        sc = tmpl.replace(reference=step(float(a), STEP_TIME), friction=(), plant=PlantParams(), model=None,
-                          noise_std=NO_NOISE, seed=0, t_end=STEP_SECONDS[task])
+        sc = tmpl.replace(reference=step(float(a), STEP_TIME), friction=(), noise_std=NO_NOISE, seed=0,
+                          t_end=STEP_SECONDS[task])  # the rig's plant and model, as the template has them
         out.append(Episode("step", task, f"step={a:+g}", _physical(sc), level=float(a)))
     return out
 
@@ -210,7 +240,7 @@ def build_episodes(cfg: EvalConfig) -> list[Episode]:
     """
     out: list[Episode] = []
     for task in cfg.tasks:
-        tmpl = EnvConfig.from_kwargs({"task": task}).template()
+        tmpl = EnvConfig.from_kwargs({"task": task, **cfg.env_kwargs()}).template()
         if "paper" in cfg.suites:
             out.append(Episode("paper", task, "paper", _physical(paper_scenario(tmpl, cfg.paper_seconds))))
         if "heldout" in cfg.suites:
@@ -223,6 +253,9 @@ def build_episodes(cfg: EvalConfig) -> list[Episode]:
         if "unmodelled" in cfg.suites:
             scs = heldout_scenarios(cfg.heldout_episodes, tmpl, cfg.episode_seconds, UNMODELLED_DISTRIBUTION,
                                     start=UNMODELLED_SEED_START)
+            rated = cfg.rig.rated_current  # the valve's threshold and hysteresis are percent of it
+            scs = [sc if sc.unmodelled.rated_current == rated else
+                   sc.replace(unmodelled=replace(sc.unmodelled, rated_current=rated)) for sc in scs]
             out += [Episode("unmodelled", task, f"unmodelled-{i}", _physical(sc),
                             scenario_seed=HELDOUT_SEED_BASE + UNMODELLED_SEED_START + i) for i, sc in enumerate(scs)]
     return out

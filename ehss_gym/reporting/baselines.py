@@ -1,6 +1,7 @@
 """``ehss baselines``'s report: ``tuned.json`` (every baseline's tuned settings, objective, evaluations used and
-every evaluated point), ``BASELINES.md`` (prose in templates/baselines.md.j2) and one convergence figure per task,
-from :func:`ehss_gym.study.baselines.tune`."""
+every evaluated point), ``law_settings.json`` (the law table that ``--law-settings`` and the env's ``law_settings``
+take, :mod:`ehss_gym.envs.law_table`), ``BASELINES.md`` (prose in templates/baselines.md.j2) and one convergence
+figure per task, from :func:`ehss_gym.study.baselines.tune`."""
 
 from __future__ import annotations
 
@@ -18,10 +19,12 @@ from ehss_gym.evaluation.scoring import CLASSES  # noqa: E402
 from ehss_gym.infra.fmt import fmt_cell  # noqa: E402
 from ehss_gym.infra.util import atomic_write_text  # noqa: E402
 from ehss_gym.study.baselines import BASELINES, KEEP_MARGIN  # noqa: E402
+from ehss_gym.study.friction_windows import LIMIT_CYCLE_REVERSALS, SATURATION_MAX  # noqa: E402
 
 from .render import render  # noqa: E402
 
 DEFAULT_OUT = os.path.join("reports", "baselines")
+LAW_SETTINGS_FILE = "law_settings.json"  # the law table (ehss_gym.envs.law_table) that --law-settings takes
 
 
 def _best_so_far(evals: list) -> list[float]:
@@ -65,11 +68,27 @@ def _settings_rows(results: list) -> list[list[str]]:
     return rows
 
 
+def _check_rows(check: dict) -> list[list[str]]:
+    """The held-out check's table: per task the tuned and the untuned n = 2 law."""
+    rows = []
+    for task, d in check.items():
+        for which in ("tuned", "untuned"):
+            c = d[which]
+            rows.append([task, which, f"{c['saturation']:.2%}", f"{c['saturation_max']:.2%}", str(c["windows"]),
+                         str(c["limit_cycles"]), str(c["reversals_max"]), f"{c['window_saturation_max']:.2%}",
+                         str(c["failed"]), "pass" if c["passed"] else "FAIL"])
+    return rows
+
+
 def write_report(res: dict, out: str, command: str, wall_s: float) -> str:
-    """Write tuned.json, BASELINES.md and convergence_<task>.png under ``out``; returns BASELINES.md's path."""
+    """Write tuned.json, law_settings.json, BASELINES.md and convergence_<task>.png under ``out``; returns
+    BASELINES.md's path."""
     os.makedirs(out, exist_ok=True)
     atomic_write_text(os.path.join(out, "tuned.json"),
                       json.dumps({"command": command, "version": __version__, **res}, indent=1) + "\n")
+    if any(t in res["law_settings"] for t in ("velocity", "position")):
+        atomic_write_text(os.path.join(out, LAW_SETTINGS_FILE), json.dumps(
+            {"made_by": command, "version": __version__, **res["law_settings"]}, indent=1) + "\n")
     tasks = []
     for task in dict.fromkeys(r["task"] for r in res["baselines"].values()):
         results = [r for r in res["baselines"].values() if r["task"] == task]
@@ -81,10 +100,13 @@ def write_report(res: dict, out: str, command: str, wall_s: float) -> str:
     rows = {r.name: r for r in BASELINES}
     text = render("baselines.md.j2", command=command, version=__version__, wall_s=wall_s, tasks=tasks,
                   settings=res["settings"], classes=CLASSES, margin=KEEP_MARGIN, n_rows=len(res["baselines"]),
-                  runners=sorted({rows[n].runner for n in res["baselines"] if n in rows}))
+                  runners=sorted({rows[n].runner for n in res["baselines"] if n in rows}), plant=res["plant"],
+                  check=_check_rows(res["check"]), law_file=LAW_SETTINGS_FILE if res["check"] or any(
+                      t in res["law_settings"] for t in ("velocity", "position")) else None,
+                  saturation_max=SATURATION_MAX, reversals=LIMIT_CYCLE_REVERSALS)
     path = os.path.join(out, "BASELINES.md")
     atomic_write_text(path, text)
     return path
 
 
-__all__ = ["DEFAULT_OUT", "plot_convergence", "write_report"]
+__all__ = ["LAW_SETTINGS_FILE", "DEFAULT_OUT", "plot_convergence", "write_report"]

@@ -16,7 +16,7 @@ import time
 from collections.abc import Sequence
 
 from ehss_gym._version import __version__
-from ehss_gym.core.params import PlantParams
+from ehss_gym.core.rig import TABLE_I
 from ehss_gym.core.unmodelled import DATASHEET_RANGES
 from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.harness import Results
@@ -226,11 +226,18 @@ def _step_plants(res: Results) -> dict:
     return {(ep.task, ep.level): ep.physical["plant"] for ep in getattr(res, "episodes", ()) if ep.suite == "step"}
 
 
-def _step_case(task: str, amplitude: float, plant=None) -> dict:
-    """The bound's case of one step of the suite: its plant, at the env's current limit for the task."""
-    limit = EnvConfig.from_kwargs({"task": task}).current_limit
+def _rig(res: Results):
+    """The rig the evaluation ran on (Table I for results made without one)."""
+    cfg = getattr(res, "cfg", None)
+    return getattr(cfg, "rig", TABLE_I) if cfg is not None else TABLE_I
+
+
+def _step_case(task: str, amplitude: float, plant=None, rig=TABLE_I) -> dict:
+    """The bound's case of one step of the suite: its plant (default: the rig's), at the env's current limit for the
+    task on that rig."""
+    limit = EnvConfig.from_kwargs({"task": task, "plant": rig}).current_limit
     return case(task, amplitude, t_step=STEP_TIME, t_end=STEP_SECONDS[task], current_limit=limit,
-                plant=PlantParams() if plant is None else plant)
+                plant=rig.plant if plant is None else plant)
 
 
 def prefetch_bounds(res: Results, executor=None, progress: bool = False) -> int:
@@ -241,7 +248,7 @@ def prefetch_bounds(res: Results, executor=None, progress: bool = False) -> int:
         return 0
     plants = _step_plants(res)
     keys = dict.fromkeys((r["task"], r["level"]) for r in res.rows if r["suite"] == "step")
-    return prefetch([_step_case(t, a, plants.get((t, a))) for t, a in keys], executor, progress)
+    return prefetch([_step_case(t, a, plants.get((t, a)), _rig(res)) for t, a in keys], executor, progress)
 
 
 def step_rows(res: Results, bound=None, notes: list | None = None) -> list[dict]:
@@ -262,17 +269,18 @@ def step_rows(res: Results, bound=None, notes: list | None = None) -> list[dict]
         if bound is not None:
             key = (r["task"], r["level"])
             if key not in cache:
-                cache[key] = _bound_of(bound, r["task"], r["level"], notes, plants.get(key))
+                cache[key] = _bound_of(bound, r["task"], r["level"], notes, plants.get(key), _rig(res))
             d["iae_bound"] = cache[key]
             d["bound_ratio"] = r["iae_r"] / cache[key] if cache[key] > 0 else math.nan
         out.append(d)
     return out
 
 
-def _bound_of(bound, task: str, amplitude: float, notes: list | None, plant: PlantParams | None = None) -> float:
-    """The bound's IAE [output unit * s] of one step of the suite on ``plant`` (default Table I), NaN (and a note)
-    where the bound refuses it."""
-    c = _step_case(task, amplitude, plant)
+def _bound_of(bound, task: str, amplitude: float, notes: list | None, plant=None,
+              rig=TABLE_I) -> float:
+    """The bound's IAE [output unit * s] of one step of the suite on ``plant`` (default: the rig's) under the rig's
+    current limit, NaN (and a note) where the bound refuses it."""
+    c = _step_case(task, amplitude, plant, rig)
     try:
         return float(bound(task, amplitude, t_step=c["t_step"], t_end=c["t_end"], plant=c["plant"],
                            current_limit=c["current_limit"]).iae_bound)
@@ -338,7 +346,7 @@ def _env_rows(res: Results) -> list[list]:
     """Rows of the env-defaults table, one per evaluated task (frequencies [Hz], currents [mA], periods [s])."""
     out = []
     for task in res.cfg.tasks:
-        c = EnvConfig.from_kwargs({"task": task})
+        c = EnvConfig.from_kwargs({"task": task, **res.cfg.env_kwargs()})
         out.append([task, f"{c.fr:g}", f"{c.sigma:g}", f"{c.smoothing:g}", c.current_limit, f"{c.control_period:g}",
                     c.substeps, c.agent_period, c.estimator, f"{c.layer_gain:g}", c.bumpless, f"{c.ref_accel:g}"])
     return out
@@ -374,6 +382,8 @@ def report_context(res: Results, figs: dict, steps: list[dict], with_bound: bool
     metric_header, metric_rows = _metric_table(res)
     return {
         "command": res.command, "version": __version__, "n_episodes": len(res.rows), "workers": res.workers,
+        "plant": res.cfg.rig.text(), "plant_given": res.cfg.plant is not None,
+        "law_settings": None if res.cfg.law_settings is None else res.cfg.law_settings.describe(),
         "wall_time": res.wall_time, "timings": ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()),
         "learned": any(s.learned for s in res.specs), "notes": list(res.notes), "cfg": res.cfg,
         "policy_rows": _policy_rows(res), "env_rows": _env_rows(res), "classes": CLASSES,
@@ -396,6 +406,15 @@ def report_text(res: Results, figs: dict, steps: list[dict] | None = None, with_
     return render(TEMPLATE, **report_context(res, figs, steps or [], with_bound), bound_notes=list(bound_notes))
 
 
+def _plant_column(res: Results):
+    """(rows, columns) -> (rows, columns) with a ``plant`` column (the rig's label: name, file, hash of its values)
+    when the evaluation was given a plant; unchanged otherwise (no plant given: the columns of Table I's CSVs)."""
+    if res.cfg.plant is None:
+        return lambda rows, columns: (rows, columns)
+    label = res.cfg.rig.label
+    return lambda rows, columns: ([{**r, "plant": label} for r in rows], ["plant", *columns])
+
+
 def write_report(res: Results, out: str) -> str:
     """Write REPORT.md, episodes.csv, summary.csv, comparisons.csv, steps.csv and figures/ under ``out``; returns
     REPORT.md.
@@ -407,10 +426,12 @@ def write_report(res: Results, out: str) -> str:
     """
     t0 = time.perf_counter()
     os.makedirs(os.path.join(out, "figures"), exist_ok=True)
-    atomic_write_text(os.path.join(out, "episodes.csv"), csv_text(res.rows, EPISODE_COLUMNS))
-    atomic_write_text(os.path.join(out, "summary.csv"), csv_text(res.summary, _columns(res.summary)))
+    tag = _plant_column(res)
+    atomic_write_text(os.path.join(out, "episodes.csv"), csv_text(*tag(res.rows, EPISODE_COLUMNS)))
+    atomic_write_text(os.path.join(out, "summary.csv"), csv_text(*tag(res.summary, _columns(res.summary))))
     if res.comparisons:
-        atomic_write_text(os.path.join(out, "comparisons.csv"), csv_text(res.comparisons, _columns(res.comparisons)))
+        atomic_write_text(os.path.join(out, "comparisons.csv"),
+                          csv_text(*tag(res.comparisons, _columns(res.comparisons))))
     bound = bound_function() if any(r["suite"] == "step" for r in res.rows) else None
     bound_notes: list = []
     t1 = time.perf_counter()
@@ -419,7 +440,7 @@ def write_report(res: Results, out: str) -> str:
     if bound is not None:
         res.timings["bounds"] = res.timings.get("bounds", 0.0) + (t2 - t1)
     if steps:
-        atomic_write_text(os.path.join(out, "steps.csv"), csv_text(steps, STEP_COLUMNS))
+        atomic_write_text(os.path.join(out, "steps.csv"), csv_text(*tag(steps, STEP_COLUMNS)))
     t3 = time.perf_counter()
     figs = make_figures(res, os.path.join(out, "figures"))
     t4 = time.perf_counter()

@@ -140,7 +140,10 @@ def write_report(res: dict, out: str, command: str) -> str:
     """Write HEADROOM.md, headroom.csv and headroom.png under ``out``; returns HEADROOM.md's path."""
     os.makedirs(out, exist_ok=True)
     blocks = res["blocks"]
-    atomic_write_text(os.path.join(out, "headroom.csv"), csv_text([d for b in blocks for d in b["stats"]], COLUMNS))
+    stats = [d for b in blocks for d in b["stats"]]
+    plant = res["cfg"].plant  # a plant given: a column naming it (none: Table I's columns)
+    atomic_write_text(os.path.join(out, "headroom.csv"), csv_text(stats, COLUMNS) if plant is None else
+                      csv_text([{**d, "plant": plant.label} for d in stats], ("plant", *COLUMNS)))
     plot_headroom(blocks, os.path.join(out, "headroom.png"), command)
     tasks = []
     for task in dict.fromkeys(b["task"] for b in blocks):
@@ -167,7 +170,8 @@ def write_report(res: dict, out: str, command: str) -> str:
                   classes=CLASSES, variants=variants, checks=_checks(blocks), material=MATERIAL,
                   min_episodes=MIN_EPISODES, free_period=FREE_PERIOD, base_period=BASE_PERIOD,
                   check_suite=CHECK_SUITE, bias=cfg.bias.describe(), width=cfg.width.describe(),
-                  corrections=corrections, dcomp_samples=DCOMP_SAMPLES)
+                  corrections=corrections, dcomp_samples=DCOMP_SAMPLES,
+                  plant=cfg.eval_config().rig.text())
     path = os.path.join(out, "HEADROOM.md")
     atomic_write_text(path, text)
     return path

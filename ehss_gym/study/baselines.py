@@ -26,28 +26,46 @@ an axis whose incumbent is its 0 point is left there) and keep any improvement, 
 **The defaults rule** (written before the held-out suite was run; :func:`default_n`): per task, the env's default
 law is the tuned CLF baseline with the lowest objective; a smaller n is kept unless a larger one is lower by more
 than 2 %. The env's per-n defaults are each n's tuned values (``ehss_gym.envs.config``, checked against tuned.json).
+
+**Another plant** (``TuneSettings.plant``, ``ehss baselines --plant FILE``): the same rows, search, objective and
+rule, on training scenarios drawn around that plant (:func:`ehss_gym.core.scenarios.sample_scenario` on a template
+carrying it), with its rated current as the limit; the PID starts at the relay procedure's gains on that plant
+(:func:`ehss_gym.controllers.tune_pid`). The result is also written as a law table
+(:mod:`ehss_gym.envs.law_table`, ``law_settings.json``), which ``--law-settings FILE`` and the env's
+``law_settings`` take. After the search, the tuned n = 2 law and the untuned one are checked on held-out episodes
+(:mod:`ehss_gym.study.friction_windows`: saturation, limit cycles through the friction events); the check does not
+feed back into the search.
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ehss_gym.controllers import PIDPolicy
+from ehss_gym.controllers import PIDPolicy, tune_pid
 from ehss_gym.controllers.pid import PID_RELAY_GAINS
+from ehss_gym.core.rig import Rig, as_rig
 from ehss_gym.core.scenarios import sample_scenario
 from ehss_gym.core.sim import simulate_batch
 from ehss_gym.envs import EnvConfig
+from ehss_gym.envs.config import PlantWarning
+from ehss_gym.envs.law_table import table_from_dict
 from ehss_gym.envs.rollouts import rollout
 from ehss_gym.evaluation.scoring import episode_log_ratios, failure, figure_of, rank_key
 from ehss_gym.evaluation.suites import TASKS
 
+from .friction_windows import check as friction_check
+
 PROG = "ehss baselines"
 BUDGET = 64  # evaluations per baseline
 EPISODES = 48  # training scenario seeds 0..EPISODES-1
+QUICK_BUDGET = 32  # the quick form's evaluations per baseline: one pass over every grid (25 points for a law) and more
+QUICK_EPISODES = 12  # the quick form's training scenarios
+CHECK_EPISODES = 48  # held-out episodes of the check after the search (the held-out suite's size)
 EPISODE_SECONDS = 2.0  # [s]
 KEEP_MARGIN = 0.02  # the defaults rule: a larger n replaces a smaller one only if its objective is lower by more
 LAW_NS = (2, 4, 6)
@@ -173,7 +191,31 @@ def dob_row(task: str) -> Baseline:
 
 
 BASELINES: tuple[Baseline, ...] = tuple(
-    [_law_row(t, n) for t in TASKS for n in LAW_NS] + [_pid_row(t) for t in TASKS])
+    [_law_row(t, n) for t in TASKS for n in LAW_NS] + [_pid_row(t) for t in TASKS] + [dob_row(t) for t in TASKS])
+
+
+def pid_start(task: str, plant: Rig | None) -> dict:
+    """The PID row's start (kp, ki, kd): the relay procedure's gains in direct mode, on ``plant`` (Table I's stored
+    gains without one)."""
+    if plant is None:
+        return dict(PID_START[task])
+    gains = tune_pid(EnvConfig.from_kwargs({"task": task, "mode": "direct", "plant": plant}), progress=False)["gains"]
+    return dict(zip(("kp", "ki", "kd"), gains))
+
+
+def baselines_for(plant: Rig | None) -> tuple[Baseline, ...]:
+    """:data:`BASELINES` for ``plant``: the PID rows' start and gain ranges around the relay gains on it."""
+    if plant is None:
+        return BASELINES
+    out = []
+    for row in BASELINES:
+        if row.runner == "pid":
+            start = pid_start(row.task, plant)
+            units = {ax.name: ax.unit for ax in row.axes}
+            axes = tuple(Axis(k, v / 100.0, v * 100.0, 0.5, unit=units[k]) for k, v in start.items())
+            row = replace(row, axes=axes, start=start)
+        out.append(row)
+    return tuple(out)
 
 
 # --- how a candidate becomes episodes ------------------------------------------------------------------------
@@ -185,6 +227,7 @@ def scenario_seeds(episodes: int = EPISODES) -> range:
 
 
 def _scenarios(env_kwargs: dict, episodes: int, seconds: float) -> list:
+    """The training scenarios (seeds 0..episodes-1) on the template of ``env_kwargs`` (its plant's)."""
     template = EnvConfig.from_kwargs(env_kwargs).template()
     return [sample_scenario(s, template, seconds) for s in scenario_seeds(episodes)]
 
@@ -196,7 +239,7 @@ def law_metrics(task: str, settings: dict, episodes: int, seconds: float) -> lis
 
 def pid_metrics(task: str, settings: dict, episodes: int, seconds: float) -> list[dict]:
     """Per-episode metrics of the PID (direct mode, as ``ehss evaluate`` runs it) with gains kp, ki, kd."""
-    kw = {"task": task, "mode": "direct"}
+    kw = {"task": task, "mode": "direct", **({"plant": settings["plant"]} if "plant" in settings else {})}
     cfg = EnvConfig.from_kwargs(kw)
     pol = PIDPolicy(cfg, gains=(settings["kp"], settings["ki"], settings["kd"]))
     return [r.metrics for r in rollout(pol, kw, _scenarios(kw, episodes, seconds), name="pid")]
@@ -310,21 +353,31 @@ class TuneSettings:
         episodes: training scenarios (seeds 0..episodes-1).
         seconds: their duration [s].
         rows: the baselines' names (default all of :data:`BASELINES`).
+        plant: the rig the training scenarios are drawn around (None: Table I).
+        check_episodes: held-out episodes of the check after the search (:mod:`ehss_gym.study.friction_windows`;
+            0: no check).
     """
 
     budget: int = BUDGET
     episodes: int = EPISODES
     seconds: float = EPISODE_SECONDS
     rows: tuple = ()
+    plant: Rig | None = None
+    check_episodes: int = CHECK_EPISODES
 
     @classmethod
-    def quick(cls) -> TuneSettings:
-        """The CI smoke form: 3 episodes of 0.3 s, 6 evaluations per baseline (numbers not meaningful)."""
-        return cls(budget=6, episodes=3, seconds=0.3)
+    def quick(cls, **changes) -> TuneSettings:
+        """The quick form, a few minutes on two cores: 12 training episodes of 2 s, 32 evaluations per baseline
+        (one pass over every grid and a refinement round; coarser than the full run)."""
+        return replace(cls(budget=QUICK_BUDGET, episodes=QUICK_EPISODES), **changes)
+
+    def env_kwargs(self) -> dict:
+        """The env settings every candidate gets from the settings: the plant, when one was given."""
+        return {} if self.plant is None else {"plant": self.plant}
 
 
-def _noisy(task: str, episodes: int, seconds: float) -> list[bool]:
-    return [any(v > 0.0 for v in sc.noise_std) for sc in _scenarios({"task": task}, episodes, seconds)]
+def _noisy(task: str, episodes: int, seconds: float, env: dict) -> list[bool]:
+    return [any(v > 0.0 for v in sc.noise_std) for sc in _scenarios({"task": task, **env}, episodes, seconds)]
 
 
 def tune_row(row: Baseline, tuned: dict, cfg: TuneSettings, anchors: dict, progress=None) -> dict:
@@ -338,7 +391,8 @@ def tune_row(row: Baseline, tuned: dict, cfg: TuneSettings, anchors: dict, progr
     run = RUNNERS[row.runner]
 
     def evaluate(point: dict) -> dict:
-        return objective(run(row.task, {**fixed, **point}, cfg.episodes, cfg.seconds), anchor, noisy, row.task)
+        return objective(run(row.task, {**fixed, **point, **cfg.env_kwargs()}, cfg.episodes, cfg.seconds), anchor,
+                         noisy, row.task)
 
     res = search(row.axes, start, evaluate, cfg.budget, progress)
     out = res["best_out"]
@@ -357,8 +411,9 @@ def _json_eval(h: dict) -> dict:
 
 def anchors_of(cfg: TuneSettings, tasks: Sequence[str]) -> dict:
     """Per task (the anchor law's per-episode metrics, the episodes' noise flags)."""
-    return {t: (law_metrics(t, ANCHOR[t], cfg.episodes, cfg.seconds), _noisy(t, cfg.episodes, cfg.seconds))
-            for t in tasks}
+    env = cfg.env_kwargs()
+    return {t: (law_metrics(t, {**ANCHOR[t], **env}, cfg.episodes, cfg.seconds),
+                _noisy(t, cfg.episodes, cfg.seconds, env)) for t in tasks}
 
 
 def default_n(tuned: dict, task: str, ns: Sequence[int] = LAW_NS, margin: float = KEEP_MARGIN) -> dict:
@@ -393,7 +448,7 @@ def tune(cfg: TuneSettings = TuneSettings(), progress=None) -> dict:
         {"settings" (budget, episodes, seconds, seeds), "anchor", "baselines" ({name: tune_row's result}),
         "defaults" ({task: default_n's result and the per-n settings}) }.
     """
-    rows = [r for r in BASELINES if not cfg.rows or r.name in cfg.rows]
+    rows = [r for r in baselines_for(cfg.plant) if not cfg.rows or r.name in cfg.rows]
     tasks = [t for t in TASKS if any(r.task == t for r in rows)]
     anchors = anchors_of(cfg, tasks)
     tuned: dict = {}
@@ -406,12 +461,50 @@ def tune(cfg: TuneSettings = TuneSettings(), progress=None) -> dict:
             per_n = {str(n): {k: tuned[f"{t}/clf-n{n}"]["tuned"][k] for k in ("sigma", "fr", "smoothing", "layer_gain")}
                      for n in LAW_NS}
             defaults[t] = {**rule, "per_n": per_n}
+    rig = as_rig(cfg.plant)
+    table = law_table(tuned, defaults, rig)
     return {"settings": {"budget": cfg.budget, "episodes": cfg.episodes, "seconds": cfg.seconds,
                          "seeds": [0, cfg.episodes - 1], "margin": KEEP_MARGIN},
-            "anchor": ANCHOR, "baselines": tuned, "defaults": defaults}
+            "plant": rig.describe(), "anchor": ANCHOR, "baselines": tuned, "defaults": defaults,
+            "law_settings": table, "check": held_out_check(table, rig, cfg)}
 
 
-__all__ = ["PROG", "BUDGET", "EPISODES", "EPISODE_SECONDS", "KEEP_MARGIN", "LAW_NS", "ANCHOR", "PID_START", "Axis",
+def law_table(tuned: dict, defaults: dict, rig: Rig) -> dict:
+    """The law-settings file's content (:mod:`ehss_gym.envs.law_table`) of the tuned rows: per task with all three
+    CLF laws tuned, their settings, the rule's n, and the observer's and the PID's rows where tuned."""
+    out: dict = {"plant": {"label": rig.label, "hash": rig.hash}}
+    for t, d in defaults.items():
+        row: dict = {"default_n": d["n"], **{f"clf-n{n}": dict(v) for n, v in d["per_n"].items()}}
+        if f"{t}/dob-n2" in tuned:
+            row["dob-n2"] = {k: tuned[f"{t}/dob-n2"]["settings"][k] for k in ("dob_hz", "smoothing", "layer_gain")}
+        if f"{t}/pid" in tuned:
+            row["pid"] = {k: tuned[f"{t}/pid"]["settings"][k] for k in ("kp", "ki", "kd")}
+        out[t] = row
+    return out
+
+
+def held_out_check(table: dict, rig: Rig, cfg: TuneSettings) -> dict:
+    """Per task of the law table: the held-out check (:func:`ehss_gym.study.friction_windows.check`) of the tuned
+    n = 2 law and of the untuned one (the built-in settings, tuned for Table I), on the same episodes."""
+    if cfg.check_episodes < 1 or not any(t in table for t in TASKS):
+        return {}
+    env = cfg.env_kwargs()
+    laws = table_from_dict(table)
+    out = {}
+    for t in laws.tasks:
+        tuned = {k: v for k, v in friction_check({"task": t, "n": 2, "law_settings": laws, **env},
+                                                 cfg.check_episodes).items() if k != "rows"}
+        with warnings.catch_warnings():  # the untuned law on another plant: the warning is the point here
+            warnings.simplefilter("ignore", PlantWarning)
+            untuned = {k: v for k, v in friction_check({"task": t, "n": 2, **env}, cfg.check_episodes).items()
+                       if k != "rows"}
+        out[t] = {"tuned": tuned, "untuned": untuned}
+    return out
+
+
+__all__ = ["QUICK_BUDGET", "QUICK_EPISODES", "CHECK_EPISODES", "baselines_for", "pid_start", "law_table",
+           "held_out_check", "PROG", "BUDGET", "EPISODES", "EPISODE_SECONDS", "KEEP_MARGIN", "LAW_NS", "ANCHOR",
+           "PID_START", "Axis",
            "Baseline", "BASELINES", "dob_row", "RUNNERS",
            "law_axes", "pid_axes", "law_metrics", "pid_metrics", "objective",
            "Search", "search", "TuneSettings", "tune_row", "anchors_of", "default_n", "tune", "scenario_seeds"]

@@ -50,8 +50,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ehss_gym.controllers import CLFPolicy, ConstantResidualPolicy, FrictionFeedforwardPolicy, parse_scripted
+from ehss_gym.core.rig import Rig
 from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.config import DEFAULTS
+from ehss_gym.envs.law_table import LawTable
 from ehss_gym.evaluation.harness import rollout
 from ehss_gym.evaluation.scoring import (
     CLASSES,
@@ -359,6 +361,9 @@ class HeadroomConfig:
         quick: the CI form (:meth:`quick_config`).
         n_boot: bootstrap replicates.
         seed: bootstrap seed.
+        plant: the rig the suites run on and the laws act on (``ehss evaluate``'s ``EvalConfig.plant``); None =
+            Table I.
+        law_settings: the laws' settings tuned for it (``EvalConfig.law_settings``); None = the built-in ones.
     """
 
     episodes: int = EPISODES
@@ -369,6 +374,8 @@ class HeadroomConfig:
     quick: bool = False
     n_boot: int = 2000
     seed: int = 0
+    plant: Rig | None = None
+    law_settings: LawTable | None = None
 
     @classmethod
     def quick_config(cls, **changes) -> HeadroomConfig:
@@ -392,8 +399,10 @@ class HeadroomConfig:
         """The suites' sizes (``ehss evaluate``'s, or its quick form's)."""
         if self.quick:
             return EvalConfig.quick(tasks=self.tasks, heldout_episodes=self.episodes, paper_seconds=2.0,
-                                    friction_levels=(1.8,), mismatch_levels=(0.2,), step_amplitudes=(0.5,))
-        return EvalConfig(tasks=self.tasks, heldout_episodes=self.episodes)
+                                    friction_levels=(1.8,), mismatch_levels=(0.2,), step_amplitudes=(0.5,),
+                                    plant=self.plant, law_settings=self.law_settings)
+        return EvalConfig(tasks=self.tasks, heldout_episodes=self.episodes, plant=self.plant,
+                          law_settings=self.law_settings)
 
     def periods_of(self, v: Variant, suite: str = CHECK_SUITE) -> tuple:
         """The agent periods variant ``v`` runs at on ``suite`` (:attr:`Variant.periods`)."""
@@ -441,7 +450,8 @@ def plan(cfg: HeadroomConfig) -> list[Job]:
         for suite, eps in suite_episodes(cfg, task).items():
             for v in (v for v in VARIANTS if not v.made_by and (not v.suites or suite in v.suites)):
                 for ap in cfg.periods_of(v, suite):
-                    kw = {"task": task, **parse_scripted(v.policy), **SUITE_ENV.get(suite, {}), "agent_period": ap}
+                    kw = {"task": task, **parse_scripted(v.policy), **SUITE_ENV.get(suite, {}), "agent_period": ap,
+                          **cfg.eval_config().env_kwargs(), **_dob_row(v, task, cfg)}
                     search = getattr(cfg, v.search) if v.search else None
                     config = {"variant": v.name, "task": task, "suite": suite, "agent_period": ap, "env_kwargs": kw,
                               "episodes": eps, "search": search}
@@ -455,6 +465,14 @@ def plan(cfg: HeadroomConfig) -> list[Job]:
                             label=f"{task}/{CORRECTIONS_SUITE}/corrections"))
     # the longest first keeps both workers busy to the end: agent steps x searched points, roughly
     return sorted(jobs, key=lambda j: -_cost(j.config))
+
+
+def _dob_row(v: Variant, task: str, cfg: HeadroomConfig) -> dict:
+    """The observer's settings tuned for the plant (the law table's dob-n2 row of ``task``) for ``dob-n2``; {} else."""
+    laws = cfg.law_settings
+    if v.policy != "dob-n2" or laws is None or task not in laws.tasks or laws.tasks[task].dob is None:
+        return {}
+    return dict(laws.tasks[task].dob)
 
 
 def _cost(c: dict) -> float:
