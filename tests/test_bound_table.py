@@ -37,13 +37,13 @@ def test_every_case_of_the_default_step_suite_is_in_the_shipped_table():
         assert entry is not None, f"{c['task']} {c['amplitude']:+g} is not in the table: run {bt.TABLE_COMMAND}"
         assert {k: entry[k] for k in ("task", "amplitude", "t_step", "t_end", "current_limit")} == \
             {k: c[k] for k in ("task", "amplitude", "t_step", "t_end", "current_limit")}
-        assert entry["plant"] == c["plant"]._asdict()
+        assert entry["plant"] == c["plant"].as_dict()
         assert math.isfinite(entry["iae_bound"]) and entry["iae_bound"] > 0
 
 
 def test_the_key_changes_with_every_input(monkeypatch):
     base = _default(*CHEAP)
-    changed = [{**base, "plant": base["plant"]._replace(J=base["plant"].J * (1 + 1e-12))},
+    changed = [{**base, "plant": base["plant"].replace(J=base["plant"].J * (1 + 1e-12))},
                {**base, "current_limit": 9.99}, {**base, "amplitude": 0.5000001}, {**base, "t_step": 0.2},
                {**base, "t_end": 1.1}, {**base, "task": "position"}]
     keys = {bt.case_key(c) for c in [base] + changed}

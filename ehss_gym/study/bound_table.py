@@ -123,16 +123,20 @@ def prefetch(cases: Sequence[dict], executor: Executor | None = None, progress: 
             todo[key] = c
     if not todo:
         return 0
-    jobs = [Job(bound_job, c, 0, label=f"bound {c['task']} {c['amplitude']:+g}") for c in todo.values()]
+    _KEPT.update(zip(todo, _compute(list(todo.values()), executor, progress)))
+    return len(todo)
+
+
+def _compute(cases: Sequence[dict], executor: Executor | None, progress: bool) -> list:
+    """The bound of each case, computed as jobs of ``executor`` (a local one of its own when None)."""
+    jobs = [Job(bound_job, c, 0, label=f"bound {c['task']} {c['amplitude']:+g}") for c in cases]
     own = executor is None
     executor = executor or Executor(progress=progress)
     try:
-        results = executor.map(jobs, desc="step bounds")
+        return executor.map(jobs, desc="step bounds")
     finally:
         if own:
             executor.close()
-    _KEPT.update(zip(todo, results))
-    return len(todo)
 
 
 def kept_step_bound(task: str, amplitude: float, *, t_step: float, t_end: float, plant: PlantParams | None = None,
@@ -158,17 +162,10 @@ def kept_step_bound(task: str, amplitude: float, *, t_step: float, t_end: float,
 
 def table(cases: Sequence[dict], executor: Executor | None = None) -> dict:
     """The table of ``cases`` computed afresh (never read from the shipped one): its JSON document."""
-    jobs = [Job(bound_job, c, 0, label=f"bound {c['task']} {c['amplitude']:+g}") for c in cases]
-    own = executor is None
-    executor = executor or Executor(progress=True)
-    try:
-        results = executor.map(jobs, desc="step bounds")
-    finally:
-        if own:
-            executor.close()
+    results = _compute(cases, executor, True)
     bounds = {}
     for c, r in zip(cases, results):
-        inputs = {**c, "plant": c["plant"]._asdict()}
+        inputs = {**c, "plant": c["plant"].as_dict()}
         bounds[case_key(c)] = {**inputs, **r}
     return {"made_by": TABLE_COMMAND, "version": BOUND_VERSION, "bounds": bounds}
 

@@ -458,7 +458,7 @@ def plan(cfg: HeadroomConfig) -> list[Job]:
                     jobs.append(Job(_job, config, seed=0, label=f"{task}/{suite}/{v.name}@{ap}"))
         eps = suite_episodes(cfg, task).get(CORRECTIONS_SUITE)
         if eps:  # the ideal corrections' sizes (ehss_gym.study.corrections)
-            kw = {"task": task, **parse_scripted(REFERENCE_POLICY)}
+            kw = {"task": task, **parse_scripted(REFERENCE_POLICY), **cfg.eval_config().env_kwargs()}
             jobs.append(Job(corrections_job, {"corrections": True, "task": task, "suite": CORRECTIONS_SUITE,
                                               "env_kwargs": kw, "episodes": eps, "agent_period": FREE_PERIOD,
                                               "search": None, "variant": "corrections"}, seed=0,
