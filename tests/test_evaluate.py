@@ -494,3 +494,25 @@ def test_harness_keeps_the_names_other_layers_use():
         assert getattr(harness, name) is getattr(ev, name), name
     assert set(harness.__all__) >= {"evaluate", "EvalConfig", "Results"}
     assert not hasattr(ev, "primary_score") and not hasattr(ev, "SCORE_CAP")  # the capped score is gone
+
+
+def test_the_valve_floors_follow_the_rigs_valve():
+    """The current and TV floors are the rig's valve's (0.5 % of its rated current, switched at its bandwidth), worked
+    out here from the datasheet numbers by hand; Table I's rig gives the ruler's constants exactly; the error floors
+    are the sensors', the same on every rig; the comparison of the second shipped rig states its own floors."""
+    from ehss_gym.core.rig import TABLE_I, as_rig
+
+    assert scoring.physical_floors(TABLE_I) == scoring.PHYSICAL_FLOORS == scoring.physical_floors(None)
+    rig = as_rig("compact140")
+    f = scoring.physical_floors(rig)
+    threshold = rig.rated_current * 0.005  # [mA] 0.5 % of the rated current
+    assert f.current == pytest.approx(threshold, rel=1e-12)
+    assert f.tv == pytest.approx(threshold * 2 / (2 * math.pi * rig.plant.tau), rel=1e-12)
+    assert f.error == scoring.PHYSICAL_FLOORS.error
+    assert (f.tv, f.current) != (scoring.PHYSICAL_FLOORS.tv, scoring.PHYSICAL_FLOORS.current)
+    assert f"{rig.rated_current:g} mA rated current" in f.rows()[-1][3]  # the RMS current's source names the rig's
+    # an effort ratio below the rig's floors is 1, though it would rank under Table I's floors
+    lo = _m(eff=(0.5 * f.tv, 0.5 * f.current))
+    lower = _m(eff=(0.1 * f.tv, 0.1 * f.current))
+    assert scoring.class_log_ratio(lower, lo, "effort", "velocity", f) == 0.0
+    assert scoring.class_log_ratio(lower, lo, "effort", "velocity") < 0.0

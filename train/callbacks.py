@@ -24,7 +24,14 @@ import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from tqdm.auto import tqdm
 
-from ehss_gym.evaluation.heldout import relative_scores, run_episodes, sb3_act_fn, selection_key, tune_objective
+from ehss_gym.evaluation.heldout import (
+    floors_of,
+    relative_scores,
+    run_episodes,
+    sb3_act_fn,
+    selection_key,
+    tune_objective,
+)
 from ehss_gym.infra.util import atomic_write, atomic_write_text
 
 from . import runs
@@ -166,7 +173,7 @@ class HeldoutEval(BaseCallback):
         vn = self.model.get_vec_normalize_env()
         t0 = time.perf_counter()
         results = run_episodes(self.env_kwargs, self.scenarios, sb3_act_fn(self.model, vn))
-        row = relative_scores(results, self.base, self.reference)
+        row = relative_scores(results, self.base, self.reference, floors_of(self.env_kwargs))
         row.update(step=int(self.num_timesteps), wall_s=round(self.wall.seconds, 3),
                    eval_s=round(time.perf_counter() - t0, 3))
         self.last_eval = self.num_timesteps

@@ -46,7 +46,7 @@ from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import resolved_env_kwargs
 from ehss_gym.envs import ENV_ID
 from ehss_gym.envs.config import plant_of
-from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
+from ehss_gym.evaluation.heldout import VALIDATION_START, floors_of, heldout_suite, relative_scores, run_episodes
 from ehss_gym.infra.execution import pin_blas
 from ehss_gym.infra.fmt import fmt_num
 from ehss_gym.infra.util import atomic_write, atomic_write_text
@@ -241,7 +241,7 @@ def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wa
                "seed": cfg.seed, "timesteps": int(model.num_timesteps), "wall_s": round(wall_s, 2),
                "best_step": evaluator.best_step, "best_validation": best,
                "best_is_untrained": evaluator.best_step == evaluator.history[0]["step"] == 0,
-               "base_validation": relative_scores(base, base, reference),
+               "base_validation": relative_scores(base, base, reference, floors_of(cfg.full()["env_kwargs"])),
                "final_validation": evaluator.history[-1]}
     atomic_write_text(os.path.join(run_dir, "summary.json"), json.dumps(summary, indent=1) + "\n")
     return summary

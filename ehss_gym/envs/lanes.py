@@ -42,7 +42,7 @@ from ehss_gym.core.metrics import init_accumulator, summarize_acc
 from ehss_gym.core.physics import N_LANE_CONST, lane_constants
 from ehss_gym.core.references import reference_value
 from ehss_gym.core.registry import REFERENCE_FAMILIES
-from ehss_gym.core.resolution import CURRENT_FLOOR, ERROR_RESOLUTION, TV_FLOOR
+from ehss_gym.core.resolution import CURRENT_FLOOR, ERROR_RESOLUTION, TV_FLOOR, valve_floors
 from ehss_gym.core.scenarios import (
     DEFAULT_DISTRIBUTION,
     PHYSICAL_FIELDS,
@@ -173,12 +173,14 @@ def class_coefficients(sc: Scenario, agent_period: int, base: np.ndarray | None 
     return out
 
 
-def physical_coefficients(sc: Scenario, agent_period: int, base: np.ndarray | None = None) -> np.ndarray:
+def physical_coefficients(sc: Scenario, agent_period: int, base: np.ndarray | None = None,
+                          valve: tuple[float, float] = (TV_FLOOR, CURRENT_FLOOR)) -> np.ndarray:
     """The physical reward's constants (P_*) of an episode, from the base law's run of it (``base``, its accumulator;
     default: :func:`base_law_run`): its samples in the tracking and disturbance windows and in all, its agent steps K,
     its number of classes (tracking and disturbance where their windows have samples, effort always), and each
     metric's scale, its physical floor (:mod:`ehss_gym.core.resolution`) plus the base law's level over the episode
-    (:func:`ehss_gym.envs.kernels.physical_reward`)."""
+    (:func:`ehss_gym.envs.kernels.physical_reward`). ``valve``: the rig's valve floors (TV [mA/s], current [mA];
+    :func:`ehss_gym.core.resolution.valve_floors`), Table I's by default."""
     base = base_law_run(sc, agent_period) if base is None else base
     e, h = ERROR_RESOLUTION[sc.task], sc.control_period
     out = np.zeros(N_RPHYS)
@@ -190,8 +192,9 @@ def physical_coefficients(sc: Scenario, agent_period: int, base: np.ndarray | No
     out[P_MA] = e + (base[M_TRK_SUM_ABS] / (n_trk * h) if n_trk else 0.0)
     out[P_PK] = e + base[M_DST_MAX]
     out[P_DMA] = e + (base[M_DST_SUM_ABS] / (n_dst * h) if n_dst else 0.0)
-    out[P_TV] = TV_FLOOR + base[M_TV_U] / (n * h)
-    out[P_U2] = CURRENT_FLOOR * CURRENT_FLOOR + base[M_SUM_U2] / n
+    tv_floor, current_floor = valve
+    out[P_TV] = tv_floor + base[M_TV_U] / (n * h)
+    out[P_U2] = current_floor * current_floor + base[M_SUM_U2] / n
     return out
 
 
@@ -333,7 +336,8 @@ class Lanes:
             if rw.get("class", 0.0) > 0.0:
                 self.F[b, F_RCLS:F_RCLS + N_RCLS] = class_coefficients(sc, cfg.agent_period, base)
             if rw.get("physical", 0.0) > 0.0:
-                self.F[b, F_RPHYS:F_RPHYS + N_RPHYS] = physical_coefficients(sc, cfg.agent_period, base)
+                self.F[b, F_RPHYS:F_RPHYS + N_RPHYS] = physical_coefficients(
+                    sc, cfg.agent_period, base, valve_floors(cfg.plant.rated_current, cfg.plant.plant.tau))
         self.IB[b] = 0
         self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
         self.run[b] = True

@@ -40,7 +40,7 @@ from ehss_gym.envs.rollouts import rollout as run_rollout
 from ehss_gym.infra.execution import Backend, Executor, Job, canonical, pin_blas, usable_cores
 
 from .loading import PolicyError, load_run, portable, restore
-from .scoring import METRIC_KEYS, METRICS, STEP_KEYS, ratio_rows, summarize
+from .scoring import METRIC_KEYS, METRICS, STEP_KEYS, physical_floors, ratio_rows, summarize
 from .specs import (
     REFERENCE_POLICY,
     SCRIPTED_DEFAULT,
@@ -382,7 +382,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
     done = run_batches(batches, items, executor, in_process=travel == 1)
     rows, traces = _gather(batches, done)
     t1 = time.perf_counter()
-    ratio_rows(rows)
+    ratio_rows(rows, physical_floors(cfg.rig))
     summary, comparisons = summarize(rows, specs, cfg)
     t2 = time.perf_counter()
     timings = {"setup": t0 - t_start, "episodes": t1 - t0, "statistics": t2 - t1}

@@ -31,7 +31,7 @@ from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, UNMODELLED_DISTRIBUTIO
 from ehss_gym.envs import EnvConfig, rollout
 from ehss_gym.envs.actions import action_dims, action_mode
 
-from .scoring import CLASSES, episode_log_ratios, failure, figure_of, rank_key
+from .scoring import CLASSES, PHYSICAL_FLOORS, Floors, episode_log_ratios, failure, figure_of, physical_floors, rank_key
 
 VALIDATION_START = 5_000_000  # offset of the validation block among held-out seeds (the harness uses 0.. and 1e6..)
 TEST_START = 0  # offset of the test block (the evaluation harness's held-out suite)
@@ -86,25 +86,32 @@ def run_episodes(env_kwargs: dict, scenarios: list, act_fn=None) -> list[dict]:
     return out
 
 
-def _class_logs(results: list[dict], reference: list[dict]) -> dict:
+def floors_of(env_kwargs: dict) -> Floors:
+    """The ruler's floors on the rig of an env's settings (its ``plant``; Table I's without one)."""
+    return physical_floors(EnvConfig.from_kwargs(env_kwargs).plant)
+
+
+def _class_logs(results: list[dict], reference: list[dict], floors: Floors) -> dict:
     """Per class the episodes' log ratios to ``reference`` (episodes where neither diverged)."""
     logs: dict = {c: [] for c in CLASSES}
     for m, ref in zip(results, reference):
-        for c, v in episode_log_ratios(m, ref, m["noisy"], m["task"]).items():
+        for c, v in episode_log_ratios(m, ref, m["noisy"], m["task"], floors).items():
             logs[c].append(v)
     return logs
 
 
-def relative_scores(results: list[dict], base: list[dict], reference: list[dict] | None = None) -> dict:
+def relative_scores(results: list[dict], base: list[dict], reference: list[dict] | None = None,
+                    floors: Floors = PHYSICAL_FLOORS) -> dict:
     """The validation figures of ``results`` against ``reference`` (default ``base``) and its class figures
-    against ``base`` (module docstring), with the failure gate and mean raw metrics."""
+    against ``base`` (module docstring), with the failure gate and mean raw metrics; ``floors``: the ruler's on the
+    rig the episodes ran on (:func:`floors_of`)."""
     reference = base if reference is None else reference
-    g, gc = figure_of(_class_logs(results, reference))
+    g, gc = figure_of(_class_logs(results, reference, floors))
     failed, n_failed = failure(results)
     out = {"figure": g, "failed": failed, "n_failed": n_failed, "episodes": len(results),
            "diverged": sum(1 for m in results if m["diverged"])}
     out.update({c: gc.get(c, math.nan) for c in CLASSES})
-    _, gb = figure_of(_class_logs(results, base))
+    _, gb = figure_of(_class_logs(results, base, floors))
     out.update({f"rel_{c}": gb.get(c, math.nan) for c in CLASSES})
     for key in ("trk_rmse", "dst_peak", "tv_u_rate", "return"):
         v = [m[key] for m in results if not m["diverged"] and math.isfinite(m[key])]
@@ -148,6 +155,7 @@ def policy_act_fn(policy):
     return lambda obs: policy.predict(obs, deterministic=True)[0]
 
 
-__all__ = ["VALIDATION_START", "TEST_START", "heldout_suite", "run_episodes", "relative_scores", "selection_key",
+__all__ = ["VALIDATION_START", "TEST_START", "heldout_suite", "run_episodes", "relative_scores", "floors_of",
+           "selection_key",
            "tune_objective", "sb3_act_fn",
            "policy_act_fn"]

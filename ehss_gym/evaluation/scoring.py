@@ -63,6 +63,8 @@ from ehss_gym.core.resolution import (
     VALVE_BANDWIDTH,
     VALVE_THRESHOLD,
     VELOCITY_RESOLUTION,
+    floor_sources,
+    valve_floors,
 )
 
 from . import stats
@@ -93,6 +95,7 @@ class Floors:
         current: the floor of the RMS current [mA].
         iae_per_window: an IAE's floor is ``error`` times its window's duration [output unit * s] (the IAE of an
             error at the floor all through the window); False: ``error`` itself (the numeric floors').
+        sources: where each floor comes from (task, "tv", "current" -> text); empty for the numeric floors.
     """
 
     name: str
@@ -100,6 +103,7 @@ class Floors:
     tv: float
     current: float
     iae_per_window: bool = True
+    sources: tuple = ()
 
     def of(self, key: str, task: str, m: dict) -> float:
         """The floor of metric ``key`` of ``task`` in an episode's metrics ``m`` (its window's duration, for an IAE).
@@ -120,7 +124,7 @@ class Floors:
 
     def rows(self) -> list[tuple[str, str, str, str]]:
         """(what, value, unit, source) per floor, for the reports."""
-        srcs = FLOOR_SOURCES if self.name == "physical" else {}
+        srcs = dict(self.sources)
         out = [(f"{t} error (RMSE, peak)", f"{v:.3g}", UNITS[t], srcs.get(t, "numeric")) for t, v in self.error.items()]
         iae = "the error floor x the window's duration" if self.iae_per_window else f"{self.error[TASKS[0]]:g}"
         out.append(("IAE", iae, "output unit * s", "the error floor held over the IAE's window" if srcs
@@ -131,7 +135,23 @@ class Floors:
 
 
 # the ruler's: the physical resolutions and valve levels of ehss_gym.core.resolution, with their sources
-PHYSICAL_FLOORS = Floors("physical", dict(ERROR_RESOLUTION), TV_FLOOR, CURRENT_FLOOR)
+PHYSICAL_FLOORS = Floors("physical", dict(ERROR_RESOLUTION), TV_FLOOR, CURRENT_FLOOR,
+                         sources=tuple(FLOOR_SOURCES.items()))
+
+
+def physical_floors(rig=None) -> Floors:
+    """The ruler's physical floors for a rig (:class:`ehss_gym.core.rig.Rig`; None: Table I's): the sensors'
+    resolutions, and the valve's floors of its rated current and time constant
+    (:func:`ehss_gym.core.resolution.valve_floors`)."""
+    if rig is None:
+        return PHYSICAL_FLOORS
+    tv, current = valve_floors(rig.rated_current, rig.plant.tau)
+    if (tv, current) == (PHYSICAL_FLOORS.tv, PHYSICAL_FLOORS.current):
+        return PHYSICAL_FLOORS
+    return Floors("physical", dict(ERROR_RESOLUTION), tv, current,
+                  sources=tuple(floor_sources(rig.rated_current, rig.plant.tau).items()))
+
+
 # the floors before the physical ones: numeric only, the same for every task and for an IAE as for an error
 NUMERIC_FLOORS = Floors("numeric", {"velocity": 1e-12, "position": 1e-12}, 1e-9, 1e-9, iae_per_window=False)
 FLOORS = PHYSICAL_FLOORS  # the ruler's
@@ -499,7 +519,8 @@ def summarize(rows: list, specs: Sequence[PolicySpec], cfg: EvalConfig) -> tuple
     return summary, comparisons
 
 
-__all__ = ["CLASSES", "CLASS_METRICS", "IAE_WINDOW", "Floors", "FLOORS", "PHYSICAL_FLOORS", "NUMERIC_FLOORS",
+__all__ = ["CLASSES", "CLASS_METRICS", "IAE_WINDOW", "Floors", "FLOORS", "PHYSICAL_FLOORS", "physical_floors",
+           "NUMERIC_FLOORS",
            "FLOOR_SOURCES", "POSITION_RESOLUTION", "VELOCITY_RESOLUTION", "VALVE_THRESHOLD", "VALVE_BANDWIDTH",
            "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE", "ABSOLUTE_LEVELS", "absolute_levels", "METRICS",
            "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios", "failure",

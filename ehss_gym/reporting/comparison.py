@@ -24,14 +24,16 @@ from ehss_gym.evaluation.scoring import (
     ABSOLUTE_LEVELS,
     CLASSES,
     FIGURE_SUITES,
-    FLOORS,
     METRIC_KEYS,
     METRICS,
+    PHYSICAL_FLOORS,
     RATE_KEYS,
     RATIO_KEYS,
     SATURATION_GATE,
     STEP_KEYS,
+    Floors,
     is_earlier_loop,
+    physical_floors,
 )
 from ehss_gym.evaluation.specs import REFERENCE_POLICY
 from ehss_gym.evaluation.suites import (
@@ -171,14 +173,14 @@ def _detail_blocks(res: Results) -> list[dict]:
     return out
 
 
-def absolute_table(block: list[dict], task: str) -> tuple[list[str], list[list]]:
+def absolute_table(block: list[dict], task: str, floors: Floors = PHYSICAL_FLOORS) -> tuple[list[str], list[list]]:
     """(header, rows) of the absolute levels beside the first screen's ratios (:func:`ehss_gym.evaluation.scoring.
     absolute_levels`: medians over the episodes), each header with its unit and the ruler's floor; today's laws, in
     rank order."""
-    u, e = UNITS[task], FLOORS.error[task]
+    u, e = UNITS[task], floors.error[task]
     hdr = [f"tracking RMSE [{u}] (floor {fmt(e)})", f"disturbance peak [{u}] (floor {fmt(e)})",
-           f"TV, noise-free [mA/s] (floor {fmt(FLOORS.tv)})", f"TV, noisy [mA/s] (floor {fmt(FLOORS.tv)})",
-           f"RMS current [mA] (floor {fmt(FLOORS.current)})"]
+           f"TV, noise-free [mA/s] (floor {fmt(floors.tv)})", f"TV, noisy [mA/s] (floor {fmt(floors.tv)})",
+           f"RMS current [mA] (floor {fmt(floors.current)})"]
     keys = [k for k, _, _ in ABSOLUTE_LEVELS]
     return hdr, [[d["policy"]] + [fmt(d.get(k)) for k in keys] for d in block if not d["earlier_loop"]]
 
@@ -189,7 +191,7 @@ def _first_screen(res: Results) -> dict:
     main = []
     for t in TASKS:
         if b := _block(res, "heldout", t):
-            hdr, rows = absolute_table(b, t)
+            hdr, rows = absolute_table(b, t, physical_floors(res.cfg.rig))
             main.append({"task": t, "rows": headline_rows(b), "n": b[0]["n_episodes"], "abs_headers": hdr,
                          "abs_rows": rows})
     lines = [{"suite": s, "task": t, "line": suite_line(_block(res, s, t))}
@@ -387,7 +389,8 @@ def report_context(res: Results, figs: dict, steps: list[dict], with_bound: bool
         "wall_time": res.wall_time, "timings": ", ".join(f"{k} {v:.1f} s" for k, v in res.timings.items()),
         "learned": any(s.learned for s in res.specs), "notes": list(res.notes), "cfg": res.cfg,
         "policy_rows": _policy_rows(res), "env_rows": _env_rows(res), "classes": CLASSES,
-        "reference": REFERENCE_POLICY, "floors": FLOORS.rows(), "saturation_gate": SATURATION_GATE,
+        "reference": REFERENCE_POLICY, "floors": physical_floors(res.cfg.rig).rows(),
+        "saturation_gate": SATURATION_GATE,
         "robust_seed_start": ROBUST_SEED_START, "sweep_window": SWEEP_WINDOW,
         "unmodelled_seed_start": UNMODELLED_SEED_START, "unmodelled_ranges": DATASHEET_RANGES,
         "mismatch_friction": SWEEP_MISMATCH_FRICTION, "step_time": STEP_TIME, "step_seconds": STEP_SECONDS,

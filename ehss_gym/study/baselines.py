@@ -55,7 +55,15 @@ from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.config import PlantWarning
 from ehss_gym.envs.law_table import table_from_dict
 from ehss_gym.envs.rollouts import rollout
-from ehss_gym.evaluation.scoring import episode_log_ratios, failure, figure_of, rank_key
+from ehss_gym.evaluation.scoring import (
+    PHYSICAL_FLOORS,
+    Floors,
+    episode_log_ratios,
+    failure,
+    figure_of,
+    physical_floors,
+    rank_key,
+)
 from ehss_gym.evaluation.suites import TASKS
 
 from .friction_windows import check as friction_check
@@ -251,9 +259,10 @@ RUNNERS: dict[str, Callable[[str, dict, int, float], list[dict]]] = {"law": law_
 # --- the objective -------------------------------------------------------------------------------------------
 
 
-def objective(metrics: Sequence[dict], anchor: Sequence[dict], noisy: Sequence[bool], task: str) -> dict:
-    """The ruler's overall figure of per-episode ``metrics`` against the anchor's on the same episodes (of ``task``),
-    with the gate.
+def objective(metrics: Sequence[dict], anchor: Sequence[dict], noisy: Sequence[bool], task: str,
+              floors: Floors = PHYSICAL_FLOORS) -> dict:
+    """The ruler's overall figure of per-episode ``metrics`` against the anchor's on the same episodes (of ``task``,
+    under the rig's ``floors``), with the gate.
 
     Returns:
         {"figure" (G), "classes" ({class: G_c}), "failed", "n_failed", "saturation" (mean share), "key" (the order:
@@ -261,7 +270,7 @@ def objective(metrics: Sequence[dict], anchor: Sequence[dict], noisy: Sequence[b
     """
     logs: dict[str, list[float]] = {}
     for m, a, nz in zip(metrics, anchor, noisy):
-        for c, v in episode_log_ratios(m, a, nz, task).items():
+        for c, v in episode_log_ratios(m, a, nz, task, floors).items():
             logs.setdefault(c, []).append(v)
     g, gc = figure_of(logs)
     failed, n_failed = failure(list(metrics))
@@ -389,10 +398,11 @@ def tune_row(row: Baseline, tuned: dict, cfg: TuneSettings, anchors: dict, progr
             (start if k in names else fixed)[k] = tuned[src]["settings"][k]
     anchor, noisy = anchors[row.task]
     run = RUNNERS[row.runner]
+    floors = physical_floors(as_rig(cfg.plant))
 
     def evaluate(point: dict) -> dict:
         return objective(run(row.task, {**fixed, **point, **cfg.env_kwargs()}, cfg.episodes, cfg.seconds), anchor,
-                         noisy, row.task)
+                         noisy, row.task, floors)
 
     res = search(row.axes, start, evaluate, cfg.budget, progress)
     out = res["best_out"]

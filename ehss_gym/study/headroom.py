@@ -57,10 +57,13 @@ from ehss_gym.envs.law_table import LawTable
 from ehss_gym.evaluation.harness import rollout
 from ehss_gym.evaluation.scoring import (
     CLASSES,
+    PHYSICAL_FLOORS,
     Block,
+    Floors,
     episode_log_ratios,
     failure,
     figure_statistics,
+    physical_floors,
     ratio_rows,
 )
 from ehss_gym.evaluation.specs import REFERENCE_POLICY
@@ -193,17 +196,17 @@ def _feedforward(task: str, kw: dict, eps: list, search) -> dict:
     return {"ff centred": (res[:n], [None] * n), "ff at edge": (res[n:], [None] * n)}
 
 
-def _objective(m: dict, ref: dict, noisy: bool, task: str) -> float:
-    """The ruler's per-episode overall log ratio of ``m`` against ``ref`` (an episode of ``task``); inf for a failed
-    episode or no class."""
+def _objective(m: dict, ref: dict, noisy: bool, task: str, floors: Floors = PHYSICAL_FLOORS) -> float:
+    """The ruler's per-episode overall log ratio of ``m`` against ``ref`` (an episode of ``task``, under the rig's
+    ``floors``); inf for a failed episode or no class."""
     if m["diverged"] or m["lost_track"]:
         return math.inf
-    logs = episode_log_ratios(m, ref, noisy, task)
+    logs = episode_log_ratios(m, ref, noisy, task, floors)
     return float(np.mean(list(logs.values()))) if logs else math.inf
 
 
 def search_episodes(search: Search1D, first: float, run_values: Callable, noisy: Sequence[bool],
-                    task: str) -> tuple[list, list]:
+                    task: str, floors: Floors = PHYSICAL_FLOORS) -> tuple[list, list]:
     """:class:`Search1D` on every episode at once, minimising each episode's :func:`_objective` against its run at
     ``first`` (the base law's value, kept on ties).
 
@@ -213,6 +216,7 @@ def search_episodes(search: Search1D, first: float, run_values: Callable, noisy:
         run_values: (values, episode indices) -> the episodes' metrics with those values (one value per index).
         noisy: per episode, whether it has sensor noise (its effort class is chatter).
         task: the episodes' task (the ruler's floors).
+        floors: the ruler's floors on the rig the episodes run on.
 
     Returns:
         (per episode the metrics at its best value, the best values).
@@ -233,7 +237,7 @@ def search_episodes(search: Search1D, first: float, run_values: Callable, noisy:
 
     def consider(values: list) -> None:
         for i, m in enumerate(metrics_at(values)):
-            o = _objective(m, ref[i], noisy[i], task)
+            o = _objective(m, ref[i], noisy[i], task, floors)
             if o < obj[i]:
                 best[i], obj[i] = values[i], o
 
@@ -258,7 +262,7 @@ def _best_bias(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, 
     def run_values(values, idx):
         return rollout(ConstantResidualPolicy(cfg, currents=values), kw, [eps[i] for i in idx])[0]
 
-    return search_episodes(search, 0.0, run_values, _noisy(eps), task)
+    return search_episodes(search, 0.0, run_values, _noisy(eps), task, physical_floors(cfg.plant))
 
 
 def _best_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, list]:
@@ -275,7 +279,8 @@ def _best_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list,
                 out[j] = m
         return out
 
-    return search_episodes(search, float(EnvConfig.from_kwargs(kw).loop.smoothing), run_values, _noisy(eps), task)
+    cfg = EnvConfig.from_kwargs(kw)
+    return search_episodes(search, float(cfg.loop.smoothing), run_values, _noisy(eps), task, physical_floors(cfg.plant))
 
 
 @dataclass(frozen=True)
@@ -580,7 +585,7 @@ def run(cfg: HeadroomConfig | None = None, executor: Executor | None = None, pro
     corrections = {j.config["task"]: summarize_corrections(r, j.config["task"]) for j, r in done
                    if j.config.get("corrections")}
     rows = _rows([(j, r) for j, r in done if not j.config.get("corrections")], cfg)
-    ratio_rows(rows)
+    ratio_rows(rows, physical_floors(cfg.eval_config().rig))
     meta = {label(v, ap, cfg): {"variant": v.name, "kind": v.kind, "agent_period": ap, "observes": v.observes,
                                 "period_free": v.period_free}
             for v in VARIANTS for ap in dict.fromkeys(cfg.periods_of(v, CHECK_SUITE) + cfg.periods_of(v, ""))}
