@@ -445,8 +445,8 @@ def _action_settings(kwargs: dict, d: EnvDefaults, template: Scenario, mode: str
         bound = check_positive("action_bound", bound)
     if row.resense and mode != "residual":
         raise ValueError(f"action {row.name!r} acts through the law: it needs mode 'residual', got mode {mode!r}")
-    if row.name == "reference" and entry(ESTIMATORS, template.estimator).analog:
-        raise ValueError(f"action 'reference' shifts the law's digital reference model: it needs a digital estimator "
+    if row.shift and entry(ESTIMATORS, template.estimator).analog:
+        raise ValueError(f"action {row.name!r} shifts the law's digital reference model: it needs a digital estimator "
                          f"(not {template.estimator!r})")
     return {"action": row.name, "action_bound": bound}
 

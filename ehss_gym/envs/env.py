@@ -247,6 +247,7 @@ class EHSSTrackingEnv(gym.Env):
     | `action_bound` with `action="rate"` | 0.4 | 4 | mA |
     | `action_bound` with `action="filtered"` | 0.4 | 4 | mA |
     | `action_bound` with `action="reference"` | 8e-4 | 3e-4 | U |
+    | `action_bound` with `action="reference-schedule"` | 8e-4 | 3e-4 | U |
     | `fr` with `n=4` | 134.634 | 60 | Hz |
     | `sigma` with `n=4` | 1.654817e5 | 1.036633e4 | unit of s |
     | `layer_gain` with `n=4` | 4.29904 | 2.89398 | - |
@@ -347,10 +348,11 @@ class EHSSTrackingEnv(gym.Env):
             windup; scale error_scale tau) and the action of the step before last ``prev_action`` [-]; tau [s] >=
             one agent step; None = none (the observation as without them). See docs/RL.md, "Memory".
         action: what the agent's action does, a row of :data:`ehss_gym.envs.actions.ACTIONS`: "current" (the
-            default: a residual current), "rate", "filtered", "reference" or "schedule" (the action table above; the
-            last two act through the law and need ``mode="residual"``, "reference" a digital estimator).
-        action_bound: the bound of the rate and filtered modes' residual R [mA] and of the reference mode's shift D
-            [output unit], > 0; None = the mode's default per task (the defaults table); the other modes have none.
+            default: a residual current), "rate", "filtered", "reference", "schedule" or "reference-schedule" (the
+            action table above; the last three act through the law and need ``mode="residual"``, those that shift the
+            reference a digital estimator).
+        action_bound: the bound of the rate and filtered modes' residual R [mA] and of the reference and
+            reference-schedule modes' shift D [output unit], > 0; None = the mode's default per task (the defaults table); the other modes have none.
         render_mode: None or "rgb_array" (a dashboard: raw reference r, filtered y_d and output y; error; the
             applied current on a linear axis with its limit and its min/max envelope over each agent step;
             friction).
