@@ -352,7 +352,8 @@ class EHSSTrackingEnv(gym.Env):
             action table above; the last three act through the law and need ``mode="residual"``, those that shift the
             reference a digital estimator).
         action_bound: the bound of the rate and filtered modes' residual R [mA] and of the reference and
-            reference-schedule modes' shift D [output unit], > 0; None = the mode's default per task (the defaults table); the other modes have none.
+            reference-schedule modes' shift D [output unit], > 0; None = the mode's default per task (the defaults
+            table); the other modes have none.
         render_mode: None or "rgb_array" (a dashboard: raw reference r, filtered y_d and output y; error; the
             applied current on a linear axis with its limit and its min/max envelope over each agent step;
             friction).
