@@ -215,6 +215,10 @@ TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_
 # the episode's own duration); for the others a keyword argument None selects the default.
 NONE_IS_A_VALUE = tuple(f.name for f in fields(Scenario) if f.name in LOOP_KEYS and "None" in str(f.type)) + (
     "episode_seconds", "memory_tau")
+# The law's add-ons (off by default): the disturbance observer and the compensators of the unmodelled valve and
+# sensors. A loop with one of them on is today's loop with an add-on (the scripted dob-n2 and dcomp-n2, a residual on
+# top of them), and the ruler's reference law has them off.
+ADDON_KEYS = ("dob_hz", "reference_delay", "inverse_threshold", "inverse_hysteresis")
 # The loop of the first policies of release 0.1: the settings added since (the law, the adaptive boundary layer, the
 # bumpless start, the reference shaper, the model's pressure domain, the disturbance observer) at the values that
 # reproduce the loop before them. A policy whose recorded settings lack them was trained in that loop and acts in it
@@ -522,5 +526,5 @@ def defaults_table() -> str:
 __all__ = ["RATED", "plant_of", "law_table_of", "law_row", "PlantWarning", "untuned_note", "warn_untuned",
            "LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
            "TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
-           "ENV_KEYS", "POLICY_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
+           "ENV_KEYS", "POLICY_KEYS", "ADDON_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
            "in_legacy_loop", "SETTING_UNITS", "defaults_table"]
