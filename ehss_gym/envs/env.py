@@ -240,6 +240,7 @@ class EHSSTrackingEnv(gym.Env):
     | `episode_seconds` | None | None | s (None: 2 s random, 20 s paper) |
     | `terminate_on_lost_track` | False | False |  |
     | `unmodelled_effects` | False | False |  |
+    | `unmodelled_share` | 1 | 1 | - (share of episodes) |
     | `memory_tau` | None | None | s (None: no memory features) |
     | `action` | `"current"` | `"current"` |  |
     | `action_bound` | None | None | the action's unit (None: none) |
@@ -342,6 +343,8 @@ class EHSSTrackingEnv(gym.Env):
             sensor delay and the encoder quantisation that the law's model leaves out, at datasheet sizes
             (:data:`ehss_gym.core.unmodelled.DATASHEET_RANGES`; docs/MODEL.md, "Unmodelled valve and sensors");
             False (the default): none.
+        unmodelled_share: with ``unmodelled_effects``, the share of the episodes that have the effects, in (0, 1]
+            (default 1: every episode); the others have none (a mixture of the realistic and the model's plant).
         memory_tau: the memory features, for rejecting what one observation cannot show (a friction step, a dead
             band): two entries appended to the observation, the filtered error integral ``e_int`` (x' = e - x/tau
             at the agent step with the step's last measured error held, |x| clipped to 10 error_scale tau against
@@ -395,6 +398,7 @@ class EHSSTrackingEnv(gym.Env):
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,
                  terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track,
                  unmodelled_effects: bool = DEFAULTS.unmodelled_effects,
+                 unmodelled_share: float = DEFAULTS.unmodelled_share,
                  memory_tau: float | None = DEFAULTS.memory_tau, action: str = DEFAULTS.action,
                  action_bound: float | None = None, render_mode: str | None = None, **unknown):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:

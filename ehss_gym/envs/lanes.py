@@ -44,10 +44,8 @@ from ehss_gym.core.references import reference_value
 from ehss_gym.core.registry import REFERENCE_FAMILIES
 from ehss_gym.core.resolution import CURRENT_FLOOR, ERROR_RESOLUTION, TV_FLOOR
 from ehss_gym.core.scenarios import (
-    DEFAULT_DISTRIBUTION,
     PHYSICAL_FIELDS,
     TRAIN_SEED_LIMIT,
-    UNMODELLED_DISTRIBUTION,
     describe,
     paper_scenario,
     sample_scenario,
@@ -416,9 +414,8 @@ class Lanes:
             info["scenario_name"] = "paper"
         elif choice == "random":
             seed = int(rng.integers(0, TRAIN_SEED_LIMIT))
-            sc = sample_scenario(seed, tmpl, cfg.episode_seconds,
-                                 UNMODELLED_DISTRIBUTION if cfg.unmodelled_effects else DEFAULT_DISTRIBUTION)
-            if cfg.unmodelled_effects and sc.unmodelled.rated_current != cfg.plant.rated_current:
+            sc = sample_scenario(seed, tmpl, cfg.episode_seconds, cfg.distribution())
+            if not sc.unmodelled.off and sc.unmodelled.rated_current != cfg.plant.rated_current:
                 # the valve's threshold and hysteresis are percent of the rig's rated current
                 sc = sc.replace(unmodelled=replace(sc.unmodelled, rated_current=cfg.plant.rated_current))
             info["scenario_name"] = "random"
