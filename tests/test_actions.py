@@ -102,7 +102,9 @@ def test_gymnasium_and_sb3_checkers_pass_without_warnings(task, mode):
 @pytest.mark.parametrize("mode, dob, k, extra", [
     ("current", 0.0, 1, []), ("rate", 0.0, 1, ["action"]), ("filtered", 0.0, 1, ["action"]),
     ("reference", 0.0, 1, ["action", "ref_shift"]), ("schedule", 0.0, 2, ["action_width", "action_sigma", "width"]),
-    ("schedule", 20.0, 3, ["action_width", "action_sigma", "action_observer", "width"])])
+    ("schedule", 20.0, 3, ["action_width", "action_sigma", "action_observer", "width"]),
+    ("reference-schedule", 0.0, 3, ["action_shift", "action_width", "action_sigma", "ref_shift", "width"]),
+    ("reference-schedule", 20.0, 3, ["action_shift", "action_width", "action_sigma", "ref_shift", "width"])])
 def test_spaces_and_the_observation_entries_each_mode_adds(mode, dob, k, extra):
     env = EHSSTrackingEnv(task="position", action=mode, dob_hz=dob, episode_seconds=SHORT)
     base = EHSSTrackingEnv(task="position", episode_seconds=SHORT)
@@ -113,14 +115,17 @@ def test_spaces_and_the_observation_entries_each_mode_adds(mode, dob, k, extra):
 
 
 BAD = [
-    ({"action": "torque"}, r"action must be one of \['current', 'rate', 'filtered', 'reference', 'schedule'\]"),
+    ({"action": "torque"}, r"action must be one of \['current', 'rate', 'filtered', 'reference', 'schedule', "
+                           r"'reference-schedule'\]"),
     ({"action": "current", "action_bound": 1.0}, r"action_bound applies to the actions \['rate', 'filtered', "
-                                                 r"'reference'\].*action 'current' has none"),
+                                                 r"'reference', 'reference-schedule'\].*action 'current' has none"),
     ({"action": "schedule", "action_bound": 1.0}, r"action 'schedule' has none"),
     ({"action": "rate", "action_bound": 0.0}, r"action_bound must be in \(0, inf\)"),
     ({"action": "reference", "mode": "direct"}, r"action 'reference' acts through the law: it needs mode 'residual'"),
     ({"action": "schedule", "mode": "direct"}, r"action 'schedule' acts through the law"),
     ({"action": "reference", "estimator": "analog"}, r"action 'reference' shifts the law's digital reference model"),
+    ({"action": "reference-schedule", "mode": "direct"}, r"action 'reference-schedule' acts through the law"),
+    ({"action": "reference-schedule", "estimator": "analog"}, r"action 'reference-schedule' shifts the law's digital"),
 ]
 
 
@@ -177,18 +182,22 @@ def test_the_residual_stays_within_its_authority_and_its_rate_bound(actions, mod
 def test_the_reference_shift_and_the_schedule_factors_stay_in_their_ranges(actions):
     ref = EHSSTrackingEnv(task="position", action="reference", episode_seconds=SHORT)
     sch = EHSSTrackingEnv(task="position", action="schedule", dob_hz=20.0, episode_seconds=SHORT)
+    both = EHSSTrackingEnv(task="position", action="reference-schedule", episode_seconds=SHORT)
     ref.reset(seed=0)
     sch.reset(seed=0)
+    both.reset(seed=0)
     base = sch._lanes.ctrl_base
     D = ref.config.action_bound
     for a in actions:
         ref.step(np.array(a[:1], dtype=np.float32))
         sch.step(np.array(a, dtype=np.float32))
-        assert abs(ref._lanes.ctrl[0, C_SHIFT]) <= D
+        both.step(np.array(a, dtype=np.float32))
+        assert abs(ref._lanes.ctrl[0, C_SHIFT]) <= D and abs(both._lanes.ctrl[0, C_SHIFT]) <= D
+        for c in (sch._lanes.ctrl[0], both._lanes.ctrl[0]):
+            for slot, (_, lo, hi) in ((C_SMOOTH, SCHEDULE_RANGES[0]), (C_LAYER_GAIN, SCHEDULE_RANGES[0]),
+                                      (C_SIGMA, SCHEDULE_RANGES[1])):
+                assert lo * (1 - 1e-12) <= c[slot] / base[slot] <= hi * (1 + 1e-12)
         c = sch._lanes.ctrl[0]
-        for slot, (_, lo, hi) in ((C_SMOOTH, SCHEDULE_RANGES[0]), (C_LAYER_GAIN, SCHEDULE_RANGES[0]),
-                                  (C_SIGMA, SCHEDULE_RANGES[1])):
-            assert lo * (1 - 1e-12) <= c[slot] / base[slot] <= hi * (1 + 1e-12)
         f_d = -math.log1p(-c[C_DOB_GAIN]) / (2 * math.pi * sch.config.control_period)  # the observer's bandwidth
         assert SCHEDULE_RANGES[2][1] * (1 - 1e-9) <= f_d / 20.0 <= SCHEDULE_RANGES[2][2] * (1 + 1e-9)
 
@@ -267,9 +276,34 @@ def test_the_residual_reaches_the_plant_as_the_current_it_is():
         assert info["u_residual"] == env.unwrapped._lanes.info_ok[0, I_URES]
 
 
+@pytest.mark.parametrize("part", ["reference", "schedule"])
+def test_the_combined_mode_is_each_of_its_parts_with_the_other_at_zero(part):
+    """reference-schedule with the schedule's entries at 0 is the reference mode, with the shift at 0 the schedule
+    mode: rewards, infos and the law's slots byte for byte (random actions, the unmodelled effects and the class
+    reward on)."""
+    kw = {**RECIPE, "task": "position", "episode_seconds": 0.05}
+    both = EHSSTrackingVectorEnv(2, action="reference-schedule", **kw)
+    one = EHSSTrackingVectorEnv(2, action=part, **kw)
+    both.reset(seed=3)
+    one.reset(seed=3)
+    rng = np.random.default_rng(0)
+    cols = [0] if part == "reference" else [1, 2]
+    for _ in range(60):
+        a = rng.uniform(-1, 1, (2, len(cols))).astype(np.float32)
+        full = np.zeros((2, 3), dtype=np.float32)
+        full[:, cols] = a
+        _, rb, tb, _, ib = both.step(full)
+        _, ro, to, _, io = one.step(a)
+        assert np.array_equal(rb, ro) and np.array_equal(tb, to)
+        for key in ("u_applied", "u_base", "e", "s", "V"):
+            assert np.array_equal(ib[key], io[key]), key
+        for slot in (C_SHIFT, C_SMOOTH, C_LAYER_GAIN, C_SIGMA):
+            assert np.array_equal(both._lanes.ctrl[:, slot], one._lanes.ctrl[:, slot])
+
+
 def test_bounds_default_per_task_and_are_settable():
     for task in ("velocity", "position"):
-        for mode in ("rate", "filtered", "reference"):
+        for mode in ("rate", "filtered", "reference", "reference-schedule"):
             assert EnvConfig.from_kwargs({"task": task, "action": mode}).action_bound == \
                 action_mode(mode).default_bound(task)
     assert EnvConfig.from_kwargs({"action": "rate", "action_bound": 0.5}).action_bound == 0.5

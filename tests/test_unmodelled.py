@@ -278,6 +278,37 @@ def test_the_env_option_draws_effects_per_episode_and_is_off_by_default():
     assert len(seen) == 3
 
 
+def test_a_share_of_the_episodes_has_the_effects_the_same_ones_and_the_rest_none():
+    """unmodelled_share s: about s of the training episodes have the effects (binomial: 400 episodes at s = 0.5 give
+    200 +- 40 at 4 standard deviations), each the effects it has at share 1; the validation draw follows the env's."""
+    from dataclasses import replace
+
+    from ehss_gym.core.scenarios import unmodelled_distribution
+    from ehss_gym.evaluation.heldout import heldout_suite
+
+    assert unmodelled_distribution(1.0) is UNMODELLED_DISTRIBUTION
+    half = replace(DATASHEET_RANGES, share=0.5)
+    draws = [draw_unmodelled(seed, half) for seed in range(400)]
+    kept = [(seed, um) for seed, um in enumerate(draws) if not um.off]
+    assert 160 <= len(kept) <= 240 and all(um == NONE for um in draws if um.off)
+    assert all(um == draw_unmodelled(seed) for seed, um in kept)
+    env = EHSSTrackingEnv(unmodelled_effects=True, unmodelled_share=0.5)
+    offs = []
+    for s in range(12):
+        _, info = env.reset(seed=s)
+        um = env.unwrapped._lanes.scenarios[0].unmodelled
+        assert um == draw_unmodelled(info["scenario_seed"], half)
+        offs.append(um.off)
+    assert 0 < sum(offs) < 12
+    suite = heldout_suite({"unmodelled_effects": True, "unmodelled_share": 0.5}, 12, 0)
+    assert 0 < sum(sc.unmodelled.off for sc in suite) < 12
+    for bad in (0.0, 1.5, math.nan):
+        with pytest.raises(ValueError, match=r"unmodelled_share must be"):
+            EnvConfig.from_kwargs({"unmodelled_effects": True, "unmodelled_share": bad})
+        with pytest.raises(ValueError, match=r"unmodelled share must be"):
+            replace(DATASHEET_RANGES, share=bad)
+
+
 def test_the_unmodelled_suite_draws_held_out_episodes_with_effects():
     from ehss_gym.core.scenarios import TRAIN_SEED_LIMIT
     from ehss_gym.evaluation.suites import EvalConfig, build_episodes

@@ -71,35 +71,47 @@ def restore_rng(state: dict, env_rngs=()) -> None:
 
 
 class WallClock(BaseCallback):
-    """Training wall time [s], accumulated across resumed segments and logged to TensorBoard."""
+    """Training wall time [s] and this process's CPU time [s] (on a shared machine the wall time measures the load as
+    much as the run), accumulated across resumed segments and logged to TensorBoard."""
 
     def __init__(self):
         super().__init__()
         self.previous = 0.0  # seconds of earlier segments (restored on resume)
+        self.previous_cpu = 0.0
         self._t0 = time.perf_counter()
+        self._c0 = time.process_time()
 
     @property
     def seconds(self) -> float:
         """Wall time of this and the earlier segments [s]."""
         return self.previous + time.perf_counter() - self._t0
 
+    @property
+    def cpu_seconds(self) -> float:
+        """CPU time of this process in this segment and the earlier segments' [s] (all its threads)."""
+        return self.previous_cpu + time.process_time() - self._c0
+
     def _on_training_start(self) -> None:
         self._t0 = time.perf_counter()
+        self._c0 = time.process_time()
 
     def _on_rollout_end(self) -> None:
         self.logger.record("time/wall_s", self.seconds)
+        self.logger.record("time/cpu_s", self.cpu_seconds)
 
     def _on_step(self) -> bool:
         return True
 
     def state_dict(self) -> dict:
-        """What a checkpoint stores: the wall time so far [s]."""
-        return {"seconds": self.seconds}
+        """What a checkpoint stores: the wall and CPU time so far [s]."""
+        return {"seconds": self.seconds, "cpu_seconds": self.cpu_seconds}
 
     def load_state_dict(self, d: dict) -> None:
         """Continue from a checkpoint's :meth:`state_dict`."""
         self.previous = float(d["seconds"])
+        self.previous_cpu = float(d.get("cpu_seconds", 0.0))  # (a checkpoint written before the CPU time: 0)
         self._t0 = time.perf_counter()
+        self._c0 = time.process_time()
 
 
 class ProgressBar(BaseCallback):
@@ -175,7 +187,7 @@ class HeldoutEval(BaseCallback):
         results = run_episodes(self.env_kwargs, self.scenarios, sb3_act_fn(self.model, vn))
         row = relative_scores(results, self.base, self.reference, floors_of(self.env_kwargs))
         row.update(step=int(self.num_timesteps), wall_s=round(self.wall.seconds, 3),
-                   eval_s=round(time.perf_counter() - t0, 3))
+                   cpu_s=round(self.wall.cpu_seconds, 3), eval_s=round(time.perf_counter() - t0, 3))
         self.last_eval = self.num_timesteps
         self.history.append(row)
         for k in ("figure", "n_failed", "tracking", "disturbance", "effort", "chatter", "rel_tracking",

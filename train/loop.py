@@ -45,7 +45,7 @@ from ehss_gym.agents.export import export_policy
 from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import resolved_env_kwargs
 from ehss_gym.envs import ENV_ID
-from ehss_gym.envs.config import plant_of
+from ehss_gym.envs.config import ADDON_KEYS, plant_of
 from ehss_gym.evaluation.heldout import VALIDATION_START, floors_of, heldout_suite, relative_scores, run_episodes
 from ehss_gym.infra.execution import pin_blas
 from ehss_gym.infra.fmt import fmt_num
@@ -134,14 +134,16 @@ def export_model(model, vecnormalize, folder: str, cfg: Config, extra: dict) -> 
 
 
 def validation(cfg: Config, env_kwargs: dict) -> tuple[list, list[dict], list[dict]]:
-    """The validation scenarios, the agent's base law on them and the figures' reference (the n = 2 law)."""
+    """The validation scenarios, the agent's base law on them (with its add-ons: a residual on top of a compensator
+    starts as the compensated law) and the figures' reference (the n = 2 law without add-ons, the ruler's)."""
     base_kwargs = {k: v for k, v in env_kwargs.items() if k not in ("mode", "residual_scale")}
     scenarios = heldout_suite(env_kwargs, cfg.eval_episodes, VALIDATION_START, cfg.eval_seconds)
     base = run_episodes({**base_kwargs, "mode": "residual"}, scenarios)  # the agent's own base law
     # the reference is the n = 2 law at its own settings: the same episodes (a pure function of their seeds) drawn
     # for its loop, which differs from this n's in more than n where the law's defaults are tuned per n
-    ref_kwargs = {**base_kwargs, "mode": "residual", "n": 2}
-    reference = base if cfg.n == 2 else run_episodes(
+    ref_kwargs = {**{k: v for k, v in base_kwargs.items() if k not in ADDON_KEYS}, "mode": "residual", "n": 2}
+    same = cfg.n == 2 and not any(k in base_kwargs for k in ADDON_KEYS)
+    reference = base if same else run_episodes(
         ref_kwargs, heldout_suite(ref_kwargs, cfg.eval_episodes, VALIDATION_START, cfg.eval_seconds))
     return scenarios, base, reference
 
@@ -216,7 +218,7 @@ def train(cfg: Config, on_eval: Callable[[dict], None] | None = None) -> dict:
         checkpoint.save()  # a finished run can be extended with --resume --timesteps LARGER
 
     # --- the best and the final model ----------------------------------------------------------------------
-    summary = finish(cfg, model, venv, evaluator, base, reference, wall.seconds)
+    summary = finish(cfg, model, venv, evaluator, base, reference, wall.seconds, wall.cpu_seconds)
     venv.close()
     return summary
 
@@ -226,7 +228,7 @@ def full_plant(cfg: Config):
     return cfg.full()["env_kwargs"].get("plant")
 
 
-def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wall_s: float) -> dict:
+def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wall_s: float, cpu_s: float) -> dict:
     """Export the final and the best model; write and return ``summary.json``."""
     run_dir = cfg.run_dir()
     best = evaluator.history[[r["step"] for r in evaluator.history].index(evaluator.best_step)]
@@ -239,6 +241,7 @@ def finish(cfg: Config, model, venv, evaluator: HeldoutEval, base, reference, wa
     summary = {"run_name": cfg.run_name(), "run_dir": run_dir, "agent": cfg.agent, "algo": cfg.spec().algo,
                "task": cfg.task, "n": cfg.n, "plant": plant_of(full_plant(cfg)).label,
                "seed": cfg.seed, "timesteps": int(model.num_timesteps), "wall_s": round(wall_s, 2),
+               "cpu_s": round(cpu_s, 2),
                "best_step": evaluator.best_step, "best_validation": best,
                "best_is_untrained": evaluator.best_step == evaluator.history[0]["step"] == 0,
                "base_validation": relative_scores(base, base, reference, floors_of(cfg.full()["env_kwargs"])),

@@ -569,6 +569,19 @@ def add_training_report(p) -> None:
     add_progress(p)
 
 
+def add_ablation(p) -> None:
+    p.add_argument("--runs", default=os.path.join("runs", "ablation"), metavar="FOLDER",
+                   help="the cells' run folders' parent (a finished cell is not trained again)")
+    p.add_argument("--out", default=os.path.join("reports", "training", "ablation"), help="output folder")
+    p.add_argument("--timesteps", type=int_at_least("--timesteps", 1), default=300_000,
+                   help="agent steps per cell (default 300000)")
+    p.add_argument("--report-only", action="store_true",
+                   help="train nothing: report the cells that have finished")
+    add_workers(p, "cells trained at a time, one process each (default 2)")
+    p.set_defaults(workers=2)
+    add_progress(p)
+
+
 def add_tune(p) -> None:
     p.add_argument("--task", choices=tuple(TASKS), default="velocity", help="the agent's task")
     p.add_argument("--n", type=even_n, default=2, help="power factor of the base law (even)")
@@ -657,6 +670,12 @@ COMMANDS = (
     Command("training-report", "evaluate finished training runs and write reports/training",
             "Training cost, learning curves and held-out results of the runs that ehss train wrote; optionally "
             "ship the chosen residual policies.", add_training_report, "training_report"),
+    Command("ablation", "the residual recipe's ablation: reward x action, then exploration x base law, on one seed",
+            "Train residual PPO on the position task with the unmodelled effects, one seed per cell: reward (class, "
+            "physical) x action (current, reference, schedule, reference-schedule), then exploration (gaussian, "
+            "gsde, pink) x base law (the law, the law with its reference delayed) on stage 1's best cells; rank the "
+            "cells by the rule written in ehss_gym.study.ablation and write ABLATION.md, its validation curves and "
+            "CSV.", add_ablation, "ablation"),
     Command("tune", "hyperparameter search for the residual agent (Ray Tune, Optuna TPE, ASHA)",
             "Search residual PPO's hyperparameters on the held-out validation figure with Ray Tune, Optuna's TPE "
             "sampler and ASHA early stopping; resumable.", add_tune, "tune"),

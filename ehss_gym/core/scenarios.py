@@ -41,7 +41,7 @@ unmodelled effects  none; with ``Distribution.unmodelled`` (:data:`UNMODELLED_DI
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 
@@ -93,6 +93,14 @@ class Distribution:
 
 DEFAULT_DISTRIBUTION = Distribution()
 UNMODELLED_DISTRIBUTION = Distribution(unmodelled=DATASHEET_RANGES)  # the env's unmodelled_effects=True
+
+
+def unmodelled_distribution(share: float = 1.0) -> Distribution:
+    """The distribution with the unmodelled effects on a ``share`` of the episodes (1: :data:`UNMODELLED_DISTRIBUTION`;
+    the env's ``unmodelled_effects=True`` with ``unmodelled_share``)."""
+    if share == 1.0:
+        return UNMODELLED_DISTRIBUTION
+    return Distribution(unmodelled=replace(DATASHEET_RANGES, share=share))
 
 
 def paper_scenario(template: Scenario, t_end: float | None = None) -> Scenario:
@@ -217,6 +225,6 @@ def controller_mismatch(sc: Scenario, template: Scenario) -> list[str]:
     return [f.name for f in fields(Scenario) if f.name not in phys and getattr(sc, f.name) != getattr(template, f.name)]
 
 
-__all__ = ["Distribution", "DEFAULT_DISTRIBUTION", "UNMODELLED_DISTRIBUTION",
+__all__ = ["Distribution", "DEFAULT_DISTRIBUTION", "UNMODELLED_DISTRIBUTION", "unmodelled_distribution",
            "paper_scenario", "sample_scenario", "heldout_scenarios",
            "describe", "controller_mismatch", "TRAIN_SEED_LIMIT", "HELDOUT_SEED_BASE", "PHYSICAL_FIELDS"]

@@ -131,6 +131,8 @@ class UnmodelledRanges:
         delay: inclusive range of the sensor delay [control samples], integers equally likely.
         encoder_bits: inclusive range of b, the encoder then has 2^b counts per revolution, integers equally likely.
         velocity_step: log-uniform range of the velocity quantisation step [rad/s].
+        share: the share of episodes that have the effects, in (0, 1]; the others have none. Drawn after the effects,
+            so an episode that has them has the same effects at any share (and at 1 nothing more is drawn).
     """
 
     threshold: tuple[float, float] = (0.5 * DATASHEET_THRESHOLD, DATASHEET_THRESHOLD)
@@ -138,16 +140,22 @@ class UnmodelledRanges:
     delay: tuple[int, int] = (1, 2)
     encoder_bits: tuple[int, int] = (16, 20)
     velocity_step: tuple[float, float] = (1e-4, 1e-3)
+    share: float = 1.0
+
+    def __post_init__(self):
+        object.__setattr__(self, "share", check_finite("unmodelled share", self.share, low=0.0, high=1.0,
+                                                       low_open=True))
 
     def draw(self, rng: np.random.Generator) -> Unmodelled:
-        """One episode's effects, drawn with ``rng``."""
+        """One episode's effects, drawn with ``rng`` (:data:`NONE` for an episode outside the share)."""
         bits = int(rng.integers(self.encoder_bits[0], self.encoder_bits[1] + 1))
         lo, hi = self.velocity_step
-        return Unmodelled(threshold=float(rng.uniform(*self.threshold)),
+        effects = Unmodelled(threshold=float(rng.uniform(*self.threshold)),
                           hysteresis=float(rng.uniform(*self.hysteresis)),
                           delay=int(rng.integers(self.delay[0], self.delay[1] + 1)),
                           encoder_counts=2**bits,
                           velocity_step=float(math.exp(rng.uniform(math.log(lo), math.log(hi)))))
+        return effects if self.share == 1.0 or rng.uniform() < self.share else NONE
 
 
 # The sizes the unmodelled suite and the randomised training option draw: a valve in the upper half of its datasheet's

@@ -22,6 +22,10 @@ the kernel reads, is its index in the table. Plain data (no numba): the settings
   smoothing width and the adaptive layer's gain), a_1 sigma and, with the disturbance observer on (``dob_hz`` > 0),
   a_2 its bandwidth; each factor is f = hi^a for a >= 0 and lo^(-a) for a < 0 within its range of
   :data:`SCHEDULE_RANGES` (so a = 0 is the factor 1 exactly).
+- ``reference-schedule``: both in one action (a_0 the reference mode's shift, a_1 and a_2 the schedule mode's width
+  and sigma factors): the route that compensates a delay and widens the boundary layer where no friction edge needs
+  it. The disturbance observer's bandwidth is not scheduled in this mode (its action has 3 entries with the observer
+  on or off).
 
 Every mode with a = 0 throughout is the base law, bit for bit (tests/test_actions.py). The bounds' defaults and their
 sources are in the rows (docs/ENV.md, "Action modes", has the measurement).
@@ -60,6 +64,8 @@ class ActionMode:
             env's look-ahead of the step's first sample, made with the last action, is computed again.
         dims: the size k of its action.
         observer_dim: one more action entry when the disturbance observer is on (``dob_hz`` > 0).
+        shift: its first action entry shifts the law's reference (the law's reference shift is on).
+        schedule: its entries from ``schedule`` on are the schedule mode's factors (None: it schedules nothing).
     """
 
     name: str
@@ -72,6 +78,8 @@ class ActionMode:
     resense: bool = False
     dims: int = 1
     observer_dim: bool = False
+    shift: bool = False
+    schedule: int | None = None
 
     def default_bound(self, task: str) -> float | None:
         """The default ``action_bound`` for ``task`` (None for a mode without a bound)."""
@@ -121,10 +129,13 @@ ACTIONS: tuple[ActionMode, ...] = (
     ActionMode("filtered", "a first-order filter (time constant FILTER_TAU) of the residual R a [mA]", "mA",
                CURRENT_AUTHORITY, CURRENT_SOURCE, "write_held", period="filtered_period"),
     ActionMode("reference", "the law's reference shifted by D a [output unit] through a copy of the reference model",
-               "U", SHIFT_BOUND, SHIFT_SOURCE, "write_reference", resense=True),
+               "U", SHIFT_BOUND, SHIFT_SOURCE, "write_reference", resense=True, shift=True),
     ActionMode("schedule", "the boundary layer's width, sigma and (observer on) its bandwidth scaled by factors "
                "within SCHEDULE_RANGES", "", (), "SCHEDULE_RANGES", "write_schedule", resense=True, dims=2,
-               observer_dim=True),
+               observer_dim=True, schedule=0),
+    ActionMode("reference-schedule", "a_0 the reference mode's shift D a_0 [output unit], a_1 and a_2 the schedule "
+               "mode's width and sigma factors", "U", SHIFT_BOUND, SHIFT_SOURCE, "write_reference_schedule",
+               resense=True, dims=3, shift=True, schedule=1),
 )
 ACTION_NAMES = tuple(row.name for row in ACTIONS)
 
@@ -142,7 +153,8 @@ def action_code(name: str) -> int:
 
 
 def action_dims(mode: ActionMode, dob_hz: float) -> int:
-    """The size k of ``mode``'s action (the schedule mode's: 2, width and sigma, or 3 with the observer on)."""
+    """The size k of ``mode``'s action (the schedule mode's: 2, width and sigma, or 3 with the observer on; the
+    reference-schedule mode's 3)."""
     return mode.dims + (1 if mode.observer_dim and dob_hz > 0.0 else 0)
 
 

@@ -22,7 +22,13 @@ import numpy as np
 
 from ehss_gym.core.registry import ESTIMATORS, LAWS, entry, names
 from ehss_gym.core.rig import TABLE_I, Rig, as_rig
-from ehss_gym.core.scenarios import controller_mismatch, paper_scenario
+from ehss_gym.core.scenarios import (
+    DEFAULT_DISTRIBUTION,
+    Distribution,
+    controller_mismatch,
+    paper_scenario,
+    unmodelled_distribution,
+)
 from ehss_gym.core.settings import LOOP_SETTINGS, PHYSICAL_FIELDS, TASKS, Scenario
 from ehss_gym.core.validate import check_bool, check_choice, check_finite, check_int, check_positive
 
@@ -158,6 +164,7 @@ class EnvDefaults:
         terminate_on_lost_track: end an episode (``terminated=True``) once it has lost track.
         unmodelled_effects: "random" episodes draw the valve and sensor effects the law's model leaves out
             (:data:`ehss_gym.core.scenarios.UNMODELLED_DISTRIBUTION`).
+        unmodelled_share: with ``unmodelled_effects``, the share of the episodes that have them (the others none).
         action: what the agent's action does, a row of :data:`ehss_gym.envs.actions.ACTIONS`.
         velocity, position: per-task defaults.
     """
@@ -178,6 +185,7 @@ class EnvDefaults:
     lost_track: float = 1.0
     terminate_on_lost_track: bool = False
     unmodelled_effects: bool = False
+    unmodelled_share: float = 1.0
     action: str = "current"
     # Per task, the noise study's choice (reports/noise/recommended.json; tests/test_noise.py checks it): velocity the
     # paper's SVF with Sontag, position the 1 kHz observer with Sontag and the 100 rad/s^2 reference shaper. The law's
@@ -201,13 +209,13 @@ FIXED_LOOP = ("ref_model_hz", "omega_max", "pressure_bound")
 # The env's settings: the loop settings it exposes, then its own.
 LOOP_KEYS = tuple(k for k in LOOP_SETTINGS if k not in FIXED_LOOP)
 ENV_KEYS = ("plant", "law_settings", "mode", "residual_scale", "agent_period", "scenario", "reward_weights",
-            "error_scale", "episode_seconds", "terminate_on_lost_track", "unmodelled_effects", "memory_tau", "action",
-            "action_bound")
+            "error_scale", "episode_seconds", "terminate_on_lost_track", "unmodelled_effects", "unmodelled_share",
+            "memory_tau", "action", "action_bound")
 # What a policy acts in (an exported policy pins each): everything but the episode's choice and when it ends, and the
 # plant (the rig an exported policy was trained on is recorded when it was given: agents.specs.resolved_env_kwargs).
 POLICY_KEYS = tuple(k for k in LOOP_KEYS + ENV_KEYS
                     if k not in ("scenario", "episode_seconds", "lost_track", "terminate_on_lost_track",
-                                 "unmodelled_effects", "plant", "law_settings"))
+                                 "unmodelled_effects", "unmodelled_share", "plant", "law_settings"))
 # Settings whose default depends on the task (residual_scale: on the current limit, sigma: on the law too); None
 # selects that default.
 TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_by_law") + ("residual_scale",)
@@ -215,6 +223,10 @@ TASK_DEPENDENT = tuple(f.name for f in fields(TaskDefaults) if f.name != "sigma_
 # the episode's own duration); for the others a keyword argument None selects the default.
 NONE_IS_A_VALUE = tuple(f.name for f in fields(Scenario) if f.name in LOOP_KEYS and "None" in str(f.type)) + (
     "episode_seconds", "memory_tau")
+# The law's add-ons (off by default): the disturbance observer and the compensators of the unmodelled valve and
+# sensors. A loop with one of them on is today's loop with an add-on (the scripted dob-n2 and dcomp-n2, a residual on
+# top of them), and the ruler's reference law has them off.
+ADDON_KEYS = ("dob_hz", "reference_delay", "inverse_threshold", "inverse_hysteresis")
 # The loop of the first policies of release 0.1: the settings added since (the law, the adaptive boundary layer, the
 # bumpless start, the reference shaper, the model's pressure domain, the disturbance observer) at the values that
 # reproduce the loop before them. A policy whose recorded settings lack them was trained in that loop and acts in it
@@ -247,6 +259,7 @@ class EnvConfig:
     episode_seconds: float | None
     terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track
     unmodelled_effects: bool = DEFAULTS.unmodelled_effects
+    unmodelled_share: float = DEFAULTS.unmodelled_share
     memory_tau: float | None = DEFAULTS.memory_tau
     action: str = DEFAULTS.action
     action_bound: float | None = None
@@ -312,6 +325,11 @@ class EnvConfig:
     def agent_dt(self) -> float:
         """Duration of one agent step [s]."""
         return self.agent_period * self.control_period
+
+    def distribution(self) -> Distribution:
+        """The distribution "random" episodes are drawn from: the unmodelled effects on ``unmodelled_share`` of them
+        with ``unmodelled_effects``, else none."""
+        return unmodelled_distribution(self.unmodelled_share) if self.unmodelled_effects else DEFAULT_DISTRIBUTION
 
     def template(self) -> Scenario:
         """A Scenario with these controller settings (its physical fields are the paper's run on the env's plant, with
@@ -424,11 +442,14 @@ def _episode_settings(kwargs: dict, td: TaskDefaults, d: EnvDefaults, agent_dt: 
     if not isinstance(stop_lost, (bool, np.bool_)):
         raise ValueError(f"terminate_on_lost_track must be True or False, got {stop_lost!r}")
     unmodelled = check_bool("unmodelled_effects", kwargs.get("unmodelled_effects", d.unmodelled_effects))
+    share = check_finite("unmodelled_share", kwargs.get("unmodelled_share", d.unmodelled_share), low=0.0, high=1.0,
+                         low_open=True)
     tau = kwargs.get("memory_tau", d.memory_tau)
     if tau is not None:
         tau = check_finite("memory_tau", tau, low=agent_dt)
     return {"scenario": scenario, "reward_weights": rw, "error_scale": err, "episode_seconds": eps,
-            "terminate_on_lost_track": bool(stop_lost), "unmodelled_effects": unmodelled, "memory_tau": tau}
+            "terminate_on_lost_track": bool(stop_lost), "unmodelled_effects": unmodelled, "unmodelled_share": share,
+            "memory_tau": tau}
 
 
 def _action_settings(kwargs: dict, d: EnvDefaults, template: Scenario, mode: str) -> dict:
@@ -445,8 +466,8 @@ def _action_settings(kwargs: dict, d: EnvDefaults, template: Scenario, mode: str
         bound = check_positive("action_bound", bound)
     if row.resense and mode != "residual":
         raise ValueError(f"action {row.name!r} acts through the law: it needs mode 'residual', got mode {mode!r}")
-    if row.name == "reference" and entry(ESTIMATORS, template.estimator).analog:
-        raise ValueError(f"action 'reference' shifts the law's digital reference model: it needs a digital estimator "
+    if row.shift and entry(ESTIMATORS, template.estimator).analog:
+        raise ValueError(f"action {row.name!r} shifts the law's digital reference model: it needs a digital estimator "
                          f"(not {template.estimator!r})")
     return {"action": row.name, "action_bound": bound}
 
@@ -465,7 +486,8 @@ SETTING_UNITS = {
     "plant": "TOML file, dict, PlantParams or Rig", "law_settings": "JSON file or dict (None: Table I's tuning)",
     "mode": "", "residual_scale": "mA", "agent_period": "control periods",
     "scenario": "", "reward_weights": "-", "error_scale": "U", "episode_seconds": "s (None: 2 s random, 20 s paper)",
-    "terminate_on_lost_track": "", "unmodelled_effects": "", "memory_tau": "s (None: no memory features)",
+    "terminate_on_lost_track": "", "unmodelled_effects": "", "unmodelled_share": "- (share of episodes)",
+    "memory_tau": "s (None: no memory features)",
     "action": "", "action_bound": "the action's unit (None: none)",
 }
 
@@ -522,5 +544,5 @@ def defaults_table() -> str:
 __all__ = ["RATED", "plant_of", "law_table_of", "law_row", "PlantWarning", "untuned_note", "warn_untuned",
            "LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
            "TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
-           "ENV_KEYS", "POLICY_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
+           "ENV_KEYS", "POLICY_KEYS", "ADDON_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
            "in_legacy_loop", "SETTING_UNITS", "defaults_table"]

@@ -240,6 +240,7 @@ class EHSSTrackingEnv(gym.Env):
     | `episode_seconds` | None | None | s (None: 2 s random, 20 s paper) |
     | `terminate_on_lost_track` | False | False |  |
     | `unmodelled_effects` | False | False |  |
+    | `unmodelled_share` | 1 | 1 | - (share of episodes) |
     | `memory_tau` | None | None | s (None: no memory features) |
     | `action` | `"current"` | `"current"` |  |
     | `action_bound` | None | None | the action's unit (None: none) |
@@ -247,6 +248,7 @@ class EHSSTrackingEnv(gym.Env):
     | `action_bound` with `action="rate"` | 0.4 | 4 | mA |
     | `action_bound` with `action="filtered"` | 0.4 | 4 | mA |
     | `action_bound` with `action="reference"` | 8e-4 | 3e-4 | U |
+    | `action_bound` with `action="reference-schedule"` | 8e-4 | 3e-4 | U |
     | `fr` with `n=4` | 134.634 | 60 | Hz |
     | `sigma` with `n=4` | 1.654817e5 | 1.036633e4 | unit of s |
     | `layer_gain` with `n=4` | 4.29904 | 2.89398 | - |
@@ -341,16 +343,20 @@ class EHSSTrackingEnv(gym.Env):
             sensor delay and the encoder quantisation that the law's model leaves out, at datasheet sizes
             (:data:`ehss_gym.core.unmodelled.DATASHEET_RANGES`; docs/MODEL.md, "Unmodelled valve and sensors");
             False (the default): none.
+        unmodelled_share: with ``unmodelled_effects``, the share of the episodes that have the effects, in (0, 1]
+            (default 1: every episode); the others have none (a mixture of the realistic and the model's plant).
         memory_tau: the memory features, for rejecting what one observation cannot show (a friction step, a dead
             band): two entries appended to the observation, the filtered error integral ``e_int`` (x' = e - x/tau
             at the agent step with the step's last measured error held, |x| clipped to 10 error_scale tau against
             windup; scale error_scale tau) and the action of the step before last ``prev_action`` [-]; tau [s] >=
             one agent step; None = none (the observation as without them). See docs/RL.md, "Memory".
         action: what the agent's action does, a row of :data:`ehss_gym.envs.actions.ACTIONS`: "current" (the
-            default: a residual current), "rate", "filtered", "reference" or "schedule" (the action table above; the
-            last two act through the law and need ``mode="residual"``, "reference" a digital estimator).
-        action_bound: the bound of the rate and filtered modes' residual R [mA] and of the reference mode's shift D
-            [output unit], > 0; None = the mode's default per task (the defaults table); the other modes have none.
+            default: a residual current), "rate", "filtered", "reference", "schedule" or "reference-schedule" (the
+            action table above; the last three act through the law and need ``mode="residual"``, those that shift the
+            reference a digital estimator).
+        action_bound: the bound of the rate and filtered modes' residual R [mA] and of the reference and
+            reference-schedule modes' shift D [output unit], > 0; None = the mode's default per task (the defaults
+            table); the other modes have none.
         render_mode: None or "rgb_array" (a dashboard: raw reference r, filtered y_d and output y; error; the
             applied current on a linear axis with its limit and its min/max envelope over each agent step;
             friction).
@@ -392,6 +398,7 @@ class EHSSTrackingEnv(gym.Env):
                  episode_seconds: float | None = None, lost_track: float | None = DEFAULTS.lost_track,
                  terminate_on_lost_track: bool = DEFAULTS.terminate_on_lost_track,
                  unmodelled_effects: bool = DEFAULTS.unmodelled_effects,
+                 unmodelled_share: float = DEFAULTS.unmodelled_share,
                  memory_tau: float | None = DEFAULTS.memory_tau, action: str = DEFAULTS.action,
                  action_bound: float | None = None, render_mode: str | None = None, **unknown):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:

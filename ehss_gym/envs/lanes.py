@@ -44,10 +44,8 @@ from ehss_gym.core.references import reference_value
 from ehss_gym.core.registry import REFERENCE_FAMILIES
 from ehss_gym.core.resolution import CURRENT_FLOOR, ERROR_RESOLUTION, TV_FLOOR, valve_floors
 from ehss_gym.core.scenarios import (
-    DEFAULT_DISTRIBUTION,
     PHYSICAL_FIELDS,
     TRAIN_SEED_LIMIT,
-    UNMODELLED_DISTRIBUTION,
     describe,
     paper_scenario,
     sample_scenario,
@@ -228,7 +226,7 @@ class Lanes:
         base[C_BASE] = 1.0 if cfg.mode == "residual" else 0.0
         self.action = action_mode(cfg.action)
         self.action_dims = action_dims(self.action, cfg.dob_hz)
-        base[C_SHIFT_ON] = 1.0 if self.action.name == "reference" else 0.0
+        base[C_SHIFT_ON] = 1.0 if self.action.shift else 0.0
         self.ctrl_base = base
         nominal = cfg.plant.plant.as_array()  # the rows before a lane's first episode: the rig's
         self.F = np.zeros((B, N_F))
@@ -420,9 +418,8 @@ class Lanes:
             info["scenario_name"] = "paper"
         elif choice == "random":
             seed = int(rng.integers(0, TRAIN_SEED_LIMIT))
-            sc = sample_scenario(seed, tmpl, cfg.episode_seconds,
-                                 UNMODELLED_DISTRIBUTION if cfg.unmodelled_effects else DEFAULT_DISTRIBUTION)
-            if cfg.unmodelled_effects and sc.unmodelled.rated_current != cfg.plant.rated_current:
+            sc = sample_scenario(seed, tmpl, cfg.episode_seconds, cfg.distribution())
+            if not sc.unmodelled.off and sc.unmodelled.rated_current != cfg.plant.rated_current:
                 # the valve's threshold and hysteresis are percent of the rig's rated current
                 sc = sc.replace(unmodelled=replace(sc.unmodelled, rated_current=cfg.plant.rated_current))
             info["scenario_name"] = "random"
@@ -456,17 +453,14 @@ def write_held(lanes: Lanes, idx, a: np.ndarray) -> None:
     lanes.F[idx, F_ACT:F_ACT + a.shape[1]] = a
 
 
-def write_reference(lanes: Lanes, idx, a: np.ndarray) -> None:
-    """The reference action: the law's reference shift delta = ``action_bound * a`` [output unit]."""
-    write_held(lanes, idx, a)
-    lanes.ctrl[idx, C_SHIFT] = a[:, 0] * lanes.cfg.action_bound
-    lanes.resense(idx)
+def _shift(lanes: Lanes, idx, a0: np.ndarray) -> None:
+    """The law's reference shift delta = ``action_bound * a0`` [output unit]."""
+    lanes.ctrl[idx, C_SHIFT] = a0 * lanes.cfg.action_bound
 
 
-def write_schedule(lanes: Lanes, idx, a: np.ndarray) -> None:
-    """The schedule action: the law's boundary-layer width (smoothing and adaptive gain), sigma and (observer on) the
-    observer's gain 1 - exp(-2 pi f_d h) at the scaled bandwidth, each the template's times its factor."""
-    write_held(lanes, idx, a)
+def _schedule(lanes: Lanes, idx, a: np.ndarray) -> None:
+    """The law's boundary-layer width (smoothing and adaptive gain), sigma and (a third column: the observer on) the
+    observer's gain 1 - exp(-2 pi f_d h) at the scaled bandwidth, each the template's times its factor of ``a``."""
     f = schedule_factors(a)
     base = lanes.ctrl_base
     lanes.ctrl[idx, C_SMOOTH] = base[C_SMOOTH] * f[:, 0]
@@ -475,6 +469,27 @@ def write_schedule(lanes: Lanes, idx, a: np.ndarray) -> None:
     if a.shape[1] > 2:  # at factor 1 the template's own gain, bit for bit
         scaled = -np.expm1(-2.0 * math.pi * lanes.cfg.dob_hz * f[:, 2] * lanes.cfg.control_period)
         lanes.ctrl[idx, C_DOB_GAIN] = np.where(f[:, 2] == 1.0, base[C_DOB_GAIN], scaled)
+
+
+def write_reference(lanes: Lanes, idx, a: np.ndarray) -> None:
+    """The reference action: the law's reference shift delta = ``action_bound * a`` [output unit]."""
+    write_held(lanes, idx, a)
+    _shift(lanes, idx, a[:, 0])
+    lanes.resense(idx)
+
+
+def write_schedule(lanes: Lanes, idx, a: np.ndarray) -> None:
+    """The schedule action: the law's boundary-layer width, sigma and (observer on) bandwidth scaled by its factors."""
+    write_held(lanes, idx, a)
+    _schedule(lanes, idx, a)
+    lanes.resense(idx)
+
+
+def write_reference_schedule(lanes: Lanes, idx, a: np.ndarray) -> None:
+    """The reference-schedule action: a_0 the reference shift, a_1 and a_2 the width and sigma factors."""
+    write_held(lanes, idx, a)
+    _shift(lanes, idx, a[:, 0])
+    _schedule(lanes, idx, a[:, 1:3])
     lanes.resense(idx)
 
 

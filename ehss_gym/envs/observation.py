@@ -48,18 +48,20 @@ def observation_layout(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]
 def action_entries(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]]:
     """The entries an action mode but "current" appends (:mod:`ehss_gym.envs.actions`): its last action (each entry
     [-], linear; source -1 - its index in the lane's block of extras) and what the mode moves: the reference shift
-    Delta at the next sample (over its bound, linear), the schedule's boundary-layer width in use (scaled as s). The
+    Delta at the next sample (over its bound, linear) where it shifts the reference, the boundary-layer width in use
+    (scaled as s) where it schedules it. The
     rate and filtered residual is ``last_action`` (the residual of the last period over ``residual_scale``)."""
     row = action_mode(cfg.action)
     if row.name == "current":
         return []
     k = action_dims(row, cfg.dob_hz)
-    names = ["action"] if k == 1 else [f"action_{r[0]}" for r in SCHEDULE_RANGES[:k]]
+    names = ["action"] if k == 1 else ["action_shift"] * row.shift + [
+        f"action_{r[0]}" for r in SCHEDULE_RANGES[:k - row.shift]]
     out = [(name, -1 - (N_MEM + i), 1.0, False, "-") for i, name in enumerate(names)]
     unit = UNITS[cfg.task]
-    if row.name == "reference":
+    if row.shift:
         out.append(("ref_shift", I_SHIFT, cfg.action_bound, False, unit))
-    if row.name == "schedule":
+    if row.schedule is not None:
         m = cfg.order
         out.append(("width", I_W, cfg.error_scale * (2.0 * math.pi * cfg.fr) ** (m - 1), True, f"{unit}/s^{m - 1}"))
     return out

@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, UNMODELLED_DISTRIBUTION, heldout_scenarios
+from ehss_gym.core.scenarios import heldout_scenarios
 from ehss_gym.envs import EnvConfig, rollout
 from ehss_gym.envs.actions import action_dims, action_mode
 
@@ -39,10 +39,10 @@ TEST_START = 0  # offset of the test block (the evaluation harness's held-out su
 
 def heldout_suite(env_kwargs: dict, count: int, start: int, episode_seconds: float | None = None) -> list:
     """``count`` held-out Scenarios for the controller settings of ``env_kwargs`` (seeds from ``start``), drawn as the
-    env draws its training episodes (with the unmodelled effects when ``unmodelled_effects`` is set)."""
+    env draws its training episodes (with the unmodelled effects when ``unmodelled_effects`` is set, on
+    ``unmodelled_share`` of them)."""
     cfg = EnvConfig.from_kwargs(env_kwargs)
-    dist = UNMODELLED_DISTRIBUTION if cfg.unmodelled_effects else DEFAULT_DISTRIBUTION
-    return heldout_scenarios(count, cfg.template(), episode_seconds, dist, start=start)
+    return heldout_scenarios(count, cfg.template(), episode_seconds, cfg.distribution(), start=start)
 
 
 class _ActFn:

@@ -66,6 +66,7 @@ from ehss_gym.core.resolution import (
     floor_sources,
     valve_floors,
 )
+from ehss_gym.envs.config import ADDON_KEYS, DEFAULTS
 
 from . import stats
 from .specs import CLF_RE, REFERENCE_POLICY, PolicySpec, controller_settings
@@ -405,9 +406,20 @@ def _poi(blk: Block, a: str, b: str, cfg: EvalConfig, seed: int) -> tuple[float,
 
 
 def is_earlier_loop(spec: PolicySpec, task: str) -> bool:
-    """True for a learned policy whose controller settings differ from today's env defaults on ``task``: it was
+    """True for a learned policy whose controller settings differ from today's env defaults on ``task`` for its n
+    (the law's settings are tuned per n), the law's add-ons aside (:data:`~ehss_gym.envs.config.ADDON_KEYS`: a
+    residual on top of the observer or a compensator acts in today's loop, as dob-n2 and dcomp-n2 do): it was
     recorded in an earlier loop and is not ranked against today's laws."""
-    return spec.learned and controller_settings(spec.env_kwargs, task) != controller_settings({}, task)
+    if not spec.learned:
+        return False
+    ours = controller_settings(spec.env_kwargs, task)
+    today = controller_settings({"n": policy_n(spec, task)}, task)
+    return any(ours[k] != today[k] for k in ours if k not in ADDON_KEYS)
+
+
+def policy_n(spec: PolicySpec, task: str) -> int:
+    """The power factor n of the law a policy acts with on ``task`` (the env's default unless its settings say)."""
+    return int(spec.env_kwargs_for(task).get("n", DEFAULTS.n))
 
 
 def _block_summary(rows: list, blk: Block, specs: Sequence[PolicySpec], suite: str, task: str,
@@ -524,5 +536,5 @@ __all__ = ["CLASSES", "CLASS_METRICS", "IAE_WINDOW", "Floors", "FLOORS", "PHYSIC
            "FLOOR_SOURCES", "POSITION_RESOLUTION", "VELOCITY_RESOLUTION", "VALVE_THRESHOLD", "VALVE_BANDWIDTH",
            "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE", "ABSOLUTE_LEVELS", "absolute_levels", "METRICS",
            "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios", "failure",
-           "figure_of", "rank_key", "ratio_rows", "matrix", "Block", "figure_statistics", "is_earlier_loop",
+           "figure_of", "rank_key", "ratio_rows", "matrix", "Block", "figure_statistics", "is_earlier_loop", "policy_n",
            "summarize"]

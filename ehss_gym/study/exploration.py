@@ -30,7 +30,7 @@ import time
 import numpy as np
 
 from ehss_gym.agents.specs import env_kwargs_for, get_spec, resolved_env_kwargs
-from ehss_gym.evaluation.heldout import VALIDATION_START, heldout_suite, relative_scores, run_episodes
+from ehss_gym.evaluation.heldout import VALIDATION_START, floors_of, heldout_suite, relative_scores, run_episodes
 from ehss_gym.infra.util import atomic_write_text
 from ehss_gym.train.config import Config
 from ehss_gym.train.loop import train
@@ -57,7 +57,8 @@ def run(candidates=CANDIDATES, timesteps: int = 40_960, eval_freq: int = 8_192, 
     rows = []
     for v in candidates:
         t0 = time.perf_counter()
-        explore = relative_scores(run_episodes(kw, scenarios, stochastic_zero_policy(math.exp(v), 0)), base)
+        explore = relative_scores(run_episodes(kw, scenarios, stochastic_zero_policy(math.exp(v), 0)), base, None,
+                                  floors_of(kw))
         early = {}
         for seed in seeds:
             out = os.path.join(workdir, f"log_std_{v:g}_s{seed}")
