@@ -4,11 +4,16 @@ Both are unit-DC-gain state-variable filters of order m::
 
     z^(m) + c_{m-1} z^(m-1) + ... + c_1 z' + c_0 z = c_0 v
 
-with Butterworth coefficients c_i at the cutoff omega_c = 2 pi f_c, computed
-from the poles rather than the paper's rounded 2.61 / 3.41 (the same operations
-as ``scipy.signal.butter(..., analog=True)``, bit for bit; not importing
-scipy.signal saves ~0.8 s at import). The state is (z, z', ..., z^(m-1)); the m-th derivative comes from
-the filter's own equation with the current input (docs/MODEL.md, "Digital filters").
+with Butterworth coefficients c_i at the cutoff omega_c = 2 pi f_c, from the
+normalised polynomials' closed forms rather than the paper's rounded 2.61 / 3.41. The state is
+(z, z', ..., z^(m-1)); the m-th derivative comes from the filter's own equation with the current input
+(docs/MODEL.md, "Digital filters").
+
+The coefficients and the digital forms are the same bits on every CPU: they start every episode, and a switching
+loop carries a last-bit difference in them to per-cent differences in an episode's metrics. So they are computed
+with IEEE-754 operations in a fixed order (square roots for the coefficients; :mod:`ehss_gym.core.smallmat` for the
+matrix exponential and products), never by BLAS, whose kernels sum in an order that depends on the CPU
+(docs/REPRODUCIBILITY.md).
 
 A digital controller runs them at the control period h, in one of three schemes
 (``Scenario.estimator``; the derivation and the error of each are in docs/MODEL.md, "Digital filters"):
@@ -31,6 +36,7 @@ import math
 
 import numpy as np
 
+from . import smallmat
 from .layout import (
     FB_D_OBS,
     FB_E_OBS,
@@ -53,17 +59,33 @@ from .registry import ESTIMATORS, entry
 SCHEMES = ("foh", "zoh", "analog")  # how a continuous filter runs (an estimator's ``svf`` is one of them)
 
 
+# The monic normalised Butterworth polynomials (cutoff 1 rad/s), coefficients of s^0 .. s^(m-1), in closed form: square
+# roots only, which IEEE-754 rounds correctly, so they are the same bits on every machine (multiplying out the poles,
+# as np.poly does, runs complex dot products in BLAS).
+_SQRT2 = math.sqrt(2.0)
+NORMALISED_BUTTERWORTH = {
+    1: (1.0,),
+    2: (1.0, _SQRT2),
+    3: (1.0, 2.0, 2.0),
+    4: (1.0, math.sqrt(4.0 + 2.0 * _SQRT2), 2.0 + _SQRT2, math.sqrt(4.0 + 2.0 * _SQRT2)),
+}
+
+
 def butterworth_coefficients(order: int, cutoff_hz: float) -> np.ndarray:
-    """(c_0, ..., c_{m-1}) of the monic Butterworth polynomial at 2 pi cutoff_hz.
+    """(c_0, ..., c_{m-1}) of the monic Butterworth polynomial at omega_c = 2 pi cutoff_hz: c_i = a_i omega_c^(m-i)
+    with a_i the normalised polynomial's (:data:`NORMALISED_BUTTERWORTH`), the powers by repeated multiplication.
 
     Args:
-        order: filter order m >= 1.
+        order: filter order m, 1 to 4 (:data:`ehss_gym.core.layout.MAX_ORDER`: every filter of the loop).
         cutoff_hz: cutoff frequency [Hz], > 0.
     """
+    if order not in NORMALISED_BUTTERWORTH:
+        raise ValueError(f"order must be an integer from 1 to {max(NORMALISED_BUTTERWORTH)}, got {order!r}")
     wc = 2.0 * math.pi * cutoff_hz
-    poles = wc * -np.exp(1j * np.pi * np.arange(-order + 1, order, 2) / (2 * order))
-    a = np.poly(poles).real
-    return a[::-1][:order].copy()  # ascending powers, monic term dropped
+    powers = [1.0]
+    for _ in range(order):
+        powers.append(powers[-1] * wc)
+    return np.array([a * powers[order - i] for i, a in enumerate(NORMALISED_BUTTERWORTH[order])])
 
 
 def companion(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -106,9 +128,7 @@ def hold_integrals_ab(A: np.ndarray, Bm: np.ndarray, h: float) -> tuple[np.ndarr
     M[:n, :n] = A * h
     M[:n, n:n + p] = Bm * h
     M[n:n + p, n + p:] = np.eye(p)
-    import scipy.linalg  # 0.5 s to import, only where a filter is discretised: the command line reads this module
-
-    E = scipy.linalg.expm(M)
+    E = smallmat.expm(M)
     return E[:n, :n].copy(), E[:n, n:n + p].copy(), E[:n, n + p:].copy()
 
 
@@ -137,7 +157,8 @@ def foh_form(phi: np.ndarray, g0: np.ndarray, g1: np.ndarray) -> tuple[np.ndarra
         z_{k+1} = Phi z_k + Gamma0 v_k + Gamma1 (v_{k+1} - v_k);  with z_k = w_k + Gamma1 v_k:
         w_{k+1} = Phi z_k + (Gamma0 - Gamma1) v_k = Phi w_k + (Phi Gamma1 + Gamma0 - Gamma1) v_k.
     """
-    return phi, phi @ g1 + g0 - g1, g1
+    pg1 = np.array(smallmat.matmul(phi.tolist(), g1.reshape(len(phi), -1).tolist())).reshape(g1.shape)
+    return phi, pg1 + g0 - g1, g1
 
 
 @functools.lru_cache(maxsize=64)

@@ -254,7 +254,7 @@ def linear_step(problem: Problem, u: np.ndarray, radius: float) -> tuple[np.ndar
             break
     else:
         raise RuntimeError(f"the linear program failed: {res.message}")
-    f0 = float(c_rows @ np.abs(e0)) * scale * 1e-3
+    f0 = math.fsum(c_rows * np.abs(e0)) * scale * 1e-3  # correctly rounded: not BLAS's CPU-dependent order
     sigma = res.lower.marginals[:nc] + res.upper.marginals[:nc]
     return res.x[:nc] * problem.limit, f0, float(res.fun) * scale * 1e-3, sigma
 
