@@ -145,9 +145,9 @@ BODE_COMMAND = ["simulate", "--reference", "chirp", "--omega-end", "300", "--t-e
 
 
 # The committed CSV (8 significant digits) against the one its command makes here, relative, per value. Measured across
-# CPU code paths (tools/cpu_spread.py --workloads bode; docs/REPRODUCIBILITY.md): OpenBLAS's AVX2 kernels (the
-# filters' matrix exponentials) move printed values by up to 5.6e-8, glibc's libm without FMA by up to 1.5e-7 (a
-# low-coherence bin at 1e-4), numba's, numpy's, MKL's and torch's AVX2 code by nothing printed. A 0.1 % error in the
+# CPU code paths (tools/cpu_spread.py --workloads bode; docs/REPRODUCIBILITY.md): on any CPU with FMA nothing printed
+# moves (numba's, numpy's, OpenBLAS's, MKL's and torch's AVX2 code; the filters no longer use BLAS); glibc's libm
+# without FMA moves printed values by up to 1.4e-7 (a low-coherence bin at 1e-4). A 0.1 % error in the
 # inertia or in the estimator's bandwidth moves some value by more than 0.3 (3e5 times the tolerance).
 BODE_RTOL = 1e-6
 
