@@ -215,10 +215,12 @@ def test_butterworth_coefficients_match_table_one():
 @pytest.mark.parametrize("order", [1, 2, 3, 4])
 @pytest.mark.parametrize("hz", [5.0, 20.0, 60.0, 100.0, 1000.0])
 def test_butterworth_coefficients_equal_scipy_butter(order, hz):
+    """The closed forms (square roots, powers by multiplication) against SciPy's poles multiplied out: within 1e-15
+    relative (measured 3.8e-16, under 2 ulps); a wrong closed form misses by a factor, not a last bit."""
     import scipy.signal
 
     _, a = scipy.signal.butter(order, 2 * math.pi * hz, analog=True)
-    assert np.array_equal(butterworth_coefficients(order, hz), a[::-1][:order])
+    np.testing.assert_allclose(butterworth_coefficients(order, hz), a[::-1][:order], rtol=1e-15, atol=0)
 
 
 @pytest.mark.parametrize("order,hz", [(2, 1000.0), (3, 1000.0), (3, 20.0), (4, 20.0)])

@@ -1,11 +1,13 @@
 """The fixed-order small-matrix exponential and product (``ehss_gym.core.smallmat``) against references computed
-another way: SciPy's ``expm`` (LAPACK and BLAS, its own scaling choice), closed forms, and exact rational sums."""
+another way: mpmath's expm at 50 digits, SciPy's ``expm`` (LAPACK and BLAS, its own scaling choice), closed forms,
+and exact rational sums."""
 
 from __future__ import annotations
 
 import math
 from fractions import Fraction
 
+import mpmath
 import numpy as np
 import pytest
 import scipy.linalg
@@ -29,11 +31,17 @@ def test_closed_forms():
 
 @settings(max_examples=40, deadline=None)
 @given(n=st.integers(1, 8), seed=st.integers(0, 2**32 - 1), scale=st.floats(1e-3, 30.0))
-def test_expm_agrees_with_scipy(n, seed, scale):
-    """Random matrices of every accepted size, norms from 1e-3 to ~100: within 1e-12 of the result's norm."""
+def test_expm_is_accurate_against_a_50_digit_reference(n, seed, scale):
+    """Random matrices of every accepted size, 1-norms from 1e-3 to ~100, against mpmath's expm at 50 digits: the
+    largest error within 100 eps ||A||_1 of the result's largest entry, the normwise bound of scaling and squaring
+    (each squaring doubles a relative error). Measured on 1,500 such matrices: 26 eps ||A||_1 at most; SciPy's expm
+    514 eps ||A||_1, which is why SciPy is not the reference here. A wrong Pade coefficient or a squaring too few
+    misses by orders of magnitude more."""
     a = np.random.default_rng(seed).standard_normal((n, n)) * scale / math.sqrt(n)
-    ref = scipy.linalg.expm(a)
-    assert np.max(np.abs(smallmat.expm(a) - ref)) <= 1e-12 * max(1.0, np.max(np.abs(ref)))
+    with mpmath.workdps(50):
+        ref = np.array(mpmath.expm(mpmath.matrix(a.tolist())).tolist(), dtype=np.float64)
+    bound = 100 * np.finfo(np.float64).eps * max(1.0, np.linalg.norm(a, 1))
+    assert np.max(np.abs(smallmat.expm(a) - ref)) <= bound * np.max(np.abs(ref))
 
 
 @pytest.mark.parametrize("order,cutoff,h", [(1, 5.0, 1e-3), (2, 25.0, 1e-3), (3, 35.0, 1e-4), (4, 100.0, 1e-3),
