@@ -672,10 +672,11 @@ COMMANDS = (
             "ship the chosen residual policies.", add_training_report, "training_report"),
     Command("ablation", "the residual recipe's ablation: reward x action, then exploration x base law, on one seed",
             "Train residual PPO on the position task with the unmodelled effects, one seed per cell: reward (class, "
-            "physical) x action (current, reference, schedule, reference-schedule), then exploration (gaussian, "
-            "gsde, pink) x base law (the law, the law with its reference delayed) on stage 1's best cells; rank the "
-            "cells by the rule written in ehss_gym.study.ablation and write ABLATION.md, its validation curves and "
-            "CSV.", add_ablation, "ablation"),
+            "physical) x action (current, reference, schedule, reference-schedule), then on stage 1's two best "
+            "cells exploration (gsde, pink), the base law with its reference delayed (dcomp) and the mixture "
+            "training distribution (half the episodes with the effects); rank the cells by the rule written in "
+            "ehss_gym.study.ablation (final policies on validation episodes with and without the effects) and "
+            "write ABLATION.md, its validation curves and CSV.", add_ablation, "ablation"),
     Command("tune", "hyperparameter search for the residual agent (Ray Tune, Optuna TPE, ASHA)",
             "Search residual PPO's hyperparameters on the held-out validation figure with Ray Tune, Optuna's TPE "
             "sampler and ASHA early stopping; resumable.", add_tune, "tune"),

@@ -23,8 +23,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402  (after choosing the Agg backend: no screen needed)
 
 COMMAND = "ehss ablation"
-CSV_COLUMNS = ("cell", "reward", "action", "exploration", "base", "step", "figure", "failed", "n_failed", "tracking",
-               "disturbance", "effort", "chatter", "wall_s", "cpu_s")
+CSV_COLUMNS = ("cell", "reward", "action", "exploration", "base", "distribution", "step", "figure", "failed",
+               "n_failed", "tracking", "disturbance", "effort", "chatter", "wall_s", "cpu_s")
 
 
 def plot_curves(study: ab.Ablation, path: str, made_by: str = COMMAND) -> None:
@@ -37,7 +37,7 @@ def plot_curves(study: ab.Ablation, path: str, made_by: str = COMMAND) -> None:
             h = r["history"]
             ax.plot([x["step"] / 1e3 for x in h], [x["figure"] for x in h], lw=1, marker=".", ms=3, label=r["label"])
         ax.axhline(1.0, color="k", lw=0.8, ls="--", label="clf-n2 (the ruler's reference)")
-        ax.axhline(study.dcomp["figure"], color="k", lw=0.8, ls=":", label="dcomp-n2 (best scripted)")
+        ax.axhline(study.dcomp["U"]["figure"], color="k", lw=0.8, ls=":", label="dcomp-n2 on U (best scripted)")
         ax.set_yscale("log")
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("agent steps [thousands]", fontsize=8)
@@ -51,17 +51,25 @@ def plot_curves(study: ab.Ablation, path: str, made_by: str = COMMAND) -> None:
     plt.close(fig)
 
 
+def _figure_cell(row: dict) -> str:
+    """A set's figure with the failure gate's verdict."""
+    return cell(row["figure"]) + (f" FAILED ({row['n_failed']})" if row["failed"] else "")
+
+
 def cell_rows(results: list[dict], order: list[dict]) -> list[list[str]]:
-    """One row per cell: its choices, step-0, final and best validation figures, the final's classes, the held-out
-    check, whether it beats step 0, its place by the rule, its CPU and wall time."""
+    """One row per cell: its place by the rule, its choices, U at step 0 and final, the final's U classes, H at step
+    0 and final, whether it is admissible and beats step 0, the best figure of its validation curve, its CPU and
+    wall time."""
     place = {r["label"]: i + 1 for i, r in enumerate(order)}
     rows = []
     for r in results:
-        c, f, h = r["cell"], r["final_row"], r["heldout"]
-        rows.append([place[r["label"]], c.reward, c.action, c.exploration, c.base, cell(r["step0"]), cell(r["final"]),
-                     f"{cell(r['best'])} @{r['best_step'] // 1000}k", cell(f["tracking"]), cell(f["disturbance"]),
-                     cell(f["effort"]), cell(f["chatter"]), cell(h["figure"]) + (" FAILED" if h["failed"] else ""),
-                     "yes" if r["beats_step0"] else "no", f"{r['cpu_s'] / 60:.1f}", f"{r['wall_s'] / 60:.1f}"])
+        c, u = r["cell"], r["U"]
+        rows.append([place[r["label"]], c.reward, c.action, c.exploration, c.base, c.distribution,
+                     _figure_cell(r["U0"]), _figure_cell(u), cell(u["tracking"]), cell(u["disturbance"]),
+                     cell(u["effort"]), cell(u["chatter"]), _figure_cell(r["H0"]), _figure_cell(r["H"]),
+                     "yes" if ab.admissible(r) else "no", "yes" if r["beats_step0"] else "no",
+                     f"{cell(r['best'])} @{r['best_step'] // 1000}k", f"{r['cpu_s'] / 60:.1f}",
+                     f"{r['wall_s'] / 60:.1f}"])
     return rows
 
 
@@ -73,20 +81,23 @@ def ablation_csv(study: ab.Ablation) -> str:
     for r in study.stage1 + study.stage2:
         c = r["cell"]
         for x in r["history"]:
-            w.writerow([r["label"], c.reward, c.action, c.exploration, c.base]
-                       + [x.get(k) for k in CSV_COLUMNS[5:]])
+            w.writerow([r["label"], c.reward, c.action, c.exploration, c.base, c.distribution]
+                       + [x.get(k) for k in CSV_COLUMNS[6:]])
     return buf.getvalue()
 
 
 def markdown(study: ab.Ablation, command: str, figure: str) -> str:
     """ABLATION.md: the template filled with the tables above."""
     order = study.order
-    header = ["place", "reward", "action", "exploration", "base", "step 0", "final", "best @step", "final: tracking",
-              "disturbance", "effort", "chatter", "held-out check", "beats step 0", "CPU [min]", "wall [min]"]
+    header = ["place", "reward", "action", "exploration", "base", "distribution", "U step 0", "U final",
+              "U final: tracking", "disturbance", "effort", "chatter", "H step 0", "H final", "admissible",
+              "beats step 0", "curve's best @step", "CPU [min]", "wall [min]"]
     all_cells = study.stage1 + study.stage2
     return render("ablation.md.j2", command=command, made_by=COMMAND, ab=ab, header=header,
                   stage1_rows=cell_rows(study.stage1, order), stage2_rows=cell_rows(study.stage2, order),
                   winner=order[0] if order else None, beaten=[r for r in all_cells if r["beats_step0"]],
+                  below_dcomp=[r for r in all_cells if r["final"] is not None and study.dcomp["U"]["figure"] is not None
+                               and r["final"] < study.dcomp["U"]["figure"]],
                   all_cells=all_cells, missing=study.missing, dcomp=study.dcomp, commands=study.commands,
                   figure=os.path.basename(figure), cell=cell,
                   cpu_mean=sum(r["cpu_s"] for r in all_cells) / len(all_cells) if all_cells else 0.0)

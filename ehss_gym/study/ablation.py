@@ -204,7 +204,9 @@ def cell_result(cell: Cell, runs_dir: str) -> dict | None:
             "beats_step0": u["figure"] is not None and u["figure"] < u0["figure"]}
 
 
-def _admissible(r: dict) -> bool:
+def admissible(r: dict) -> bool:
+    """Rule 1's gate: the final policy passes the failure gate on U and on H, and its H figure is at most
+    :data:`HELDOUT_GATE`."""
     return (not r["U"]["failed"] and not r["H"]["failed"] and r["final"] is not None and r["heldout"] is not None
             and r["heldout"] <= HELDOUT_GATE)
 
@@ -217,7 +219,7 @@ def by_u(results: list[dict]) -> list[dict]:
 def rank(results: list[dict]) -> list[dict]:
     """The cells in the rule's order (module docstring, rules 1-2): the admissible ones by U with ties broken by H,
     then the others by U."""
-    left = [r for r in results if _admissible(r)]
+    left = [r for r in results if admissible(r)]
     order = []
     while left:
         lead = min(r["final"] for r in left)
@@ -225,7 +227,7 @@ def rank(results: list[dict]) -> list[dict]:
         first = min(tied, key=lambda r: (r["heldout"], r["final"]))
         order.append(first)
         left.remove(first)
-    return order + by_u([r for r in results if not _admissible(r)])
+    return order + by_u([r for r in results if not admissible(r)])
 
 
 def scripted_on_validation(env_kwargs: dict) -> dict:
@@ -289,6 +291,6 @@ def run_ablation(runs_dir: str, timesteps: int = TIMESTEPS, workers: int = 2, tr
 
 __all__ = ["TASK", "N", "SEED", "TIMESTEPS", "EVAL_FREQ", "EVAL_EPISODES", "TIE", "HELDOUT_GATE", "STAGE2_CELLS",
            "REWARDS", "ACTIONS", "EXPLORATIONS", "BASES", "Cell", "stage1", "stage2", "command_line", "finished",
-           "train_cells", "SETS", "DISTRIBUTIONS", "set_kwargs", "law_episodes", "set_scores", "cell_result", "by_u",
-           "rank", "scripted_on_validation",
+           "train_cells", "SETS", "DISTRIBUTIONS", "set_kwargs", "law_episodes", "set_scores", "cell_result",
+           "admissible", "by_u", "rank", "scripted_on_validation",
            "Ablation", "run_ablation"]
