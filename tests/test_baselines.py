@@ -9,12 +9,12 @@ import pathlib
 
 import pytest
 
-from ehss_gym.controllers import PID_GAINS, PID_RELAY_GAINS
+from ehss_gym.controllers import DOB_ROWS, PID_GAINS, PID_RELAY_GAINS
 from ehss_gym.core.rig import as_rig
 from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.config import DEFAULT_N, DEFAULTS, LAW_DEFAULTS, LAW_KEYS
 from ehss_gym.envs.law_table import load_law_table
-from ehss_gym.evaluation.specs import REFERENCE_POLICY
+from ehss_gym.evaluation.specs import REFERENCE_POLICY, scripted_spec
 from ehss_gym.study.baselines import (
     ANCHOR,
     BASELINES,
@@ -238,3 +238,16 @@ def test_reference_policy_and_pid_gains_follow_the_shipped_tuning():
     for task in ("velocity", "position"):
         tuned = res["baselines"][f"{task}/pid"]["tuned"]
         assert PID_GAINS[(task, "direct")] == (tuned["kp"], tuned["ki"], tuned["kd"])
+
+
+def test_dob_rows_are_the_shipped_tuning_and_reach_the_evaluation():
+    """DOB_ROWS restates the tuned dob-n2 rows of reports/baselines/tuned.json, and ``dob-n2`` acts with them on each
+    task (an explicit observer setting keeps its own value)."""
+    res = _shipped()
+    for task in ("velocity", "position"):
+        tuned = res["baselines"][f"{task}/dob-n2"]["tuned"]
+        assert DOB_ROWS[task] == tuned, task
+        kw = scripted_spec("dob-n2").env_kwargs_for(task)
+        assert {k: kw[k] for k in tuned} == tuned, task
+    assert scripted_spec("dob-n2", label="dob-20", env_overrides={"dob_hz": 20.0}).env_kwargs_for("velocity")[
+        "dob_hz"] == 20.0

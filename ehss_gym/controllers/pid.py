@@ -184,7 +184,7 @@ PID_RELAY_GAINS: dict[tuple[str, str], tuple[float, float, float]] = {
 PID_GAINS: dict[tuple[str, str], tuple[float, float, float]] = {
     **PID_RELAY_GAINS,
     ("velocity", "direct"): (0.45724534438828157, 0.41020486244348087, 0.007562672418672776),
-    ("position", "direct"): (0.7302149143728409, 8.280878032968157, 0.01246172162633976),
+    ("position", "direct"): (0.8207897966180742, 15.54224991709827, 0.02176534450519804),
 }
 
 

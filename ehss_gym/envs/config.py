@@ -70,20 +70,20 @@ LAW_KEYS = tuple(f.name for f in fields(LawSettings))
 # by more than 2 %).
 LAW_DEFAULTS: dict[str, dict[int, LawSettings]] = {
     "velocity": {
-        2: LawSettings(sigma=69783.05848598665, fr=127.56087677784359, smoothing=64.93816315762113,
+        2: LawSettings(sigma=80584.21877614819, fr=99.16136483369311, smoothing=107.46078283213177,
                        layer_gain=11.772569275453606),
-        4: LawSettings(sigma=165481.70999431814, fr=134.63407648289967, smoothing=64.93816315762113,
-                       layer_gain=4.299037710710888),
-        6: LawSettings(sigma=165481.70999431814, fr=134.63407648289967, smoothing=64.93816315762113,
-                       layer_gain=4.619779578178476),
+        4: LawSettings(sigma=165481.70999431814, fr=127.5608767778436, smoothing=220.67340690845896,
+                       layer_gain=4.964451299829543),
+        6: LawSettings(sigma=165481.70999431814, fr=129.8763263152423, smoothing=220.67340690845896,
+                       layer_gain=4.964451299829543),
     },
     "position": {
-        2: LawSettings(sigma=103663.2928437698, fr=60.0, smoothing=36.51741272548377,
-                       layer_gain=5.146313689028636),
-        4: LawSettings(sigma=10366.329284376983, fr=60.0, smoothing=36.51741272548377,
-                       layer_gain=2.8939848597335978),
-        6: LawSettings(sigma=10366.329284376983, fr=60.0, smoothing=39.24189758484536,
-                       layer_gain=3.109898785313094),
+        2: LawSettings(sigma=133352.1432163324, fr=54.44973030087656, smoothing=39.24189758484536,
+                       layer_gain=7.374732206760591),
+        4: LawSettings(sigma=14330.125702369629, fr=60.0, smoothing=165.48170999431815,
+                       layer_gain=3.59125509148719),
+        6: LawSettings(sigma=10746.078283213177, fr=53.40287390764913, smoothing=42.169650342858226,
+                       layer_gain=4.964451299829544),
     },
 }
 DEFAULT_N = {"velocity": 2, "position": 2}

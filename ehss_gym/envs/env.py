@@ -201,9 +201,9 @@ class EHSSTrackingEnv(gym.Env):
     | setting | velocity | position | unit |
     |---|---|---|---|
     | `n` | 2 | 2 | - |
-    | `fr` | 127.561 | 60 | Hz |
-    | `sigma` | 6.978306e4 | 1.036633e5 | unit of s |
-    | `smoothing` | 64.9382 | 36.5174 | unit of s |
+    | `fr` | 99.1614 | 54.4497 | Hz |
+    | `sigma` | 8.058422e4 | 1.333521e5 | unit of s |
+    | `smoothing` | 107.461 | 39.2419 | unit of s |
     | `current_limit` | 10 | 10 | mA (None: unlimited; default: the plant's rated current) |
     | `control_period` | 5e-5 | 5e-5 | s |
     | `substeps` | 1 | 1 | RK4 steps per period |
@@ -211,7 +211,7 @@ class EHSSTrackingEnv(gym.Env):
     | `estimator` | `"foh"` | `"eso"` |  |
     | `observer_hz` | 200 | 1000 | Hz |
     | `law` | `"sontag"` | `"sontag"` |  |
-    | `layer_gain` | 11.7726 | 5.14631 | - |
+    | `layer_gain` | 11.7726 | 7.37473 | - |
     | `bumpless` | True | True |  |
     | `ref_accel` | 0 | 100 | rad/s^2 (0: none) |
     | `pressure_domain` | 0.95 | 0.95 | x P_s |
@@ -249,13 +249,14 @@ class EHSSTrackingEnv(gym.Env):
     | `action_bound` with `action="filtered"` | 0.4 | 4 | mA |
     | `action_bound` with `action="reference"` | 8e-4 | 3e-4 | U |
     | `action_bound` with `action="reference-schedule"` | 8e-4 | 3e-4 | U |
-    | `fr` with `n=4` | 134.634 | 60 | Hz |
-    | `sigma` with `n=4` | 1.654817e5 | 1.036633e4 | unit of s |
-    | `layer_gain` with `n=4` | 4.29904 | 2.89398 | - |
-    | `fr` with `n=6` | 134.634 | 60 | Hz |
-    | `sigma` with `n=6` | 1.654817e5 | 1.036633e4 | unit of s |
-    | `smoothing` with `n=6` | 64.9382 | 39.2419 | unit of s |
-    | `layer_gain` with `n=6` | 4.61978 | 3.1099 | - |
+    | `fr` with `n=4` | 127.561 | 60 | Hz |
+    | `sigma` with `n=4` | 1.654817e5 | 1.433013e4 | unit of s |
+    | `smoothing` with `n=4` | 220.673 | 165.482 | unit of s |
+    | `layer_gain` with `n=4` | 4.96445 | 3.59126 | - |
+    | `fr` with `n=6` | 129.876 | 53.4029 | Hz |
+    | `sigma` with `n=6` | 1.654817e5 | 1.074608e4 | unit of s |
+    | `smoothing` with `n=6` | 220.673 | 42.1697 | unit of s |
+    | `layer_gain` with `n=6` | 4.96445 | 4.96445 | - |
 
     <!-- env-defaults:end -->
 

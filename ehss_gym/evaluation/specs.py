@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ehss_gym.agents.safeweights import shipped_models
-from ehss_gym.controllers import parse_scripted
+from ehss_gym.controllers import DOB_ROWS, parse_scripted
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
 from ehss_gym.envs.config import DEFAULTS, LOOP_KEYS, in_legacy_loop
@@ -134,13 +134,17 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
                               f"(clf-n2, clf-n4, clf-n6, dob-n2, ...)") from None
         law = {k: kw[k] for k in ("law", "estimator") if k in kw}
         what = "the env's default CLF law" if not law else ", ".join(f"{k} {v}" for k, v in law.items())
-        if "dob_hz" in kw:
+        rows = {}
+        if "dob_hz" in kw and n == 2 and not {"dob_hz", "smoothing", "layer_gain"} & set(over):
+            rows = {t: dict(DOB_ROWS[t]) for t in TASKS}  # the tuned observer rows (a law table's replace them)
+            what += ", disturbance observer at " + ", ".join(f"{r['dob_hz']:.3g} Hz ({t})" for t, r in rows.items())
+        elif "dob_hz" in kw:
             what += f", disturbance observer at {kw['dob_hz']:g} Hz"
         if "reference_delay" in kw:
             what += f", its reference delayed by {kw['reference_delay']:g} control sample(s)"
         src = f"scripted CLF law ({what}), n = {n}" + (f", {over}" if over else "")
         return PolicySpec(name=label or name, kind="clf", runs=[{"kind": "clf", "n": n}],
-                          env_kwargs={**kw, **over}, source=src)
+                          env_kwargs={**kw, **over}, task_kwargs=rows, source=src)
     if name == "pid":
         run = {"kind": "pid"}
         if gains:
