@@ -302,7 +302,8 @@ VAL = {"figure": 1.0, "failed": False, "n_failed": 0, "rel_tracking": 1.0, "rel_
 
 def test_residual_sac_smoke(tmp_path, capsys):
     """The comparison algorithm through the same ``ehss train``: SAC starts as the base law (figure 1 at step 0),
-    exports its SB3 files with every env setting (model.json), and is scored in today's loop."""
+    exports its SB3 files with every env setting (model.json) and its safe weights (the squashed head, the SB3 model's
+    actions), and is scored in today's loop."""
     from stable_baselines3 import SAC
 
     from ehss_gym.evaluation.scoring import is_earlier_loop
@@ -314,7 +315,7 @@ def test_residual_sac_smoke(tmp_path, capsys):
                    "--eval-episodes", "1", "--eval-seconds", "0.6", "--no-progress"])
     assert rc == 0
     printed = capsys.readouterr().out
-    assert "best  (step" in printed and "final (step 256)" in printed and "sb3:<folder>/model.zip" in printed
+    assert "best  (step" in printed and "final (step 256)" in printed and "safe weights" in printed
     summary = json.loads((out / "summary.json").read_text())
     assert summary["algo"] == "sac" and summary["timesteps"] == 256
     hist = json.loads((out / "evaluations.json").read_text())
@@ -323,8 +324,24 @@ def test_residual_sac_smoke(tmp_path, capsys):
     model = SAC.load(str(out / "final" / "model.zip"), device="cpu")
     assert model.num_timesteps == 256
     kw = json.loads((out / "final" / "model.json").read_text())["env_kwargs"]
-    assert kw["memory_tau"] == 0.1 and kw["reward_weights"]["class"] == 1.0 and kw["bumpless"] is True
+    assert kw["memory_tau"] == 0.1 and kw["reward_weights"]["physical"] == 1.0 and kw["bumpless"] is True
     assert not is_earlier_loop(parse_policy(f"sb3:{out}/final/model.zip"), "velocity")
+    import pickle
+
+    from ehss_gym.agents.safeweights import load_policy
+
+    for folder in ("best", "final"):
+        pol = load_policy(str(out / folder / "policy"))
+        assert pol.head == "squashed" and pol.env_kwargs == kw
+    with open(out / "final" / "vecnormalize.pkl", "rb") as f:
+        vn = pickle.load(f)
+    env = pol.make_env()
+    obs = [env.reset(seed=s)[0] for s in range(4)]
+    obs += [env.step(env.action_space.sample())[0] for _ in range(60)]
+    obs = np.stack(obs).astype(np.float32)
+    ref, _ = model.predict(vn.normalize_obs(obs), deterministic=True)
+    assert np.array_equal(pol.predict(obs)[0], ref)
+    assert not is_earlier_loop(parse_policy(f"residual-ppo:{out}/final/policy"), "velocity")
 
 
 def test_run_summary_prints_the_best_and_the_final_policy_and_flags_an_untrained_best():
@@ -596,7 +613,8 @@ def _fake_run(root, agent, task, n, seed, model_stem=None, untrained=False):
 
 def test_ship_writes_every_group_and_retires_the_rest(tmp_path):
     """Every group's seeds shipped as <agent>-<task>-n<n>-seed<k> (names shipped_specs groups), the models folder's
-    other models retired, a SAC group (no safe weights) skipped with its reason, the same weights left untouched."""
+    other models retired, a SAC group whose zip cannot be exported skipped with its reason, the same weights left
+    untouched."""
     from ehss_gym.agents.safeweights import load_policy, shipped_models
     from ehss_gym.evaluation.specs import _SEED_RE
     from ehss_gym.study import training as an
@@ -614,13 +632,14 @@ def test_ship_writes_every_group_and_retires_the_rest(tmp_path):
     (models / "README.txt").write_text("kept")
     groups = an.group_runs(an.load_runs(str(runs_dir)))
     assert [an.label(k) for k in groups] == ["residual-ppo-velocity-n2", "residual-sac-velocity-n2"]
-    assert [an.learned_kind(rs[0]["config"]) for rs in groups.values()] == ["residual-ppo", "sb3"]
+    assert [an.learned_kind(rs[0]) for rs in groups.values()] == ["residual-ppo", "sb3"]
     out = an.ship(groups, str(models), made_by="test")
     names = [os.path.basename(p) for p in out.written]
     assert names == ["residual-ppo-velocity-n2-seed0", "residual-ppo-velocity-n2-seed1"]
     assert {_SEED_RE.match(n).group(1) for n in names} == {"residual-ppo-velocity-n2"}
     assert out.retired == ["residual-ppo-velocity-n2-seed4", "residual-ppo-velocity-n6-seed0"]
     assert [lab for lab, _ in out.skipped] == ["residual-sac-velocity-n2"]
+    assert "cannot be read" in out.skipped[0][1]  # an unreadable zip: not exported, its reason given
     files = sorted(n + e for n in names for e in (".json", ".safetensors"))
     assert sorted(os.listdir(models)) == ["README.txt"] + files
     assert load_policy(out.written[0]).metadata["made_by"].endswith("by test")
@@ -631,6 +650,48 @@ def test_ship_writes_every_group_and_retires_the_rest(tmp_path):
     # a shipment that writes nothing (only SAC) retires nothing
     only_sac = {k: v for k, v in groups.items() if k[0] == "residual-sac"}
     assert an.ship(only_sac, str(models), made_by="t").retired == [] and len(os.listdir(models)) == 5
+
+
+def test_an_old_sac_run_is_exported_evaluated_and_shipped_as_safe_weights(tmp_path, monkeypatch):
+    """A SAC run trained before SAC runs wrote safe weights (best/model.zip + vecnormalize.pkl + model.json only):
+    exported to best/policy when the runs are read, its actions the SB3 model's, scored through the safe weights
+    (the residual kind) and shipped as residual-sac-<task>-n<n>-seed<k>, which the shipped specs name
+    residual-sac-<task>-n<n>."""
+    import pickle
+
+    from ehss_gym.agents import safeweights as sw
+    from ehss_gym.agents.specs import AGENTS, resolved_env_kwargs
+    from ehss_gym.evaluation.specs import shipped_specs
+    from ehss_gym.study import training as an
+    from ehss_gym.train.loop import make_env
+
+    runs_dir = tmp_path / "runs"
+    d = _fake_run(runs_dir, "residual-sac", "velocity", 2, 0)
+    kw = resolved_env_kwargs(env_kwargs_for(AGENTS["residual-sac"], "velocity", 2))
+    venv = make_env(kw, 2, 0.99, False)
+    venv.obs_rms.update(np.random.default_rng(0).normal(size=(50, *venv.observation_space.shape)) * 3 + 1)
+    model = make_agent(AGENTS["residual-sac"], venv, seed=0)
+    with torch.no_grad():  # a mean layer that acts (the zero-initialised one would hide a wrong export)
+        model.policy.actor.mu.weight.normal_()
+    model.save(str(d / "best" / "model.zip"))
+    with open(d / "best" / "vecnormalize.pkl", "wb") as f:
+        pickle.dump(venv, f)
+    (d / "best" / "model.json").write_text(json.dumps({"env_kwargs": kw}))
+    groups = an.group_runs(an.load_runs(str(runs_dir)))
+    (k, rs), = groups.items()
+    assert rs[0]["export_error"] is None and an.kept_model(rs[0]) == str(d / "best" / "policy")
+    assert an.learned_kind(rs[0]) == "residual-ppo"
+    assert an.group_spec(k, rs).name == "residual-sac-velocity-n2"
+    pol = sw.load_policy(str(d / "best" / "policy"))
+    obs = np.random.default_rng(1).normal(size=(200, *venv.observation_space.shape)).astype(np.float32) * 3
+    assert pol.head == "squashed"
+    assert np.array_equal(pol.predict(obs)[0], model.predict(venv.normalize_obs(obs), deterministic=True)[0])
+    models = tmp_path / "models"
+    out = an.ship(groups, str(models), made_by="test")
+    assert [os.path.basename(p) for p in out.written] == ["residual-sac-velocity-n2-seed0"] and out.skipped == []
+    monkeypatch.setattr(sw, "MODELS_DIR", str(models))
+    (spec,) = shipped_specs()
+    assert (spec.name, spec.kind, spec.env_kwargs["mode"]) == ("residual-sac-velocity-n2", "residual-ppo", "residual")
 
 
 def test_runs_with_todays_settings_form_one_group_however_given(tmp_path):

@@ -56,8 +56,8 @@ def read_json(path: str):
 
 
 def kept_model(run: dict) -> str | None:
-    """The kept (best-on-validation) model of a run: its safe-weights stem ``best/policy`` (PPO), else its SB3
-    ``best/model.zip`` (SAC, whose squashed actor has no safe-weights form); None if it has neither."""
+    """The kept (best-on-validation) model of a run: its safe-weights stem ``best/policy``, else its SB3
+    ``best/model.zip`` (a run that could not be exported, :func:`export_kept`); None if it has neither."""
     stem = os.path.join(run["dir"], "best", "policy")
     if all(os.path.isfile(p) for p in model_paths(stem)):
         return stem
@@ -65,8 +65,33 @@ def kept_model(run: dict) -> str | None:
     return z if os.path.isfile(z) else None
 
 
+def export_kept(run: dict) -> str | None:
+    """Give a run trained before SAC runs wrote safe weights its ``best/policy`` (from ``best/model.zip``,
+    ``best/vecnormalize.pkl`` and ``best/model.json``, exactly as the end of training exports it today), so it is
+    evaluated and shipped like the others; None if it has them already or was exported now, else why it cannot be
+    (its zip is then scored as ``sb3:`` and not shipped).
+
+    Only a SAC run is exported here (a PPO run has always written its safe weights): the run's SB3 files are
+    unpickled, as ``ehss training-report`` trusts the run folders it is given.
+    """
+    if not kept_model(run).endswith(".zip") or run["config"]["agent_spec"].get("algo") != "sac":
+        return None
+    from ehss_gym.agents.export import export_saved_model  # imports torch: only for runs that need it
+    from ehss_gym.agents.safeweights import SafeWeightsError
+
+    s = run["summary"]
+    try:
+        export_saved_model(os.path.join(run["dir"], "best"), algo="sac", name=s["run_name"],
+                           metadata={"config": run["config"], "step": s["best_step"],
+                                     "validation": s["best_validation"], "exported_by": "ehss training-report"})
+    except (SafeWeightsError, OSError) as exc:
+        return f"its best/model.zip has no safe-weights form ({exc})"
+    return None
+
+
 def load_runs(folder: str) -> list[dict]:
-    """Every finished run under ``folder`` (config, summary, validation history and a kept model)."""
+    """Every finished run under ``folder`` (config, summary, validation history and a kept model; a SAC run without
+    safe weights exported first, :func:`export_kept`, or ``export_error`` saying why not)."""
     out = []
     if not os.path.isdir(folder):
         raise ValueError(f"--runs folder {folder!r} does not exist")
@@ -76,7 +101,9 @@ def load_runs(folder: str) -> list[dict]:
         if not all(os.path.isfile(p) for p in paths) or kept_model({"dir": d}) is None:
             continue
         cfg, summ, hist = (read_json(p) for p in paths)
-        out.append({"dir": d, "config": cfg, "summary": summ, "history": hist})
+        run = {"dir": d, "config": cfg, "summary": summ, "history": hist}
+        run["export_error"] = export_kept(run)
+        out.append(run)
     return out
 
 
@@ -123,13 +150,13 @@ def label(key: tuple) -> str:
     return f"{agent}-{task}-n{n}" + (f" {var}" if var else "")
 
 
-def learned_kind(config: dict) -> str:
-    """The harness's spec kind of a run (:data:`ehss_gym.evaluation.specs.LEARNED_KINDS`): "residual-ppo" and
-    "ppo-direct" for PPO in the residual and direct mode, "sb3" for another algorithm (residual SAC: the mode from the
-    env settings saved with its model)."""
-    if config["agent_spec"].get("algo", "ppo") != "ppo":
+def learned_kind(run: dict) -> str:
+    """The harness's spec kind of a run (:data:`ehss_gym.evaluation.specs.LEARNED_KINDS`): a kept model in safe
+    weights (PPO or SAC) is "residual-ppo" or "ppo-direct" by its mode (the harness's kinds name the mode), an SB3 zip
+    "sb3" (the mode from the env settings saved with it)."""
+    if kept_model(run).endswith(".zip"):
         return "sb3"
-    return "residual-ppo" if config["env_kwargs"]["mode"] == "residual" else "ppo-direct"
+    return "residual-ppo" if run["config"]["env_kwargs"]["mode"] == "residual" else "ppo-direct"
 
 
 def group_spec(key: tuple, rs: list[dict]):
@@ -138,7 +165,7 @@ def group_spec(key: tuple, rs: list[dict]):
     Raises:
         ValueError: seeds whose models act in different env settings.
     """
-    kind = learned_kind(rs[0]["config"])
+    kind = learned_kind(rs[0])
     specs = [ev.learned_spec(kind, kept_model(r), name=label(key)) for r in rs]
     if any(s.env_kwargs != specs[0].env_kwargs for s in specs):
         raise ValueError(f"the seeds of {label(key)} act in different env settings; evaluate them apart")
@@ -363,7 +390,7 @@ def ship(groups: dict, models_dir: str, made_by: str) -> Shipment:
 
     A model already there with the same weights and settings is left as it is, so re-running the report does not
     rewrite the package's model files (``metadata.made_by`` keeps the command that first shipped it). A group
-    without safe weights (SAC's squashed actor has no safe-weights form) is not shipped; a shipment that writes
+    without safe weights (a run :func:`export_kept` could not export) is not shipped; a shipment that writes
     nothing retires nothing.
 
     Args:
@@ -375,9 +402,10 @@ def ship(groups: dict, models_dir: str, made_by: str) -> Shipment:
     os.makedirs(models_dir, exist_ok=True)
     for base, k in sorted(choose_variants(groups).items()):
         rs = groups[k]
-        if any(kept_model(r).endswith(".zip") for r in rs):
-            out.skipped.append((label(k), "no safe weights (SAC's squashed actor has no safe-weights form); its "
-                                          "models stay in its run folders (sb3:<run>/best/model.zip)"))
+        why = [r.get("export_error") or "no safe weights" for r in rs if kept_model(r).endswith(".zip")]
+        if why:
+            out.skipped.append((label(k), f"{why[0]}; its models stay in its run folders "
+                                          "(sb3:<run>/best/model.zip)"))
             continue
         out.written += [ship_run(r, f"{label(base + ('',))}-seed{r['config']['seed']}", models_dir, made_by)
                         for r in rs]
@@ -475,8 +503,8 @@ def run_training_study(runs: list[str], episodes: int = 48, exploration: str | N
 
 
 __all__ = ["TrainingStudy", "Shipment", "run_training_study", "task_analyses", "SUITES", "TARGET_UNMODELLED_RATIO",
-           "TARGET_HELDOUT_HI", "TARGET_TRAINED_SEEDS", "TARGET_SEEDS", "read_json", "kept_model", "load_runs",
-           "variant", "group_key", "group_runs", "label", "learned_kind", "group_spec", "evaluate_groups", "ci_hi",
-           "ci_lo", "run_figures", "best_row", "unmodelled_target", "heldout_targets", "validation_target",
+           "TARGET_HELDOUT_HI", "TARGET_TRAINED_SEEDS", "TARGET_SEEDS", "read_json", "kept_model", "export_kept",
+           "load_runs", "variant", "group_key", "group_runs", "label", "learned_kind", "group_spec", "evaluate_groups",
+           "ci_hi", "ci_lo", "run_figures", "best_row", "unmodelled_target", "heldout_targets", "validation_target",
            "history_figure", "seed_table", "base_law_diagnostics", "mean_validation", "choose_variants", "ship_run",
            "ship", "exploration_is_current"]
