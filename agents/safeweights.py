@@ -10,17 +10,27 @@ JSON config (:func:`ehss_gym.agents.export.export_policy`, from the torch model)
         --> [Linear -> activation] x L (SB3's ``mlp_extractor.policy_net``) --> Linear (``action_net``)
         --> clip to the action space bounds   (SB3 ``predict`` for a Box action, no squashing)
 
+or, for a SAC actor (architecture ``head`` = "squashed": ``latent_pi`` as the hidden layers, ``mu`` as the action
+layer), the squashed mean rescaled to the action Box as SB3's ``unscale_action`` does, in float32:
+
+        ... --> Linear (``mu``) --> a = tanh(.) --> low + 0.5 (a + 1) (high - low) --> clip to the bounds (a no-op
+        but for a rounding overshoot of the rescale, which SB3 leaves unclipped)
+
 Files of a model with stem ``PATH`` (``PATH`` may end in ``.json`` or ``.safetensors``; either is
 stripped):
 
 - ``PATH.safetensors``: tensors ``pi.{i}.weight`` / ``pi.{i}.bias`` (hidden layers, float32),
   ``action.weight`` / ``action.bias`` (float32), ``log_std`` (float32, the Gaussian exploration
-  scale, used only by ``predict(..., deterministic=False)``), and, with observation normalisation,
-  ``obs_mean`` / ``obs_var`` (float64, VecNormalize's running statistics).
+  scale, used only by ``predict(..., deterministic=False)``; a squashed head has instead SAC's state-dependent
+  log-std layer, ``log_std.weight`` (act_dim, last hidden size) and ``log_std.bias`` (act_dim), float32), and, with
+  observation normalisation, ``obs_mean`` / ``obs_var`` (float64, VecNormalize's running statistics).
 - ``PATH.json``: ``format`` (= :data:`FORMAT`), ``name``, ``sha256`` of the safetensors file,
   ``architecture`` (``obs_dim``, ``hidden`` sizes, ``activation``, ``act_dim``, and ``exploration`` = "gsde" for a
   policy trained with gSDE, whose ``log_std`` is then the (last hidden size, act_dim) matrix of its noise's scales
-  and whose stochastic action adds the last hidden features times a Gaussian matrix of those scales, drawn per call),
+  and whose stochastic action adds the last hidden features times a Gaussian matrix of those scales, drawn per call;
+  ``head`` = "squashed" for a SAC actor, whose stochastic action is tanh(mean + exp(log_std) N(0, 1)) with log_std
+  = the log-std layer of the last hidden features clamped to [-20, 2] as SB3 does, rescaled to the bounds; an absent
+  ``head`` is the Gaussian head of PPO/A2C),
   ``observation_space``
   and ``action_space`` (Box low/high/shape/dtype), ``obs_normalization`` (null or ``epsilon`` and
   ``clip_obs``), ``env_id`` and ``env_kwargs`` (what ``gym.make`` needs to rebuild the training env),
@@ -63,6 +73,9 @@ JSON_KEYS = ("format", "name", "sha256", "architecture", "observation_space", "a
              "env_id", "env_kwargs", "metadata")
 ARCH_KEYS = ("obs_dim", "hidden", "activation", "act_dim")
 EXPLORATIONS = ("gsde",)  # the optional architecture key "exploration" (absent: the diagonal Gaussian)
+HEADS = ("squashed",)  # the optional architecture key "head" (absent: the Gaussian head of PPO/A2C; squashed: SAC's)
+ARCH_OPTIONAL = {"exploration": EXPLORATIONS, "head": HEADS}
+LOG_STD_RANGE = (-20.0, 2.0)  # SB3 SAC's clamp of its state-dependent log std (LOG_STD_MIN, LOG_STD_MAX)
 SPACE_KEYS = ("type", "low", "high", "shape", "dtype")
 
 
@@ -131,12 +144,15 @@ def _check_config(cfg, js_path: str) -> None:
     if not isinstance(h, str) or len(h) != 64 or any(c not in "0123456789abcdef" for c in h):
         raise SafeWeightsError(f"{js_path}: sha256 must be 64 lowercase hex digits, got {h!r}")
     arch = cfg["architecture"]
-    if not isinstance(arch, dict) or sorted(set(arch) - {"exploration"}) != sorted(ARCH_KEYS):
+    if not isinstance(arch, dict) or sorted(set(arch) - set(ARCH_OPTIONAL)) != sorted(ARCH_KEYS):
         raise SafeWeightsError(f"{js_path}: architecture must have exactly the keys {list(ARCH_KEYS)} (and optionally "
-                               f"'exploration'), got {arch!r}")
-    if arch.get("exploration", "gsde") not in EXPLORATIONS:
-        raise SafeWeightsError(f"{js_path}: architecture exploration must be one of {list(EXPLORATIONS)}, got "
-                               f"{arch['exploration']!r}")
+                               f"{list(ARCH_OPTIONAL)}), got {arch!r}")
+    for key, allowed in ARCH_OPTIONAL.items():
+        if key in arch and arch[key] not in allowed:
+            raise SafeWeightsError(f"{js_path}: architecture {key} must be one of {list(allowed)}, got {arch[key]!r}")
+    if "exploration" in arch and "head" in arch:
+        raise SafeWeightsError(f"{js_path}: architecture exploration {arch['exploration']!r} has no squashed form "
+                               "(gSDE is stored for the Gaussian head only)")
 
     def pos_int(v):
         return isinstance(v, int) and not isinstance(v, bool) and v >= 1
@@ -171,8 +187,12 @@ def expected_tensors(cfg: dict) -> dict[str, tuple[tuple[int, ...], str]]:
         last = hdim
     out["action.weight"] = ((arch["act_dim"], last), "float32")
     out["action.bias"] = ((arch["act_dim"],), "float32")
-    if arch.get("exploration") == "gsde":  # the noise matrix's log scales over the last hidden features
-        out["log_std"] = (((arch["hidden"] or [arch["obs_dim"]])[-1], arch["act_dim"]), "float32")
+    last_hidden = (arch["hidden"] or [arch["obs_dim"]])[-1]
+    if arch.get("head") == "squashed":  # SAC's state-dependent log-std layer over the last hidden features
+        out["log_std.weight"] = ((arch["act_dim"], last_hidden), "float32")
+        out["log_std.bias"] = ((arch["act_dim"],), "float32")
+    elif arch.get("exploration") == "gsde":  # the noise matrix's log scales over the last hidden features
+        out["log_std"] = ((last_hidden, arch["act_dim"]), "float32")
     else:
         out["log_std"] = ((arch["act_dim"],), "float32")
     if cfg["obs_normalization"] is not None:
@@ -210,6 +230,8 @@ class SafePolicy:
         path: the JSON file it was loaded from.
         tensors: name -> numpy array (float32 weights, float64 normalisation statistics).
         activation: hidden activation name (one of :data:`ACTIVATIONS`).
+        head: None (the Gaussian head, clipped to the bounds) or "squashed" (SAC's: tanh, then the rescale to the
+            bounds).
         seed: seed of the Gaussian samples of ``predict(..., deterministic=False)``.
     """
 
@@ -223,6 +245,7 @@ class SafePolicy:
     path: str
     tensors: dict = field(repr=False)
     activation: str = "tanh"
+    head: str | None = None
     seed: int | None = None
 
     def __post_init__(self):
@@ -236,6 +259,8 @@ class SafePolicy:
             self._clip = self.obs_normalization["clip_obs"]
         self._low = np.asarray(self.action_space.low)
         self._high = np.asarray(self.action_space.high)
+        if self.head == "squashed":
+            self._log_std_layer = (self.tensors["log_std.weight"], self.tensors["log_std.bias"])
 
     def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
         """VecNormalize's observation normalisation (float64 arithmetic, float32 result), or the identity."""
@@ -244,7 +269,8 @@ class SafePolicy:
         return np.clip((obs - self._mean) / self._std, -self._clip, self._clip).astype(np.float32)
 
     def mean_action(self, obs_norm: np.ndarray) -> np.ndarray:
-        """The Gaussian mean [action units] (before clipping) for a batch of normalised observations (B, obs_dim)."""
+        """The Gaussian mean for a batch of normalised observations (B, obs_dim): in action units before clipping, or
+        (squashed head) before the tanh and the rescale."""
         return _torch_forward(self._layers, self.activation, self._head, obs_norm)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
@@ -253,8 +279,9 @@ class SafePolicy:
         Args:
             observation: raw env observation(s) (normalisation is applied here).
             state, episode_start: ignored (no recurrent state); ``state`` is returned unchanged.
-            deterministic: the mean action (True, default) or a Gaussian sample with the stored log_std (gSDE: the
-                features times a Gaussian matrix drawn for this call).
+            deterministic: the mean action (True, default; squashed head: tanh of the mean, rescaled) or a Gaussian
+                sample with the stored log_std (gSDE: the features times a Gaussian matrix drawn for this call;
+                squashed head: tanh of a sample with the state-dependent log std, rescaled).
         """
         obs = np.array(observation)
         shape = self.observation_space.shape
@@ -266,7 +293,9 @@ class SafePolicy:
             raise ValueError(f"observation must have shape {shape} or (batch, {', '.join(map(str, shape))}) for "
                              f"model {self.name!r}, got {obs.shape}")
         obs = obs.reshape((-1, *shape))
-        if deterministic:
+        if self.head == "squashed":
+            act = self._squashed_action(self.normalize_obs(obs), deterministic)
+        elif deterministic:
             act = self.mean_action(self.normalize_obs(obs))
         elif self.tensors["log_std"].ndim == 2:  # gSDE: the features times a Gaussian matrix of the stored scales
             act, phi = _torch_forward(self._layers, self.activation, self._head, self.normalize_obs(obs), True)
@@ -280,6 +309,20 @@ class SafePolicy:
         if not batched:
             act = act.squeeze(axis=0)
         return act, state
+
+    def _squashed_action(self, obs_norm: np.ndarray, deterministic: bool) -> np.ndarray:
+        """SAC's action: tanh of the mean (or of a sample with the clamped state-dependent log std), rescaled from
+        [-1, 1] to the bounds as SB3's ``unscale_action`` (float32 arithmetic for a float32 Box)."""
+        import torch  # as _torch_forward: torch's tanh is SB3's, bit for bit
+
+        mean, phi = _torch_forward(self._layers, self.activation, self._head, obs_norm, True)
+        if not deterministic:
+            w, b = self._log_std_layer
+            std = np.exp(np.clip(phi @ w.T + b, *LOG_STD_RANGE))
+            mean = (mean + std * self._rng.standard_normal(mean.shape)).astype(np.float32)
+        with torch.no_grad():
+            a = torch.tanh(torch.from_numpy(mean)).numpy()
+        return self._low + (0.5 * (a + 1.0) * (self._high - self._low))
 
     def make_env(self, **overrides) -> gym.Env:
         """``gym.make(env_id, **env_kwargs, **overrides)``: the env this policy was trained for."""
@@ -351,7 +394,7 @@ def load_policy(path) -> SafePolicy:
                       env_kwargs=in_legacy_loop(cfg["env_kwargs"]) if cfg["env_id"] == ENV_ID else cfg["env_kwargs"],
                       metadata=cfg["metadata"],
                       obs_normalization=cfg["obs_normalization"], path=js_path, tensors=tensors,
-                      activation=arch["activation"])
+                      activation=arch["activation"], head=arch.get("head"))
 
 
 def shipped_models() -> dict[str, str]:
@@ -365,5 +408,5 @@ def shipped_models() -> dict[str, str]:
     return out
 
 
-__all__ = ["FORMAT", "ACTIVATIONS", "SafeWeightsError", "SafePolicy", "load_policy", "expected_tensors",
-           "model_paths", "sha256", "shipped_models"]
+__all__ = ["FORMAT", "ACTIVATIONS", "HEADS", "LOG_STD_RANGE", "SafeWeightsError", "SafePolicy", "load_policy",
+           "expected_tensors", "model_paths", "sha256", "shipped_models"]

@@ -180,9 +180,10 @@ def test_training_smoke(tmp_path):
     groups = analysis.group_runs(analysis.load_runs(str(tmp_path)))
     assert [k[:3] for k in groups] == [("residual-ppo", "velocity", 2)]
     assert json.loads(list(groups)[0][3]) == {"batch_size": 64, "n_epochs": 1, "n_steps": 64}  # the --hp variant
-    report_writer.plot_curves(groups, str(tmp_path / "curves.png"))
+    key = list(groups)[0]
+    report_writer.plot_curve(key, groups[key], str(tmp_path / "curves.png"))
     assert (tmp_path / "curves.png").stat().st_size > 1000
-    shipped = analysis.ship(groups, str(tmp_path / "models"), made_by="test")
+    shipped = analysis.ship(groups, str(tmp_path / "models"), made_by="test").written
     assert [os.path.basename(p) for p in shipped] == ["residual-ppo-velocity-n2-seed0"]
     ship_pol = load_policy(shipped[0])
     assert ship_pol.name == "residual-ppo-velocity-n2-seed0" and ship_pol.metadata["made_by"].endswith("by test")
@@ -190,7 +191,7 @@ def test_training_smoke(tmp_path):
     assert np.array_equal(ship_pol.predict(obs)[0], best.predict(obs)[0])
     # shipping the same model again leaves the files as they are (made_by records the first shipping)
     stamp = os.stat(shipped[0] + ".json").st_mtime_ns
-    assert analysis.ship(groups, str(tmp_path / "models"), made_by="another command") == shipped
+    assert analysis.ship(groups, str(tmp_path / "models"), made_by="another command").written == shipped
     assert os.stat(shipped[0] + ".json").st_mtime_ns == stamp and load_policy(shipped[0]).metadata == ship_pol.metadata
 
 
@@ -301,7 +302,8 @@ VAL = {"figure": 1.0, "failed": False, "n_failed": 0, "rel_tracking": 1.0, "rel_
 
 def test_residual_sac_smoke(tmp_path, capsys):
     """The comparison algorithm through the same ``ehss train``: SAC starts as the base law (figure 1 at step 0),
-    exports its SB3 files with every env setting (model.json), and is scored in today's loop."""
+    exports its SB3 files with every env setting (model.json) and its safe weights (the squashed head, the SB3 model's
+    actions), and is scored in today's loop."""
     from stable_baselines3 import SAC
 
     from ehss_gym.evaluation.scoring import is_earlier_loop
@@ -313,7 +315,7 @@ def test_residual_sac_smoke(tmp_path, capsys):
                    "--eval-episodes", "1", "--eval-seconds", "0.6", "--no-progress"])
     assert rc == 0
     printed = capsys.readouterr().out
-    assert "best  (step" in printed and "final (step 256)" in printed and "sb3:<folder>/model.zip" in printed
+    assert "best  (step" in printed and "final (step 256)" in printed and "safe weights" in printed
     summary = json.loads((out / "summary.json").read_text())
     assert summary["algo"] == "sac" and summary["timesteps"] == 256
     hist = json.loads((out / "evaluations.json").read_text())
@@ -322,8 +324,24 @@ def test_residual_sac_smoke(tmp_path, capsys):
     model = SAC.load(str(out / "final" / "model.zip"), device="cpu")
     assert model.num_timesteps == 256
     kw = json.loads((out / "final" / "model.json").read_text())["env_kwargs"]
-    assert kw["memory_tau"] == 0.1 and kw["reward_weights"]["class"] == 1.0 and kw["bumpless"] is True
+    assert kw["memory_tau"] == 0.1 and kw["reward_weights"]["physical"] == 1.0 and kw["bumpless"] is True
     assert not is_earlier_loop(parse_policy(f"sb3:{out}/final/model.zip"), "velocity")
+    import pickle
+
+    from ehss_gym.agents.safeweights import load_policy
+
+    for folder in ("best", "final"):
+        pol = load_policy(str(out / folder / "policy"))
+        assert pol.head == "squashed" and pol.env_kwargs == kw
+    with open(out / "final" / "vecnormalize.pkl", "rb") as f:
+        vn = pickle.load(f)
+    env = pol.make_env()
+    obs = [env.reset(seed=s)[0] for s in range(4)]
+    obs += [env.step(env.action_space.sample())[0] for _ in range(60)]
+    obs = np.stack(obs).astype(np.float32)
+    ref, _ = model.predict(vn.normalize_obs(obs), deterministic=True)
+    assert np.array_equal(pol.predict(obs)[0], ref)
+    assert not is_earlier_loop(parse_policy(f"residual-ppo:{out}/final/policy"), "velocity")
 
 
 def test_run_summary_prints_the_best_and_the_final_policy_and_flags_an_untrained_best():
@@ -347,30 +365,6 @@ def test_multi_seed_real(tmp_path):
     assert rc == 0
     sums = [json.loads(open(os.path.join(tmp_path, d, "summary.json")).read()) for d in sorted(os.listdir(tmp_path))]
     assert sorted(s["seed"] for s in sums) == [0, 1]
-
-
-def test_period_log_replays_the_agents_loop_at_the_control_rate():
-    """The report's TV decomposition logs every control period by re-running a policy at agent_period 1; that
-    loop must be the one the policy acts in (same metrics as at its own agent period), and its TV count
-    complete (equal to the metrics' TV)."""
-    from ehss_gym.agents.safeweights import load_policy, shipped_models
-    from ehss_gym.core.scenarios import heldout_scenarios
-    from ehss_gym.study.training import has_noise, period_log
-
-    pol = load_policy(shipped_models()["residual-ppo-velocity-n2-seed1"])  # a seed whose kept policy acts
-    tmpl = pol.make_env().unwrapped.scenario_template
-    sc = next(s for s in heldout_scenarios(48, tmpl) if has_noise(s.noise_std)).replace(t_end=0.2)
-    env = pol.make_env()
-    obs, _ = env.reset(options={"scenario": sc})
-    while True:
-        obs, _, term, trunc, info = env.step(pol.predict(obs)[0])
-        if term or trunc:
-            break
-    log = period_log(pol, sc)
-    assert log["rmse"] == info["metrics"]["rmse"] and log["metrics_tv"] == info["metrics"]["tv_u"]
-    assert log["tv"] == pytest.approx(log["metrics_tv"], rel=1e-9) and log["tv_own"] > 0 and log["crossings"] > 0
-    base = period_log(pol, sc, base_only=True)
-    assert base["tv_own"] == 0.0 and base["rmse"] != log["rmse"]
 
 
 # --- options from the Config dataclass ----------------------------------------------------------------
@@ -535,39 +529,272 @@ def test_native_vec_env_attributes_and_options():
 # --- the training report ---------------------------------------------------------------------------------
 
 
-def _fake_task() -> dict:
-    target = {"policy": "residual-ppo-velocity-n2", "n_runs": 5, "best_clf": "clf-n2", "improvement": 0.25,
-              "improvement_lo": 0.05, "improvement_hi": 0.4, "improvement_met": True, "tv_ratio": 0.9, "tv_met": True,
-              "friction_ratio": 0.7, "friction_met": False, "rmse_vs_best": 0.8, "tv_vs_best": 0.95}
-    return {"task": "velocity", "summary_rows": [["heldout"] + ["x"] * 11],
-            "comparison_rows": [["heldout"] + ["y"] * 12],
-            "targets": [target], "seed_rows": [["residual-ppo-velocity-n2", "run_s0", "0.9"]],
-            "diag": {"saturation_mean": 0.1, "tv_rate_min": 1.0, "tv_rate_max": 2e4, "tv_rate_median_noisy": 1e4,
-                     "tv_rate_median_clean": 50.0, "noisy_episodes": 3, "episodes": 5},
-            "eb": {"start_share": 0.5, "start_saturation": 0.1, "friction_share": 0.3, "other_share": 0.2,
-                   "peak_delay_median": 0.003, "events": 7},
-            "fa": {"events": 2, "all_events": 7, "rise_median": 0.002, "at_limit_share": 0.25}, "tv_rows": [],
-            "wall": 12.3}
+def _row(suite, policy, g, hi, failed=False, lo=None, earlier=False):
+    """A harness summary row with what the targets read."""
+    return {"suite": suite, "policy": policy, "figure": g, "figure_lo": lo or g * 0.9, "figure_hi": hi,
+            "failed": failed, "n_failed": int(failed), "earlier_loop": earlier}
+
+
+def test_unmodelled_target_met_and_not_met():
+    """Target (a): best learned G <= 0.80 x the best scripted G *and* its CI's upper end below the scripted G."""
+    from ehss_gym.study import training as an
+
+    scripted = [_row("unmodelled", "dcomp-n2", 0.80, 0.85), _row("unmodelled", "clf-n2", 1.0, 1.0),
+                _row("heldout", "clf-n2", 1.0, 1.0)]
+    learned = {"a", "b"}
+    met = an.unmodelled_target(scripted + [_row("unmodelled", "a", 0.60, 0.70), _row("unmodelled", "b", 0.9, 1.0)],
+                               learned)
+    assert met["learned"] == "a" and met["scripted"] == "dcomp-n2" and met["met"]
+    assert met["ratio"] == pytest.approx(0.75)
+    # ratio 0.65/0.80 = 0.81 > 0.80: not met
+    assert not an.unmodelled_target(scripted + [_row("unmodelled", "a", 0.65, 0.70)], learned)["met"]
+    # ratio 0.75, but the CI reaches past the scripted figure: not met
+    wide = an.unmodelled_target(scripted + [_row("unmodelled", "a", 0.60, 0.81)], learned)
+    assert wide["ratio"] == pytest.approx(0.75) and not wide["met"]
+    # the best learned policy is the best by the ranking order: a failed gate ranks last, and is never met
+    failed = an.unmodelled_target(scripted + [_row("unmodelled", "a", 0.1, 0.2, failed=True)], learned)
+    assert failed["learned"] == "a" and not failed["met"]
+    assert an.unmodelled_target(scripted + [_row("unmodelled", "a", 0.1, 0.2, failed=True),
+                                            _row("unmodelled", "b", 0.6, 0.7)], learned)["learned"] == "b"
+    assert an.unmodelled_target(scripted, learned) is None
+
+
+def test_heldout_targets_met_and_not_met():
+    """Target (b): every residual-PPO group's CI upper end (clf-n2 = 1) <= 1.05, its gate passed."""
+    from ehss_gym.study import training as an
+
+    summary = [_row("heldout", "r2", 1.02, 1.05), _row("heldout", "r4", 0.98, 1.06),
+               _row("heldout", "r6", 0.9, 1.0, failed=True), _row("unmodelled", "r2", 2.0, 3.0)]
+    got = {d["policy"]: d for d in an.heldout_targets(summary, ["r2", "r4", "r6", "absent"])}
+    assert sorted(got) == ["r2", "r4", "r6"]
+    assert got["r2"]["met"] and got["r2"]["hi"] == 1.05
+    assert not got["r4"]["met"] and not got["r6"]["met"]
+    both = _row("heldout", "r2", 1.0, 1.01)
+    both["figure_hi_both"] = 1.07  # with several seeds the CI over seeds and episodes is the one judged
+    assert not an.heldout_targets([both], ["r2"])[0]["met"]
+
+
+def test_validation_target_met_and_not_met():
+    """Target (c): at least 4 seeds whose kept policy is a trained one (best_is_untrained false)."""
+    from ehss_gym.study import training as an
+
+    def runs(flags):
+        return [{"summary": {"best_is_untrained": f, "best_step": 0 if f else 100}} for f in flags]
+
+    assert an.validation_target(runs([False] * 4 + [True])) == {"trained": 4, "seeds": 5, "met": True}
+    assert an.validation_target(runs([False] * 3 + [True] * 2)) == {"trained": 3, "seeds": 5, "met": False}
+
+
+def _fake_run(root, agent, task, n, seed, model_stem=None, untrained=False):
+    """A finished run folder as ehss train writes it (its kept model copied from a safe-weights stem)."""
+    import shutil
+
+    from ehss_gym.agents.specs import AGENTS
+
+    d = root / f"{agent}_{task}_n{n}_s{seed}"
+    (d / "best").mkdir(parents=True)
+    spec = AGENTS[agent].as_dict()
+    cfg = {"agent": agent, "task": task, "n": n, "seed": seed, "timesteps": 64, "eval_freq": 32, "eval_episodes": 1,
+           "hp": {}, "agent_spec": json.loads(json.dumps(spec)), "env_kwargs": {"task": task, "n": n,
+                                                                                "mode": spec["mode"]}}
+    val = {"figure": 1.0 if untrained else 0.9}
+    summ = {"run_name": d.name, "timesteps": 64, "wall_s": 6.0, "best_step": 0 if untrained else 64,
+            "best_is_untrained": untrained, "best_validation": val, "final_validation": {"figure": 0.95}}
+    hist = [{"step": 0, "figure": 1.0, "wall_s": 0.0}, {"step": 64, "figure": 0.9, "wall_s": 6.0}]
+    for name, obj in (("config.json", cfg), ("summary.json", summ), ("evaluations.json", hist)):
+        (d / name).write_text(json.dumps(obj))
+    if model_stem is None:
+        (d / "best" / "model.zip").write_bytes(b"")  # an SB3 zip (SAC): no safe weights
+    else:
+        for ext in (".json", ".safetensors"):
+            shutil.copy(model_stem + ext, d / "best" / f"policy{ext}")
+    return d
+
+
+def test_ship_writes_every_group_and_retires_the_rest(tmp_path):
+    """Every group's seeds shipped as <agent>-<task>-n<n>-seed<k> (names shipped_specs groups), the models folder's
+    other models retired, a SAC group whose zip cannot be exported skipped with its reason, the same weights left
+    untouched."""
+    from ehss_gym.agents.safeweights import load_policy, shipped_models
+    from ehss_gym.evaluation.specs import _SEED_RE
+    from ehss_gym.study import training as an
+
+    stem = shipped_models()["residual-ppo-velocity-n2-seed0"]
+    runs_dir = tmp_path / "runs"
+    for seed in (0, 1):
+        _fake_run(runs_dir, "residual-ppo", "velocity", 2, seed, stem)
+    _fake_run(runs_dir, "residual-sac", "velocity", 2, 0)
+    models = tmp_path / "models"
+    models.mkdir()
+    for old in ("residual-ppo-velocity-n6-seed0", "residual-ppo-velocity-n2-seed4"):
+        for ext in (".json", ".safetensors"):
+            (models / (old + ext)).write_text("x")
+    (models / "README.txt").write_text("kept")
+    groups = an.group_runs(an.load_runs(str(runs_dir)))
+    assert [an.label(k) for k in groups] == ["residual-ppo-velocity-n2", "residual-sac-velocity-n2"]
+    assert [an.learned_kind(rs[0]) for rs in groups.values()] == ["residual-ppo", "sb3"]
+    out = an.ship(groups, str(models), made_by="test")
+    names = [os.path.basename(p) for p in out.written]
+    assert names == ["residual-ppo-velocity-n2-seed0", "residual-ppo-velocity-n2-seed1"]
+    assert {_SEED_RE.match(n).group(1) for n in names} == {"residual-ppo-velocity-n2"}
+    assert out.retired == ["residual-ppo-velocity-n2-seed4", "residual-ppo-velocity-n6-seed0"]
+    assert [lab for lab, _ in out.skipped] == ["residual-sac-velocity-n2"]
+    assert "cannot be read" in out.skipped[0][1]  # an unreadable zip: not exported, its reason given
+    files = sorted(n + e for n in names for e in (".json", ".safetensors"))
+    assert sorted(os.listdir(models)) == ["README.txt"] + files
+    assert load_policy(out.written[0]).metadata["made_by"].endswith("by test")
+    stamp = os.stat(out.written[0] + ".safetensors").st_mtime_ns
+    again = an.ship(groups, str(models), made_by="later")
+    assert again.written == out.written and again.retired == []
+    assert os.stat(out.written[0] + ".safetensors").st_mtime_ns == stamp
+    # a shipment that writes nothing (only SAC) retires nothing
+    only_sac = {k: v for k, v in groups.items() if k[0] == "residual-sac"}
+    assert an.ship(only_sac, str(models), made_by="t").retired == [] and len(os.listdir(models)) == 5
+
+
+def test_an_old_sac_run_is_exported_evaluated_and_shipped_as_safe_weights(tmp_path, monkeypatch):
+    """A SAC run trained before SAC runs wrote safe weights (best/model.zip + vecnormalize.pkl + model.json only):
+    exported to best/policy when the runs are read, its actions the SB3 model's, scored through the safe weights
+    (the residual kind) and shipped as residual-sac-<task>-n<n>-seed<k>, which the shipped specs name
+    residual-sac-<task>-n<n>."""
+    import pickle
+
+    from ehss_gym.agents import safeweights as sw
+    from ehss_gym.agents.specs import AGENTS, resolved_env_kwargs
+    from ehss_gym.evaluation.specs import shipped_specs
+    from ehss_gym.study import training as an
+    from ehss_gym.train.loop import make_env
+
+    runs_dir = tmp_path / "runs"
+    d = _fake_run(runs_dir, "residual-sac", "velocity", 2, 0)
+    kw = resolved_env_kwargs(env_kwargs_for(AGENTS["residual-sac"], "velocity", 2))
+    venv = make_env(kw, 2, 0.99, False)
+    venv.obs_rms.update(np.random.default_rng(0).normal(size=(50, *venv.observation_space.shape)) * 3 + 1)
+    model = make_agent(AGENTS["residual-sac"], venv, seed=0)
+    with torch.no_grad():  # a mean layer that acts (the zero-initialised one would hide a wrong export)
+        model.policy.actor.mu.weight.normal_()
+    model.save(str(d / "best" / "model.zip"))
+    with open(d / "best" / "vecnormalize.pkl", "wb") as f:
+        pickle.dump(venv, f)
+    (d / "best" / "model.json").write_text(json.dumps({"env_kwargs": kw}))
+    groups = an.group_runs(an.load_runs(str(runs_dir)))
+    (k, rs), = groups.items()
+    assert rs[0]["export_error"] is None and an.kept_model(rs[0]) == str(d / "best" / "policy")
+    assert an.learned_kind(rs[0]) == "residual-ppo"
+    assert an.group_spec(k, rs).name == "residual-sac-velocity-n2"
+    pol = sw.load_policy(str(d / "best" / "policy"))
+    obs = np.random.default_rng(1).normal(size=(200, *venv.observation_space.shape)).astype(np.float32) * 3
+    assert pol.head == "squashed"
+    assert np.array_equal(pol.predict(obs)[0], model.predict(venv.normalize_obs(obs), deterministic=True)[0])
+    models = tmp_path / "models"
+    out = an.ship(groups, str(models), made_by="test")
+    assert [os.path.basename(p) for p in out.written] == ["residual-sac-velocity-n2-seed0"] and out.skipped == []
+    monkeypatch.setattr(sw, "MODELS_DIR", str(models))
+    (spec,) = shipped_specs()
+    assert (spec.name, spec.kind, spec.env_kwargs["mode"]) == ("residual-sac-velocity-n2", "residual-ppo", "residual")
+
+
+def test_runs_with_todays_settings_form_one_group_however_given(tmp_path):
+    """A run whose --hp overrides give today's recipe is today's group (no variant); other settings are a variant."""
+    from ehss_gym.study import training as an
+
+    stem = __import__("ehss_gym.agents.safeweights", fromlist=["x"]).shipped_models()["residual-ppo-velocity-n2-seed0"]
+    d = _fake_run(tmp_path, "residual-ppo", "velocity", 2, 0, stem)
+    cfg = json.loads((d / "config.json").read_text())
+    assert an.variant({**cfg, "hp": {"gamma": 0.98}}) == ""  # today's value, given as a flag
+    other = {**cfg, "hp": {"gamma": 0.9}, "agent_spec": {**cfg["agent_spec"], "gamma": 0.9}}
+    assert an.variant(other) == '{"gamma":0.9}'
+
+
+class _ZeroAction:
+    """A residual policy that always acts 0: in the schedule action, the base law itself."""
+
+    def __init__(self, dim):
+        self.dim = dim
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        return np.zeros((len(obs), self.dim), dtype=np.float32), state
+
+
+def test_a_policy_trained_with_unmodelled_effects_meets_them_only_in_the_unmodelled_suite():
+    """The harness pins each suite's episodes: a policy whose env draws the unmodelled effects (as the residual recipe
+    trains) acts on the held-out episodes without them and on the unmodelled suite's with them, exactly the episodes
+    the scripted laws get. Its zero action is the base law, so every metric equals clf-n2's on both suites; with
+    the effects redrawn by its own env, the unmodelled suite's figures would differ."""
+    from ehss_gym.agents.specs import AGENTS
+    from ehss_gym.evaluation import harness as ev
+
+    kw = {"mode": "residual", **AGENTS["residual-ppo"].env_kwargs, "task": "position"}
+    assert kw["unmodelled_effects"] and kw["action"] == "schedule"
+    spec = ev.object_spec("zero", _ZeroAction(2), env_kwargs=kw)
+    cfg = ev.EvalConfig(suites=("heldout", "unmodelled"), tasks=("position",), heldout_episodes=2,
+                        episode_seconds=0.5, n_boot=100)
+    res = ev.evaluate([ev.scripted_spec("clf-n2"), spec], cfg, workers=1, progress=False)
+    eps = {ep.episode_id: ep for ep in res.episodes}
+    assert all(eps[e].physical["unmodelled"].off for e in eps if e.startswith("heldout"))
+    assert not any(eps[e].physical["unmodelled"].off for e in eps if e.startswith("unmodelled"))
+    rows = {(r["policy"], r["episode"]): r for r in res.rows}
+    for e in eps:
+        for m in ("trk_rmse", "dst_peak", "tv_u_rate", "rms_u"):
+            assert rows[("zero", e)][m] == rows[("clf-n2", e)][m], (e, m)
+    # ... and the effects act there: the same episode with them switched off scores otherwise
+    ep = eps["unmodelled-0"]
+    off = {**ep.physical, "unmodelled": eps["heldout-0"].physical["unmodelled"]}
+    (m,), _ = ev.rollout(_ZeroAction(2), kw, [ev.Episode("unmodelled", "position", "x", off)])
+    assert m["trk_rmse"] != rows[("zero", "unmodelled-0")]["trk_rmse"]
+
+
+def _fake_study():
+    """A TrainingStudy with one group and one task, the harness's results replaced by what the report reads."""
+    from types import SimpleNamespace
+
+    from ehss_gym.study import training as an
+
+    key = ("residual-ppo", "velocity", 2, "")
+    rs = [{"dir": "runs/r_s0", "config": {"agent": "residual-ppo", "task": "velocity", "n": 2, "seed": 0,
+                                           "timesteps": 64, "eval_freq": 64, "eval_episodes": 1, "hp": {}},
+           "summary": {"timesteps": 64, "wall_s": 6.0, "best_step": 0, "best_validation": {"figure": 1.0}},
+           "history": [{"step": 0, "figure": 1.0, "wall_s": 0.6}]}]
+    summary = [_row("heldout", "clf-n2", 1.0, 1.0), _row("heldout", "residual-ppo-velocity-n2", 1.02, 1.04),
+               _row("unmodelled", "dcomp-n2", 0.7, 0.7), _row("unmodelled", "residual-ppo-velocity-n2", 0.9, 0.95)]
+    for d in summary:
+        d.update({"n_runs": 1, "n_episodes": 2, "figure_iqm": d["figure"], "trk_rmse": 1e-6, "dst_peak": 1e-4,
+                  "tv_u_rate": 50.0, "rank": 1})
+    specs = [SimpleNamespace(name=n, learned=n.startswith("residual")) for n in ("clf-n2", "dcomp-n2",
+                                                                                  "residual-ppo-velocity-n2")]
+    res = SimpleNamespace(summary=summary, comparisons=[], specs=specs)
+    diag = {"suite": "heldout", "episodes": 2, "noisy_episodes": 1, "tv_rate_median_noisy": 1e4,
+            "tv_rate_median_clean": 50.0, "saturation_mean": 0.1, "trk_rmse_median": 1e-6}
+    task = {"task": "velocity", "wall": 12.3, "diag": [diag],
+            "unmodelled": an.unmodelled_target(summary, {"residual-ppo-velocity-n2"}),
+            "heldout": an.heldout_targets(summary, ["residual-ppo-velocity-n2"])}
+    seeds = {key: [{"seed": 0, "run": "r_s0", "step0": 1.0, "best": 1.0, "best_step": 0, "final": 1.1,
+                    "untrained": True, "heldout": 1.02, "unmodelled": 0.9, "wall_s": 6.0}]}
+    shipment = an.Shipment(written=[], retired=["residual-ppo-velocity-n6-seed0"],
+                           skipped=[("residual-sac-velocity-n2", "no safe weights")])
+    return an.TrainingStudy({key: rs}, {"velocity": res}, [task], seeds, {key: an.validation_target(rs)}, shipment,
+                            None, 8, "models")
 
 
 def test_report_template_renders_every_section():
-    groups = {("residual-ppo", "velocity", 2, ""): [{"config": {"agent": "residual-ppo", "task": "velocity", "n": 2,
-                                                                 "seed": 0, "timesteps": 64, "eval_freq": 64,
-                                                                 "eval_episodes": 1, "hp": {}},
-                                                      "summary": {"timesteps": 64, "wall_s": 6.0, "best_step": 0,
-                                                                  "best_validation": {"figure": 1.0}},
-                                                      "history": [{"step": 0, "wall_s": 0.6}]}]}
-    shipped = {"chosen": [{"base": "residual-ppo-velocity-n2", "label": "residual-ppo-velocity-n2", "figure": 0.9,
-                           "others": [{"label": "variant", "figure": 1.1}]}], "count": 1, "folder": "models",
-               "kb": 24.6, "names": ["residual-ppo-velocity-n2-seed0"]}
-    text = report_writer.markdown("ehss training-report --runs r", groups, [_fake_task()], None, shipped, "f.png", 8)
-    for part in ("## Runs", "## Hyperparameters", "## Training cost", "## Held-out results, velocity task",
-                 "improvement over clf-n2 +25.0% (95 % CI [+5.0%, +40.0%]) -> target (>= 20 %, CI excluding 0, >= 5 "
-                 "seeds) met", "halving NOT met", "Held-out figure of each training seed", "50% in the first 50 ms",
-                 "within 10 ms of the switch-on (median 2.00 ms)", "Evaluation wall time: 12 s.", "## Shipped models",
-                 "`variant` 1.100)", "1 policies in `models` (25 kB in total)"):
+    study = _fake_study()
+    text = report_writer.markdown("ehss training-report --runs r", study, None)
+    for part in ("# Training: residual PPO, residual SAC and pure PPO on EHSSTracking-v0", "## Runs",
+                 "## Hyperparameters", "## Learning curves and seeds", "### residual-ppo-velocity-n2",
+                 "![residual-ppo-velocity-n2](curve_residual-ppo-velocity-n2.png)",
+                 "**It loses on the held-out suite**: G 1.020 (95 % CI [0.918, 1.040]) against 1.000 for clf-n2",
+                 "**It loses on the unmodelled suite**: G 0.900", "trained (not the step-0 one) in 0 of 1 seeds",
+                 "| 0 | 1.000 | 1.000 | 0 | 1.100 | yes | 1.020 | 0.900 | 0.100 |", "## Results, velocity task",
+                 "ratio 1.286 -> **NOT met**", "Unmodelled suite in at least one task: **NOT met**",
+                 "`residual-ppo-velocity-n2` (CI upper end of G <= 1.05, clf-n2 = 1): G 1.020, 95 % CI [0.918, 1.040]"
+                 " -> **met**", "0 of 1 -> **NOT met** (fewer than 5 seeds ran)", "Evaluation wall time: 12 s.",
+                 "## Shipped models", "Nothing was shipped.",
+                 "`residual-sac-velocity-n2` not shipped: no safe weights.",
+                 "Retired (deleted from `models`", "`residual-ppo-velocity-n6-seed0`"):
         assert part in text, part
-    assert "## Initial exploration noise" not in text and "\n\n\n" not in text and text.endswith("runs.\n\n")
+    assert "## Initial exploration noise" not in text and "\n\n\n" not in text
+    for word in ("issue", "wave"):
+        assert word not in text.lower()
 
 
 def test_training_report_command_refuses_bad_input(tmp_path, capsys):
@@ -597,16 +824,21 @@ def test_train_config_file_gives_defaults_that_flags_override_and_bad_files_are_
 
 
 def test_report_names_the_exploration_study_by_its_command():
-    """The exploration section names the command that runs the study today, and says so when the JSON it reads was
-    recorded under another module name."""
+    """The exploration section names the command that runs the study today, says so when the JSON it reads was
+    recorded under another module name, and leaves out a study of an earlier loop."""
+    from ehss_gym.agents.specs import AGENTS, env_kwargs_for, resolved_env_kwargs
     from ehss_gym.study.exploration import COMMAND
 
+    study = _fake_study()
     row = {"log_std_init": -1.0, "std_mA": 3.7, "explore_figure": 1.0, "early_figures": {"0": [1.0]},
            "mean_early_figure": 1.0, "worst_early_figure": 1.0, "below_base": False}
+    kw = json.loads(json.dumps(resolved_env_kwargs(env_kwargs_for(AGENTS["residual-ppo"], "velocity", 2))))
     ex = {"command": COMMAND, "seeds": [0], "episodes": 2, "timesteps": 64, "eval_freq": 32, "rows": [row],
-          "largest_safe_log_std_init": -1.0}
-    text = report_writer.markdown("ehss training-report --runs r", {}, [], ex, None, "f.png", 8)
+          "largest_safe_log_std_init": -1.0, "env_kwargs": kw}
+    text = report_writer.markdown("ehss training-report --runs r", study, ex)
     assert f"Measured by `{COMMAND}` (seeds" in text
-    old = report_writer.markdown("ehss training-report --runs r", {}, [], {**ex, "command": "python -m old.name"},
-                                 None, "f.png", 8)
+    old = report_writer.markdown("ehss training-report --runs r", study, {**ex, "command": "python -m old.name"})
     assert f"Measured by `{COMMAND}`" in old and "`python -m old.name`, which no longer exists" in old
+    earlier = report_writer.markdown("ehss training-report --runs r", study,
+                                     {**ex, "env_kwargs": {**kw, "action": "current"}})
+    assert "## Initial exploration noise" not in earlier and "measured an earlier loop" in earlier

@@ -11,9 +11,9 @@ CleanRL script.
 3. the agent comes from :mod:`ehss_gym.agents.factory` (hyperparameters in :mod:`ehss_gym.agents.specs`);
 4. custom behaviour (progress bar, held-out evaluation and best model, checkpoints, wall time) is in
    SB3 callbacks (:mod:`ehss_gym.train.callbacks`);
-5. the end: the best and the final model, each as an SB3 ``.zip`` + VecNormalize ``.pkl`` and (PPO) as safe
-   weights (``policy.safetensors`` + ``policy.json``, :mod:`ehss_gym.agents.export`; SAC's squashed actor is not
-   that format: score it as ``sb3:<run>/best/model.zip``), and ``summary.json``. A resumed SAC run restarts with an
+5. the end: the best and the final model, each as an SB3 ``.zip`` + VecNormalize ``.pkl`` and as safe weights
+   (``policy.safetensors`` + ``policy.json``, :mod:`ehss_gym.agents.export`; SAC's actor with the format's squashed
+   head), and ``summary.json``. A resumed SAC run restarts with an
    empty replay buffer (checkpoints hold the model, not the buffer).
 
 Run folder ``<out>`` (default ``runs/<run name>``): ``config.json`` (the full config, agent
@@ -116,16 +116,14 @@ def open_run(cfg: Config) -> dict | None:
 
 def export_model(model, vecnormalize, folder: str, cfg: Config, extra: dict) -> None:
     """SB3 files (model.zip, vecnormalize.pkl, and model.json: every env setting the model acts in, so that
-    ``ehss evaluate --policies sb3:<folder>/model.zip`` scores it in its own loop) and (PPO) safe weights
-    (policy.safetensors/.json) in ``folder``."""
+    ``ehss evaluate --policies sb3:<folder>/model.zip`` scores it in its own loop) and safe weights
+    (policy.safetensors/.json; PPO's Gaussian head, SAC's squashed one) in ``folder``."""
     os.makedirs(folder, exist_ok=True)
     atomic_write(os.path.join(folder, "model.zip"), lambda f: model.save(f))
     atomic_write(os.path.join(folder, "vecnormalize.pkl"), lambda f: pickle.dump(vecnormalize, f))
     full = cfg.full()
     env_kwargs = resolved_env_kwargs(full["env_kwargs"])
     atomic_write_text(os.path.join(folder, "model.json"), json.dumps({"env_kwargs": env_kwargs}, indent=1) + "\n")
-    if not isinstance(model, PPO):  # the safe-weights format is PPO's Gaussian MLP policy
-        return
     export_policy(model, os.path.join(folder, "policy"), vecnormalize=vecnormalize, name=cfg.run_name(),
                   env_kwargs=env_kwargs, metadata={"config": full, **extra})
 
@@ -267,11 +265,9 @@ def describe(summary: dict) -> str:
     if summary.get("best_is_untrained"):
         lines.append("  note: the best is the untrained step-0 policy (a zero-initialised residual: the base law "
                      "itself); no later evaluation beat it, so best/ holds no training")
-    files = ("policy.json + .safetensors: safe weights" if summary.get("algo", "ppo") == "ppo" else
-             "model.zip + vecnormalize.pkl: score with sb3:<folder>/model.zip")
     if "plant" in summary:
         lines.append(f"plant: {summary['plant']}")
-    lines.append(f"run folder: {summary['run_dir']} (best/ and final/{files})")
+    lines.append(f"run folder: {summary['run_dir']} (best/ and final/policy.json + .safetensors: safe weights)")
     return "\n".join(lines)
 
 

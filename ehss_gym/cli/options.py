@@ -557,13 +557,15 @@ def add_training_report(p) -> None:
     p.add_argument("--runs", nargs="+", default=[os.path.join("runs", "final")], metavar="FOLDER",
                    help="folders of run folders")
     p.add_argument("--out", default=out, help="output folder")
-    p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=48, help="held-out episodes per task")
+    p.add_argument("--episodes", type=int_at_least("--episodes", 1), default=48,
+                   help="episodes per suite (held-out, unmodelled) and task")
     p.add_argument("--exploration", default=os.path.join(out, "exploration_noise.json"), metavar="JSON",
                    help="the initial-exploration-noise study's JSON (python -m ehss_gym.study.exploration); left out "
                         "if missing")
     add_deprecated(p, "--noise", "--exploration")
     p.add_argument("--ship", default=None, metavar="FOLDER",
-                   help="copy the chosen residual policies' safe weights here (e.g. ehss_gym/models)")
+                   help="ship every group's kept policies here as safe weights (e.g. ehss_gym/models), and "
+                        "delete the models there that this shipment does not write")
     add_workers(p, "evaluation processes")
     p.set_defaults(workers=2)
     add_progress(p)
@@ -668,8 +670,9 @@ COMMANDS = (
             "Train residual PPO (or pure PPO, or residual SAC for comparison) on EHSSTracking-v0: one seed, or "
             "several (--seeds) in parallel processes or on Ray.", add_train, "train"),
     Command("training-report", "evaluate finished training runs and write reports/training",
-            "Training cost, learning curves and held-out results of the runs that ehss train wrote; optionally "
-            "ship the chosen residual policies.", add_training_report, "training_report"),
+            "Learning curves, per-seed figures, the held-out and unmodelled suites beside the scripted policies and "
+            "the targets of the runs that ehss train wrote; optionally ship their policies (retiring the models "
+            "this shipment does not write).", add_training_report, "training_report"),
     Command("ablation", "the residual recipe's ablation: reward x action, then exploration x base law, on one seed",
             "Train residual PPO on the position task with the unmodelled effects, one seed per cell: reward (class, "
             "physical) x action (current, reference, schedule, reference-schedule), then on stage 1's two best "

@@ -1,11 +1,12 @@
 """``ehss training-report``: the training study of finished runs (:mod:`ehss_gym.study.training`) and its report
 (:mod:`ehss_gym.reporting.training`).
 
-    ehss training-report --runs runs/res_v_n2 runs/final_ppo --out reports/training --episodes 48 --ship ehss_gym/models
+    ehss training-report --runs runs/res_v_n2 runs/ppo_v_n2 --out reports/training --episodes 48 --ship ehss_gym/models
 
-Evaluates every finished run under the ``--runs`` folders with the evaluation harness and writes TRAINING.md,
-learning_curves.png, episodes.csv and results.json; ``--ship`` also copies the chosen residual policies' safe
-weights to a models folder. Bad input (a missing folder, no finished runs) prints a message and exits with 2.
+Evaluates every finished run under the ``--runs`` folders with the evaluation harness and writes TRAINING.md, a
+learning-curve PNG per group, episodes.csv and results.json; ``--ship`` also copies the kept policies' safe weights
+to a models folder and retires the models there that it does not write. Bad input (a missing folder, no finished
+runs) prints a message and exits with 2.
 """
 
 from __future__ import annotations
@@ -25,8 +26,9 @@ def run(args) -> int:
         print(f"ehss training-report: error: {exc}", file=sys.stderr)
         return 2
     files = write_report(study, args.out, command_line(args.runs, args.out, args.episodes, args.ship))
-    print(f"wrote {', '.join(files)}" + (f"; shipped {len(study.shipped)} models to {args.ship}"
-                                         if study.shipped else ""))
+    sh = study.shipment
+    print(f"wrote {', '.join(files)}" + (f"; shipped {len(sh.written)} models to {args.ship}, retired "
+                                         f"{len(sh.retired)}" if sh is not None else ""))
     return 0
 
 

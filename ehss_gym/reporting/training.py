@@ -1,8 +1,8 @@
-"""The training report (``ehss training-report``): ``TRAINING.md`` with its prose in templates/training.md.j2, the
-learning curves, ``episodes.csv`` and ``results.json``, rendered from the training study
+"""The training report (``ehss training-report``): ``TRAINING.md`` with its prose in templates/training.md.j2, a
+learning-curve PNG per group, ``episodes.csv`` and ``results.json``, rendered from the training study
 (:func:`ehss_gym.study.training.run_training_study`, which evaluates the runs and ships the models).
 
-    ehss training-report --runs runs/final runs/final_ppo --out reports/training --episodes 48 --ship ehss_gym/models
+    ehss training-report --runs runs/res_p_n2 runs/ppo_p_n2 --out reports/training --episodes 48 --ship ehss_gym/models
 """
 
 from __future__ import annotations
@@ -11,11 +11,12 @@ import csv
 import io
 import json
 import os
+import re
 
 import matplotlib
 import numpy as np
 
-from ehss_gym.agents.specs import AGENTS
+from ehss_gym.agents.specs import AGENTS, PPO_KEYS, sac_kwargs
 from ehss_gym.infra.fmt import fmt_cell
 from ehss_gym.infra.util import atomic_write, atomic_write_text
 from ehss_gym.study import training as an
@@ -29,8 +30,6 @@ import matplotlib.pyplot as plt  # noqa: E402  (after choosing the Agg backend: 
 COMMAND = "ehss training-report"
 EPISODE_COLUMNS = ("task", "suite", "policy", "run", "episode", "q_overall", "q_tracking", "q_disturbance", "q_effort",
                    "q_chatter", "trk_rmse", "dst_peak", "tv_u_rate", "diverged", "lost_track")
-CURVES = (("figure", "validation figure (ref. CLF n=2 = 1)"), ("rel_tracking", "tracking / base law"),
-          ("rel_disturbance", "disturbance / base law"))  # the learning curves' rows: history field, y label
 
 
 def cell(x, d: int = 3) -> str:
@@ -44,31 +43,32 @@ def cells(rows) -> list[list[str]]:
 
 
 # ---------------------------------------------------------------------------------------------------
-# Figure
+# Figures
 
 
-def plot_curves(groups: dict, path: str, made_by: str = COMMAND) -> None:
-    """The learning curves (validation figure, and the tracking and disturbance figures against the base law's, over
-    training steps, one line per seed, one column per group) as a PNG."""
-    keys = list(groups)
-    fig, axes = plt.subplots(3, len(keys), figsize=(4.2 * len(keys), 8.0), squeeze=False, sharex="col")
-    for j, k in enumerate(keys):
-        for i, (field, ylabel) in enumerate(CURVES):
-            ax = axes[i][j]
-            for r in groups[k]:
-                h = r["history"]
-                ax.plot([x["step"] / 1e3 for x in h], [np.nan if x[field] is None else x[field] for x in h], lw=1,
-                        marker=".",
-                        label=f"seed {r['config']['seed']}")
-            ax.axhline(1.0, color="k", lw=0.8, ls="--")
-            ax.set_ylabel(ylabel, fontsize=8)
-            if i == 0:
-                ax.set_title(an.label(k), fontsize=9)
-            if i == len(CURVES) - 1:
-                ax.set_xlabel("agent steps [thousands]")
-            ax.tick_params(labelsize=7)
-        axes[0][j].legend(fontsize=6)
-    fig.suptitle(f"Learning curves on the validation scenarios (lower is better); made by: {made_by}", fontsize=8)
+def curve_file(key: tuple) -> str:
+    """The learning-curve PNG's file name of a group."""
+    return "curve_" + re.sub(r"[^A-Za-z0-9_.-]+", "_", an.label(key)).strip("_") + ".png"
+
+
+def plot_curve(key: tuple, rs: list[dict], path: str, made_by: str = COMMAND) -> None:
+    """A group's learning curves as a PNG: the validation figure (clf-n2 = 1; a residual agent's step-0 policy is its
+    base law) over training steps, one line per seed, on a log axis when the figures span more than a decade."""
+    fig, ax = plt.subplots(figsize=(6.0, 3.4))
+    ys = []
+    for r in rs:
+        h = r["history"]
+        y = [np.nan if x["figure"] is None else x["figure"] for x in h]
+        ys += [v for v in y if np.isfinite(v)]
+        ax.plot([x["step"] / 1e3 for x in h], y, lw=1, marker=".", label=f"seed {r['config']['seed']}")
+    ax.axhline(1.0, color="k", lw=0.8, ls="--", label="clf-n2")
+    if ys and min(ys) > 0 and max(ys) / min(ys) > 10:
+        ax.set_yscale("log")
+    ax.set_xlabel("agent steps [thousands]")
+    ax.set_ylabel("validation figure G (lower is better)", fontsize=8)
+    ax.set_title(f"{an.label(key)}; made by: {made_by}", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=6)
     fig.tight_layout()
     atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=110))
     plt.close(fig)
@@ -91,9 +91,15 @@ def runs_context(groups: dict) -> list[dict]:
 
 
 def hyperparameter_rows() -> list[list[str]]:
-    """One row per AgentSpec field (the name aside), one column per agent, values as JSON."""
-    fields = [f for f in AGENTS["residual-ppo"].as_dict() if f != "name"]
-    return cells([[f] + [json.dumps(AGENTS[a].as_dict()[f]) for a in AGENTS] for f in fields])
+    """One row per AgentSpec field of any agent (the name aside), one column per agent, values as JSON ("-" where an
+    agent has no such field)."""
+    specs = {a: AGENTS[a].as_dict() for a in AGENTS}
+    fields = list(dict.fromkeys(f for d in specs.values() for f in d if f != "name"))
+
+    def value(a, f):  # SAC does not read PPO's own settings
+        unused = f not in specs[a] or (AGENTS[a].algo != "ppo" and f in PPO_KEYS and f not in sac_kwargs(AGENTS[a]))
+        return None if unused else json.dumps(specs[a][f])
+    return cells([[f] + [value(a, f) for a in AGENTS] for f in fields])
 
 
 def exploration_rows(noise: dict) -> list[list[str]]:
@@ -104,22 +110,19 @@ def exploration_rows(noise: dict) -> list[list[str]]:
                   for r in noise["rows"]])
 
 
-def cost_rows(groups: dict) -> list[list[str]]:
-    """Training cost per seed: steps, wall time [min] in all and to the kept policy, kept step and its figure."""
-    return cells([[an.label(k), r["config"]["seed"], r["summary"]["timesteps"], r["summary"]["wall_s"] / 60,
-                   an.wall_to_best(r) / 60, r["summary"]["best_step"], r["summary"]["best_validation"]["figure"]]
-                  for k, rs in groups.items() for r in rs])
+def seed_rows(rows: list[dict]) -> list[list[str]]:
+    """A group's per-seed table (:func:`ehss_gym.study.training.seed_table`)."""
+    return cells([[r["seed"], r["step0"], r["best"], r["best_step"], r["final"], "yes" if r["untrained"] else "no",
+                   r.get("heldout"), r.get("unmodelled"), r["wall_s"] / 60] for r in rows])
 
 
 def summary_rows(res) -> list[list[str]]:
     """The harness's summary: one row per (suite, policy) with the overall figure's CI over seeds and episodes."""
     rows = []
     for d in res.summary:
-        lo = d.get("figure_lo_both", d["figure_lo"])
-        hi = d.get("figure_hi_both", d["figure_hi"])
         rows.append([d["suite"], d["policy"], d["n_runs"], d["n_episodes"], d["figure"],
-                     f"[{cell(lo)}, {cell(hi)}]", d["figure_iqm"], d["trk_rmse"], d["dst_peak"], d["tv_u_rate"],
-                     "FAILED" if d["failed"] else "", d["rank"] or "earlier loop"])
+                     f"[{cell(an.ci_lo(d))}, {cell(an.ci_hi(d))}]", d["figure_iqm"], d["trk_rmse"], d["dst_peak"],
+                     d["tv_u_rate"], "FAILED" if d["failed"] else "", d["rank"] or "earlier loop"])
     return cells(rows)
 
 
@@ -131,43 +134,67 @@ def comparison_rows(res) -> list[list[str]]:
                   for c in res.comparisons])
 
 
-def tv_rows(tv: list) -> list[list[str]]:
-    """Where each residual group's added control TV comes from (:func:`ehss_gym.study.training.tv_sources`)."""
-    return cells([[lab, ts["policies"], ts["episodes"], ts["tv_ratio"], ts["own_share_of_added"],
-                   ts["own_share_of_total"], ts["crossings_ratio"], ts["rmse_ratio"]] for lab, ts in tv])
+def standing(name: str, res) -> list[dict]:
+    """Where a learned policy stands on each evaluated suite: its G with its CI, the best scripted policy's G, and
+    ``loses`` (a failed gate, or a G above the best scripted one's)."""
+    out = []
+    scripted = {s.name for s in res.specs if not s.learned}
+    for suite in an.SUITES:
+        mine = an.best_row(res.summary, suite, {name})
+        best = an.best_row(res.summary, suite, scripted)
+        if mine is None or best is None:
+            continue
+        out.append({"suite": suite, "g": mine["figure"], "lo": an.ci_lo(mine), "hi": an.ci_hi(mine),
+                    "failed": bool(mine["failed"]), "scripted": best["policy"], "g_scripted": best["figure"],
+                    "earlier_loop": bool(mine.get("earlier_loop")),
+                    "loses": bool(mine["failed"] or mine["figure"] > best["figure"])})
+    return out
+
+
+def group_context(key: tuple, study) -> dict:
+    """Everything a group's section shows: its curve, the seeds' table, the validation target, its standing."""
+    res = study.results.get(key[1])
+    return {"label": an.label(key), "figure": curve_file(key), "seed_rows": seed_rows(study.seeds[key]),
+            "validation": study.validation[key], "standing": standing(an.label(key), res) if res else []}
 
 
 def task_context(t: dict, res) -> dict:
-    """Everything the report's section on task ``t["task"]`` shows, from its analyses (:class:`TrainingStudy`)."""
+    """Everything the report's section on task ``t["task"]`` shows (:func:`ehss_gym.study.training.task_analyses`)."""
     return {"task": t["task"], "summary_rows": summary_rows(res), "comparison_rows": comparison_rows(res),
-            "targets": t["targets"], "seed_rows": cells(t["seed_scores"]), "diag": t["diag"], "eb": t["eb"],
-            "fa": t["fa"], "tv_rows": tv_rows(t["tv"]), "wall": t["wall"]}
+            "unmodelled": t["unmodelled"], "heldout": t["heldout"], "diag": t["diag"], "wall": t["wall"]}
 
 
-def shipped_context(groups: dict, shipped: list[str], folder: str) -> dict | None:
-    """The shipped models: the chosen variant per (task, n) with the others' figures, the files and their size."""
-    if not shipped:
+def shipped_context(groups: dict, shipment, folder: str | None) -> dict | None:
+    """The shipment: the group chosen per (agent, task, n) with the other variants' validation figures, the files
+    written and their size, the models retired, the groups not shipped."""
+    if shipment is None:
         return None
     chosen = [{"base": an.label(b + ("",)), "label": an.label(k), "figure": an.mean_validation(groups[k]),
                "others": [{"label": an.label(o), "figure": an.mean_validation(groups[o])} for o in groups
                           if o[:3] == b and o != k]} for b, k in sorted(an.choose_variants(groups).items())]
-    total = sum(os.path.getsize(p + ext) for p in shipped for ext in (".safetensors", ".json"))
-    return {"chosen": chosen, "count": len(shipped), "folder": folder, "kb": total / 1e3,
-            "names": [os.path.basename(p) for p in shipped]}
+    total = sum(os.path.getsize(p + ext) for p in shipment.written for ext in (".safetensors", ".json"))
+    return {"chosen": chosen, "count": len(shipment.written), "folder": folder, "kb": total / 1e3,
+            "names": [os.path.basename(p) for p in shipment.written], "retired": shipment.retired,
+            "skipped": shipment.skipped}
 
 
-def markdown(command: str, groups: dict, tasks: list[dict], exploration: dict | None, shipped: dict | None,
-             figure: str, episodes: int) -> str:
-    """TRAINING.md: the template filled with the numbers and tables above."""
-    return render("training.md.j2", command=command, runs=runs_context(groups), agents=list(AGENTS),
+def markdown(command: str, study, exploration: dict | None = None) -> str:
+    """TRAINING.md: the template filled with the numbers and tables above (an exploration study of an earlier loop is
+    named, not shown)."""
+    earlier = exploration is not None and not an.exploration_is_current(exploration)
+    exploration = None if earlier else exploration
+    sections = [task_context(t, study.results[t["task"]]) for t in study.tasks]
+    return render("training.md.j2", command=command, runs=runs_context(study.groups), agents=list(AGENTS),
                   hyperparameter_rows=hyperparameter_rows(), exploration=exploration,
                   exploration_command=EXPLORATION_COMMAND,
-                  exploration_rows=exploration_rows(exploration) if exploration else [],
+                  exploration_rows=exploration_rows(exploration) if exploration else [], exploration_earlier=earlier,
                   agent_log_std=AGENTS["residual-ppo"].log_std_init,
-                  has_variants=any("log_std_init" in k[3] for k in groups), cost_rows=cost_rows(groups),
-                  figure=os.path.basename(figure), made_by=COMMAND, tasks=tasks, episodes=episodes,
-                  shipped=shipped, onset_peak=an.ONSET_PEAK, target_improvement=an.TARGET_IMPROVEMENT,
-                  target_seeds=an.TARGET_SEEDS, target_friction=an.TARGET_FRICTION, cell=cell, fmt=format)
+                  groups=[group_context(k, study) for k in study.groups], made_by=COMMAND, tasks=sections,
+                  episodes=study.episodes, shipped=shipped_context(study.groups, study.shipment, study.models_dir),
+                  target_ratio=an.TARGET_UNMODELLED_RATIO, target_hi=an.TARGET_HELDOUT_HI,
+                  target_trained=an.TARGET_TRAINED_SEEDS, target_seeds=an.TARGET_SEEDS,
+                  unmodelled_met_somewhere=any(t["unmodelled"] and t["unmodelled"]["met"] for t in sections),
+                  cell=cell, fmt=format)
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -185,10 +212,16 @@ def episodes_csv(results: dict) -> str:
     return buf.getvalue()
 
 
-def results_json(results: dict) -> str:
-    """The harness's summary and comparisons per task."""
-    summary = {task: {"summary": res.summary, "comparisons": res.comparisons} for task, res in results.items()}
-    return json.dumps(summary, indent=1, default=str) + "\n"
+def results_json(study) -> str:
+    """The harness's summary and comparisons and the targets per task, the per-seed rows and the validation target
+    per group."""
+    out = {"tasks": {t["task"]: {"summary": study.results[t["task"]].summary,
+                                 "comparisons": study.results[t["task"]].comparisons,
+                                 "unmodelled_target": t["unmodelled"], "heldout_targets": t["heldout"]}
+                     for t in study.tasks},
+           "groups": {an.label(k): {"seeds": study.seeds[k], "validation_target": study.validation[k]}
+                      for k in study.groups}}
+    return json.dumps(out, indent=1, default=str) + "\n"
 
 
 def command_line(runs: list[str], out: str, episodes: int, ship: str | None) -> str:
@@ -202,21 +235,19 @@ def write_report(study, out: str, command: str) -> list[str]:
 
     Args:
         study: the training study (evaluated runs, analyses, shipped models).
-        out: output folder (TRAINING.md, learning_curves.png, episodes.csv, results.json).
+        out: output folder (TRAINING.md, a learning-curve PNG per group, episodes.csv, results.json).
         command: the command line that made it (printed at the top of TRAINING.md).
     """
     os.makedirs(out, exist_ok=True)
-    figure = os.path.join(out, "learning_curves.png")
-    plot_curves(study.groups, figure)
-    sections = [task_context(t, study.results[t["task"]]) for t in study.tasks]
-    shipped = shipped_context(study.groups, study.shipped, study.models_dir)
-    files = {"TRAINING.md": markdown(command, study.groups, sections, study.exploration, shipped, figure,
-                                     study.episodes),
-             "episodes.csv": episodes_csv(study.results), "results.json": results_json(study.results)}
+    figures = [os.path.join(out, curve_file(k)) for k in study.groups]
+    for k, path in zip(study.groups, figures):
+        plot_curve(k, study.groups[k], path)
+    files = {"TRAINING.md": markdown(command, study, study.exploration),
+             "episodes.csv": episodes_csv(study.results), "results.json": results_json(study)}
     for name, text in files.items():
         atomic_write_text(os.path.join(out, name), text)
-    return [figure] + [os.path.join(out, name) for name in files]
+    return figures + [os.path.join(out, name) for name in files]
 
 
-__all__ = ["COMMAND", "cell", "plot_curves", "markdown", "episodes_csv", "results_json", "command_line",
+__all__ = ["COMMAND", "cell", "curve_file", "plot_curve", "markdown", "episodes_csv", "results_json", "command_line",
            "write_report"]
