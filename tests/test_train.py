@@ -454,12 +454,14 @@ def _same_info(a: dict, b: dict) -> None:
             assert str(a[k]) == str(b[k]), k  # scenario objects and metrics dicts by their text
 
 
-@pytest.mark.parametrize("over, low", [({}, -1.3), ({"mode": "direct"}, -1.3),
-                                       ({"current_limit": None, "residual_scale": 1e5}, 0.5)])  # the last diverges
+@pytest.mark.parametrize("over, low", [({}, -1.3), ({"action": "current"}, -1.3),
+                                       ({"mode": "direct", "action": "current"}, -1.3),
+                                       ({"action": "current", "current_limit": None, "residual_scale": 1e5}, 0.5)])
 def test_native_vec_env_steps_like_dummy_vec_env(over, low):
     """Step by step, with out-of-range actions and auto-resets every 50 steps (or at divergence): observations,
     float32 rewards, dones, infos (TimeLimit.truncated, terminal_observation, Monitor's episode, metrics,
-    divergence_reason) and reset infos all equal."""
+    divergence_reason) and reset infos all equal; in the recipe's loop (its action mode, the unmodelled effects) and
+    with a current residual (the last case diverges)."""
     kw = {**SHORT_KW, **over}
     a, b = _dummy(3, kw), NativeVecEnv(3, kw)
     for v in (a, b):
@@ -468,7 +470,7 @@ def test_native_vec_env_steps_like_dummy_vec_env(over, low):
     rng = np.random.default_rng(0)
     ends = diverged = 0
     for _ in range(160):
-        act = rng.uniform(low, 1.3, size=(3, 1)).astype(np.float32)
+        act = rng.uniform(low, 1.3, size=(3, *a.action_space.shape)).astype(np.float32)
         (oa, ra, da, ia), (ob, rb, db, ib) = a.step(act), b.step(act)
         assert np.array_equal(oa, ob) and np.array_equal(ra, rb) and rb.dtype == np.float32 and np.array_equal(da, db)
         for x, y in zip(ia, ib):
