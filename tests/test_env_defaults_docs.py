@@ -9,6 +9,7 @@ import shutil
 import pytest
 
 import ehss_gym.envs.config as ec
+from ehss_gym.agents.specs import PINNED_ENV_KEYS, env_kwargs_for, get_spec, resolved_env_kwargs
 from ehss_gym.envs import defaults
 from ehss_gym.envs.config import EnvConfig, defaults_table
 
@@ -63,12 +64,33 @@ def test_write_rewrites_only_the_marked_blocks(tmp_path, monkeypatch):
         defaults.rewrite("no block here", "")
 
 
-def test_shipped_models_act_in_the_loop_the_docs_describe():
-    """docs/ENV.md and agents/specs.py: the shipped models pin the SVF, no adaptive layer, no pressure domain, no
-    shaper, the paper's start, the plain law and a 1 ms agent period."""
-    files = sorted(glob.glob(os.path.join(ROOT, "ehss_gym", "models", "*.json")))
-    assert files
-    for f in files:
-        kw = json.load(open(f))["env_kwargs"]
-        assert (kw["estimator"], kw["layer_gain"], kw["pressure_domain"], kw["ref_accel"], kw["bumpless"],
-                kw["smoothing"], kw["agent_period"]) == ("foh", 0.0, None, 0.0, False, 0.0, 20), f
+def shipped_loop_mismatches(folder: str) -> list[str]:
+    """The shipped models in ``folder`` whose pinned settings are not the env's defaults for their task and n with
+    their agent's recipe (:func:`ehss_gym.agents.specs.resolved_env_kwargs` of the agent's training env), each with
+    the settings that differ."""
+    out = []
+    for f in sorted(glob.glob(os.path.join(folder, "*.json"))):
+        cfg = json.load(open(f))
+        kw = cfg["env_kwargs"]
+        spec = get_spec(cfg["metadata"]["agent_spec"]["name"])
+        want = resolved_env_kwargs(env_kwargs_for(spec, kw["task"], kw["n"]))
+        bad = sorted(k for k in (*PINNED_ENV_KEYS, "unmodelled_effects") if kw.get(k) != want.get(k))
+        if bad:
+            out.append(f"{os.path.basename(f)}: {bad}")
+    return out
+
+
+def test_shipped_models_act_in_todays_loop_as_the_docs_say():
+    """docs/ENV.md and agents/specs.py: every shipped model was trained with its agent's recipe in today's loop (the
+    env's defaults for its task and n); a change of the defaults or the recipe makes them stale (retrain and ship)."""
+    assert glob.glob(os.path.join(ROOT, "ehss_gym", "models", "*.json"))
+    assert shipped_loop_mismatches(os.path.join(ROOT, "ehss_gym", "models")) == []
+
+
+def test_a_model_of_another_loop_is_found(tmp_path, monkeypatch):
+    """The check above can fail: a shipped file that pins another law setting is named with that setting."""
+    src = sorted(glob.glob(os.path.join(ROOT, "ehss_gym", "models", "*.json")))[0]
+    cfg = json.load(open(src))
+    cfg["env_kwargs"]["sigma"] *= 2
+    (tmp_path / "m.json").write_text(json.dumps(cfg))
+    assert shipped_loop_mismatches(str(tmp_path)) == ["m.json: ['sigma']"]
