@@ -354,6 +354,8 @@ def test_run_summary_prints_the_best_and_the_final_policy_and_flags_an_untrained
     text = describe(s)
     assert "best  (step 0): validation figure 1.0000" in text and "final (step 20480): validation figure 5.3000" in text
     assert "effort x12.000" in text and "the best is the untrained step-0 policy" in text
+    assert "the base law itself" in describe({**s, "agent": "residual-ppo"})
+    assert "randomly initialised" in describe({**s, "agent": "ppo"})
     assert "untrained" not in describe({**s, "best_is_untrained": False, "best_step": 20480,
                                         "best_validation": worse})
 

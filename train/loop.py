@@ -263,8 +263,10 @@ def describe(summary: dict) -> str:
              f"  best  (step {summary['best_step']}): {scores(b)}",
              f"  final (step {f['step']}): {scores(f)}"]
     if summary.get("best_is_untrained"):
-        lines.append("  note: the best is the untrained step-0 policy (a zero-initialised residual: the base law "
-                     "itself); no later evaluation beat it, so best/ holds no training")
+        what = ("a zero-initialised residual: the base law itself" if str(summary.get("agent", "")).startswith(
+            "residual") else "the randomly initialised network")
+        lines.append(f"  note: the best is the untrained step-0 policy ({what}); no later evaluation beat it, so best/ "
+                     "holds no training")
     if "plant" in summary:
         lines.append(f"plant: {summary['plant']}")
     lines.append(f"run folder: {summary['run_dir']} (best/ and final/policy.json + .safetensors: safe weights)")
