@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import zipfile
 
 import numpy as np
@@ -15,6 +16,7 @@ import torch
 import torch.nn as nn
 from gymnasium import spaces
 from safetensors.torch import save
+from stable_baselines3 import PPO, SAC
 from stable_baselines3.common.distributions import (
     DiagGaussianDistribution,
     SquashedDiagGaussianDistribution,
@@ -248,10 +250,6 @@ def export_saved_model(folder, *, algo: str, name: str, metadata: dict | None = 
     Raises:
         SafeWeightsError: a missing or unreadable file, or a policy the format cannot reproduce (the reason named).
     """
-    import pickle
-
-    from stable_baselines3 import PPO, SAC
-
     classes = {"ppo": PPO, "sac": SAC}
     if algo not in classes:
         raise SafeWeightsError(f"algo must be one of {sorted(classes)}, got {algo!r}")

@@ -126,7 +126,7 @@ def step_run(native: bool, steps: int) -> float:
     venv = make_env(env_kwargs_for(spec, "velocity", 2), spec.n_envs, spec.gamma, spec.norm_reward, native=native)
     venv.seed(0)
     venv.reset()
-    actions = np.zeros((spec.n_envs, 1), dtype=np.float32)
+    actions = np.zeros((spec.n_envs, *venv.action_space.shape), dtype=np.float32)
     t0 = time.perf_counter()
     for _ in range(steps // spec.n_envs):
         venv.step(actions)

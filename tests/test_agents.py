@@ -54,7 +54,8 @@ def test_untrained_residual_policy_is_the_base_law(residual):
         for k in ("rmse", "max_abs_e", "tv_u_rate", "saturation"):
             assert g[k] == b[k]
     # and a non-zero residual does change the loop (so the comparison above can fail)
-    push = run_episodes(kw, scs, lambda o: np.full((len(o), 1), 0.5, dtype=np.float32))
+    k = venv.action_space.shape[0]  # the recipe's action mode's size
+    push = run_episodes(kw, scs, lambda o: np.full((len(o), k), 0.5, dtype=np.float32))
     assert push[0]["rmse"] != base[0]["rmse"]
 
 

@@ -406,9 +406,9 @@ def test_run_names_are_stable(monkeypatch):
     meta = load_policy(shipped_models()["residual-ppo-velocity-n2-seed1"]).metadata
     recorded = {**meta["agent_spec"], "net_arch": tuple(meta["agent_spec"]["net_arch"])}
     monkeypatch.setitem(specs.AGENTS, "residual-ppo", specs.AgentSpec(**recorded))
-    cfg = Config(agent="residual-ppo", task="velocity", n=2, timesteps=meta["timesteps"], seed=1, eval_freq=50_000,
-                 eval_episodes=24, out="elsewhere", progress=False)
-    assert cfg.run_name() == meta["run_name"] == "residual-ppo_velocity_n2_s1_23a16e78"
+    cfg = Config(agent="residual-ppo", task="velocity", n=2, timesteps=meta["timesteps"], seed=1, eval_freq=25_000,
+                 eval_episodes=16, out="elsewhere", progress=False)
+    assert cfg.run_name() == meta["run_name"] == "residual-ppo_velocity_n2_s1_3b477188"
 
 
 # --- the package layout ----------------------------------------------------------------------------------
@@ -643,7 +643,7 @@ def test_ship_writes_every_group_and_retires_the_rest(tmp_path):
     assert {_SEED_RE.match(n).group(1) for n in names} == {"residual-ppo-velocity-n2"}
     assert out.retired == ["residual-ppo-velocity-n2-seed4", "residual-ppo-velocity-n6-seed0"]
     assert [lab for lab, _ in out.skipped] == ["residual-sac-velocity-n2"]
-    assert "cannot be read" in out.skipped[0][1]  # an unreadable zip: not exported, its reason given
+    assert "export_saved_model" in out.skipped[0][1]  # a zip without safe weights: not shipped, the way out named
     files = sorted(n + e for n in names for e in (".json", ".safetensors"))
     assert sorted(os.listdir(models)) == ["README.txt"] + files
     assert load_policy(out.written[0]).metadata["made_by"].endswith("by test")
@@ -657,13 +657,15 @@ def test_ship_writes_every_group_and_retires_the_rest(tmp_path):
 
 
 def test_an_old_sac_run_is_exported_evaluated_and_shipped_as_safe_weights(tmp_path, monkeypatch):
-    """A SAC run trained before SAC runs wrote safe weights (best/model.zip + vecnormalize.pkl + model.json only):
-    exported to best/policy when the runs are read, its actions the SB3 model's, scored through the safe weights
+    """A SAC run trained before SAC runs wrote safe weights (best/model.zip + vecnormalize.pkl + model.json only) is
+    scored as its zip and not shipped, the reason naming the export; exported to best/policy, its actions are the SB3
+    model's, scored through the safe weights
     (the residual kind) and shipped as residual-sac-<task>-n<n>-seed<k>, which the shipped specs name
     residual-sac-<task>-n<n>."""
     import pickle
 
     from ehss_gym.agents import safeweights as sw
+    from ehss_gym.agents.export import export_saved_model
     from ehss_gym.agents.specs import AGENTS, resolved_env_kwargs
     from ehss_gym.evaluation.specs import shipped_specs
     from ehss_gym.study import training as an
@@ -681,9 +683,14 @@ def test_an_old_sac_run_is_exported_evaluated_and_shipped_as_safe_weights(tmp_pa
     with open(d / "best" / "vecnormalize.pkl", "wb") as f:
         pickle.dump(venv, f)
     (d / "best" / "model.json").write_text(json.dumps({"env_kwargs": kw}))
+    groups = an.group_runs(an.load_runs(str(runs_dir)))  # as it is: scored as its zip, not shipped
+    assert an.learned_kind(next(iter(groups.values()))[0]) == "sb3"
+    out = an.ship(groups, str(tmp_path / "none"), made_by="test")
+    assert out.written == [] and "export_saved_model" in out.skipped[0][1]
+    export_saved_model(str(d / "best"), algo="sac", name="r", metadata={})  # what the skip reason says to run
     groups = an.group_runs(an.load_runs(str(runs_dir)))
     (k, rs), = groups.items()
-    assert rs[0]["export_error"] is None and an.kept_model(rs[0]) == str(d / "best" / "policy")
+    assert an.kept_model(rs[0]) == str(d / "best" / "policy")
     assert an.learned_kind(rs[0]) == "residual-ppo"
     assert an.group_spec(k, rs).name == "residual-sac-velocity-n2"
     pol = sw.load_policy(str(d / "best" / "policy"))

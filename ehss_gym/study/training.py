@@ -57,7 +57,7 @@ def read_json(path: str):
 
 def kept_model(run: dict) -> str | None:
     """The kept (best-on-validation) model of a run: its safe-weights stem ``best/policy``, else its SB3
-    ``best/model.zip`` (a run that could not be exported, :func:`export_kept`); None if it has neither."""
+    ``best/model.zip`` (a SAC run trained before SAC runs wrote safe weights); None if it has neither."""
     stem = os.path.join(run["dir"], "best", "policy")
     if all(os.path.isfile(p) for p in model_paths(stem)):
         return stem
@@ -65,33 +65,8 @@ def kept_model(run: dict) -> str | None:
     return z if os.path.isfile(z) else None
 
 
-def export_kept(run: dict) -> str | None:
-    """Give a run trained before SAC runs wrote safe weights its ``best/policy`` (from ``best/model.zip``,
-    ``best/vecnormalize.pkl`` and ``best/model.json``, exactly as the end of training exports it today), so it is
-    evaluated and shipped like the others; None if it has them already or was exported now, else why it cannot be
-    (its zip is then scored as ``sb3:`` and not shipped).
-
-    Only a SAC run is exported here (a PPO run has always written its safe weights): the run's SB3 files are
-    unpickled, as ``ehss training-report`` trusts the run folders it is given.
-    """
-    if not kept_model(run).endswith(".zip") or run["config"]["agent_spec"].get("algo") != "sac":
-        return None
-    from ehss_gym.agents.export import export_saved_model  # imports torch: only for runs that need it
-    from ehss_gym.agents.safeweights import SafeWeightsError
-
-    s = run["summary"]
-    try:
-        export_saved_model(os.path.join(run["dir"], "best"), algo="sac", name=s["run_name"],
-                           metadata={"config": run["config"], "step": s["best_step"],
-                                     "validation": s["best_validation"], "exported_by": "ehss training-report"})
-    except (SafeWeightsError, OSError) as exc:
-        return f"its best/model.zip has no safe-weights form ({exc})"
-    return None
-
-
 def load_runs(folder: str) -> list[dict]:
-    """Every finished run under ``folder`` (config, summary, validation history and a kept model; a SAC run without
-    safe weights exported first, :func:`export_kept`, or ``export_error`` saying why not)."""
+    """Every finished run under ``folder`` (config, summary, validation history and a kept model)."""
     out = []
     if not os.path.isdir(folder):
         raise ValueError(f"--runs folder {folder!r} does not exist")
@@ -101,9 +76,7 @@ def load_runs(folder: str) -> list[dict]:
         if not all(os.path.isfile(p) for p in paths) or kept_model({"dir": d}) is None:
             continue
         cfg, summ, hist = (read_json(p) for p in paths)
-        run = {"dir": d, "config": cfg, "summary": summ, "history": hist}
-        run["export_error"] = export_kept(run)
-        out.append(run)
+        out.append({"dir": d, "config": cfg, "summary": summ, "history": hist})
     return out
 
 
@@ -390,7 +363,7 @@ def ship(groups: dict, models_dir: str, made_by: str) -> Shipment:
 
     A model already there with the same weights and settings is left as it is, so re-running the report does not
     rewrite the package's model files (``metadata.made_by`` keeps the command that first shipped it). A group
-    without safe weights (a run :func:`export_kept` could not export) is not shipped; a shipment that writes
+    without safe weights (a SAC run trained before SAC runs wrote them) is not shipped; a shipment that writes
     nothing retires nothing.
 
     Args:
@@ -402,9 +375,9 @@ def ship(groups: dict, models_dir: str, made_by: str) -> Shipment:
     os.makedirs(models_dir, exist_ok=True)
     for base, k in sorted(choose_variants(groups).items()):
         rs = groups[k]
-        why = [r.get("export_error") or "no safe weights" for r in rs if kept_model(r).endswith(".zip")]
-        if why:
-            out.skipped.append((label(k), f"{why[0]}; its models stay in its run folders "
+        if any(kept_model(r).endswith(".zip") for r in rs):
+            out.skipped.append((label(k), "no safe weights in best/ (ehss_gym.agents.export.export_saved_model("
+                                          "'<run>/best', algo='sac') writes them); its models stay in its run folders "
                                           "(sb3:<run>/best/model.zip)"))
             continue
         out.written += [ship_run(r, f"{label(base + ('',))}-seed{r['config']['seed']}", models_dir, made_by)
@@ -503,7 +476,7 @@ def run_training_study(runs: list[str], episodes: int = 48, exploration: str | N
 
 
 __all__ = ["TrainingStudy", "Shipment", "run_training_study", "task_analyses", "SUITES", "TARGET_UNMODELLED_RATIO",
-           "TARGET_HELDOUT_HI", "TARGET_TRAINED_SEEDS", "TARGET_SEEDS", "read_json", "kept_model", "export_kept",
+           "TARGET_HELDOUT_HI", "TARGET_TRAINED_SEEDS", "TARGET_SEEDS", "read_json", "kept_model",
            "load_runs", "variant", "group_key", "group_runs", "label", "learned_kind", "group_spec", "evaluate_groups",
            "ci_hi", "ci_lo", "run_figures", "best_row", "unmodelled_target", "heldout_targets", "validation_target",
            "history_figure", "seed_table", "base_law_diagnostics", "mean_validation", "choose_variants", "ship_run",
