@@ -377,7 +377,7 @@ def test_cli_quick_writes_the_report(tmp_path, capsys):
     rc = main(["evaluate", "--quick", "--episodes", "2", "--n-boot", "100", "--policies", *ev.SCRIPTED_DEFAULT,
                LEARNED, "--out", str(out), "--store", str(tmp_path / "jobs"), "--no-progress"])
     assert rc == 0
-    for f in ("REPORT.md", "episodes.csv", "summary.csv", "steps.csv", "figures/pareto_heldout.png",
+    for f in ("REPORT.md", "episodes.csv.gz", "summary.csv", "steps.csv", "figures/pareto_heldout.png",
               "figures/pareto_paper.png", "figures/pareto_robustness.png", "figures/pareto_unmodelled.png",
               "figures/paper_traces_velocity.png", "figures/paper_traces_position.png",
               "figures/robustness_velocity.png", "figures/metrics_heldout_velocity.png"):
@@ -400,7 +400,7 @@ def test_cli_quick_writes_the_report(tmp_path, capsys):
         assert label in text
     cfg = ev.EvalConfig.quick(heldout_episodes=2)
     n_specs = len(ev.SCRIPTED_DEFAULT) + 1
-    rows = _csv_rows(out / "episodes.csv")
+    rows = comparison.read_episodes(str(out))
     per_task = (1 + 2 * cfg.heldout_episodes  # the heldout and the unmodelled suite
                 + cfg.sweep_episodes * (len(cfg.friction_levels) + len(cfg.mismatch_levels)) + len(cfg.step_amplitudes))
     scripted = len(ev.SCRIPTED_DEFAULT)
@@ -516,3 +516,21 @@ def test_the_valve_floors_follow_the_rigs_valve():
     lower = _m(eff=(0.1 * f.tv, 0.1 * f.current))
     assert scoring.class_log_ratio(lower, lo, "effort", "velocity", f) == 0.0
     assert scoring.class_log_ratio(lower, lo, "effort", "velocity") < 0.0
+
+
+def test_the_episode_table_is_gzip_with_the_same_bytes_for_the_same_rows(tmp_path):
+    """The episode table round-trips through gzip; two writes of the same rows are the same bytes (no time stamp in the
+    header: the local and the Ray backend are compared byte for byte); an earlier release's plain episodes.csv beside
+    it is removed, so a report folder holds one episode table."""
+    rows = [{"suite": "heldout", "policy": "clf-n2", "q_overall": 0.1 + 0.2}, {"suite": "paper", "policy": "pid"}]
+    text = comparison.csv_text(rows, ["suite", "policy", "q_overall"])
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "episodes.csv").write_text("stale\n")
+    comparison.write_episodes(str(tmp_path / "a" / comparison.EPISODES_FILE), text)
+    comparison.write_episodes(str(tmp_path / comparison.EPISODES_FILE), text)
+    f = comparison.EPISODES_FILE
+    assert (tmp_path / "a" / f).read_bytes() == (tmp_path / f).read_bytes()
+    assert not (tmp_path / "a" / "episodes.csv").exists()
+    back = comparison.read_episodes(str(tmp_path / "a"))
+    assert [r["policy"] for r in back] == ["clf-n2", "pid"]
+    assert float(back[0]["q_overall"]) == 0.1 + 0.2 and back[1]["q_overall"] == ""

@@ -4,7 +4,6 @@ headroom, train), each output naming it; Table I's loop unchanged without one.""
 
 from __future__ import annotations
 
-import csv
 import json
 import warnings
 
@@ -27,6 +26,7 @@ from ehss_gym.evaluation import harness
 from ehss_gym.evaluation.loading import load_run
 from ehss_gym.evaluation.specs import scripted_spec
 from ehss_gym.evaluation.suites import EvalConfig
+from ehss_gym.reporting.comparison import read_episodes
 from ehss_gym.study.headroom import HeadroomConfig, plan
 from ehss_gym.train.config import Config
 
@@ -141,8 +141,7 @@ def test_evaluate_runs_every_suite_on_the_plant_and_its_csvs_and_report_name_it(
                "--out", str(out), "--n-boot", "100"])
     assert rc == 0
     assert f"plant: {RIG.label}" in capsys.readouterr().out
-    with open(out / "episodes.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
+    rows = read_episodes(str(out))
     assert rows and all(r["plant"] == RIG.label for r in rows)
     assert open(out / "summary.csv").readline().startswith("plant,")
     assert f"**Plant**: {RIG.label}" in (out / "REPORT.md").read_text()

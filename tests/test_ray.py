@@ -5,6 +5,7 @@ and the ``ehss tune`` smoke search. One Ray instance serves the module (its test
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import os
 import shutil
@@ -73,7 +74,7 @@ def test_the_ray_instance_leaves_the_home_folder_as_it_found_it(ray_instance):
 def _csvs(folder) -> dict:
     """Relative path -> bytes of every CSV under ``folder``."""
     return {os.path.relpath(os.path.join(d, n), folder): open(os.path.join(d, n), "rb").read()
-            for d, _, names in os.walk(folder) for n in names if n.endswith(".csv")}
+            for d, _, names in os.walk(folder) for n in names if n.endswith((".csv", ".csv.gz"))}
 
 
 def test_quick_evaluation_csvs_are_byte_identical_on_both_backends(ray_instance, tmp_path):
@@ -85,8 +86,8 @@ def test_quick_evaluation_csvs_are_byte_identical_on_both_backends(ray_instance,
     assert cli_main([*argv, "--out", str(tmp_path / "ray"), "--backend", "ray"]) == 0
     local, remote = _csvs(tmp_path / "local"), _csvs(tmp_path / "ray")
     # comparisons.csv only with a learned policy in today's loop (the shipped models act in an earlier one)
-    assert {"episodes.csv", "summary.csv"} <= set(local) and local == remote
-    assert b"residual-ppo-velocity-n2" in local["episodes.csv"]
+    assert {"episodes.csv.gz", "summary.csv"} <= set(local) and local == remote
+    assert b"residual-ppo-velocity-n2" in gzip.decompress(local["episodes.csv.gz"])
 
 
 def test_quick_reproduction_csvs_are_byte_identical_on_both_backends(ray_instance, tmp_path):

@@ -616,34 +616,42 @@ def _fake_run(root, agent, task, n, seed, model_stem=None, untrained=False):
 
 
 def test_ship_writes_every_group_and_retires_the_rest(tmp_path):
-    """Every group's seeds shipped as <agent>-<task>-n<n>-seed<k> (names shipped_specs groups), the models folder's
-    other models retired, a SAC group whose zip cannot be exported skipped with its reason, the same weights left
-    untouched."""
+    """A group's trained seeds shipped as <agent>-<task>-n<n>-seed<k> (names shipped_specs groups), a seed that kept
+    the untrained policy not shipped, a group with fewer than 4 trained seeds not shipped (its reason says how many),
+    the models folder's other models retired, a SAC group whose zip cannot be exported skipped with its reason, the
+    same weights left untouched."""
     from ehss_gym.agents.safeweights import load_policy, shipped_models
     from ehss_gym.evaluation.specs import _SEED_RE
     from ehss_gym.study import training as an
 
     stem = shipped_models()["residual-ppo-velocity-n2-seed0"]
     runs_dir = tmp_path / "runs"
-    for seed in (0, 1):
-        _fake_run(runs_dir, "residual-ppo", "velocity", 2, seed, stem)
-    _fake_run(runs_dir, "residual-sac", "velocity", 2, 0)
+    for seed in range(5):  # seed 2 kept the step-0 policy: 4 of 5 trained, the group ships without it
+        _fake_run(runs_dir, "residual-ppo", "velocity", 2, seed, stem, untrained=seed == 2)
+    for seed in range(5):  # 3 of 5 trained: the group is not shipped at all
+        _fake_run(runs_dir, "residual-ppo", "velocity", 4, seed, stem, untrained=seed >= 3)
+    for seed in range(4):
+        _fake_run(runs_dir, "residual-sac", "velocity", 2, seed)
     models = tmp_path / "models"
     models.mkdir()
-    for old in ("residual-ppo-velocity-n6-seed0", "residual-ppo-velocity-n2-seed4"):
+    for old in ("residual-ppo-velocity-n6-seed0", "residual-ppo-velocity-n2-seed2"):
         for ext in (".json", ".safetensors"):
             (models / (old + ext)).write_text("x")
     (models / "README.txt").write_text("kept")
     groups = an.group_runs(an.load_runs(str(runs_dir)))
-    assert [an.label(k) for k in groups] == ["residual-ppo-velocity-n2", "residual-sac-velocity-n2"]
-    assert [an.learned_kind(rs[0]) for rs in groups.values()] == ["residual-ppo", "sb3"]
+    assert [an.label(k) for k in groups] == ["residual-ppo-velocity-n2", "residual-ppo-velocity-n4",
+                                             "residual-sac-velocity-n2"]
+    assert [an.learned_kind(rs[0]) for rs in groups.values()] == ["residual-ppo", "residual-ppo", "sb3"]
     out = an.ship(groups, str(models), made_by="test")
     names = [os.path.basename(p) for p in out.written]
-    assert names == ["residual-ppo-velocity-n2-seed0", "residual-ppo-velocity-n2-seed1"]
+    assert names == [f"residual-ppo-velocity-n2-seed{k}" for k in (0, 1, 3, 4)]
     assert {_SEED_RE.match(n).group(1) for n in names} == {"residual-ppo-velocity-n2"}
-    assert out.retired == ["residual-ppo-velocity-n2-seed4", "residual-ppo-velocity-n6-seed0"]
-    assert [lab for lab, _ in out.skipped] == ["residual-sac-velocity-n2"]
-    assert "export_saved_model" in out.skipped[0][1]  # a zip without safe weights: not shipped, the way out named
+    # the untrained seed's model from an earlier shipment goes too
+    assert out.retired == ["residual-ppo-velocity-n2-seed2", "residual-ppo-velocity-n6-seed0"]
+    skipped = dict(out.skipped)
+    assert list(skipped) == ["residual-ppo-velocity-n4", "residual-sac-velocity-n2"]
+    assert "3 of its 5 seeds" in skipped["residual-ppo-velocity-n4"]  # too few trained seeds: the count named
+    assert "export_saved_model" in skipped["residual-sac-velocity-n2"]  # no safe weights: the way out named
     files = sorted(n + e for n in names for e in (".json", ".safetensors"))
     assert sorted(os.listdir(models)) == ["README.txt"] + files
     assert load_policy(out.written[0]).metadata["made_by"].endswith("by test")
@@ -653,7 +661,7 @@ def test_ship_writes_every_group_and_retires_the_rest(tmp_path):
     assert os.stat(out.written[0] + ".safetensors").st_mtime_ns == stamp
     # a shipment that writes nothing (only SAC) retires nothing
     only_sac = {k: v for k, v in groups.items() if k[0] == "residual-sac"}
-    assert an.ship(only_sac, str(models), made_by="t").retired == [] and len(os.listdir(models)) == 5
+    assert an.ship(only_sac, str(models), made_by="t").retired == [] and len(os.listdir(models)) == 9
 
 
 def test_an_old_sac_run_is_exported_evaluated_and_shipped_as_safe_weights(tmp_path, monkeypatch):
@@ -683,6 +691,7 @@ def test_an_old_sac_run_is_exported_evaluated_and_shipped_as_safe_weights(tmp_pa
     with open(d / "best" / "vecnormalize.pkl", "wb") as f:
         pickle.dump(venv, f)
     (d / "best" / "model.json").write_text(json.dumps({"env_kwargs": kw}))
+    monkeypatch.setattr(an, "TARGET_TRAINED_SEEDS", 1)  # one seed here: the seed-count rule has its own test
     groups = an.group_runs(an.load_runs(str(runs_dir)))  # as it is: scored as its zip, not shipped
     assert an.learned_kind(next(iter(groups.values()))[0]) == "sb3"
     out = an.ship(groups, str(tmp_path / "none"), made_by="test")

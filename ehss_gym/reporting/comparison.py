@@ -1,7 +1,7 @@
 """The policy comparison report of ``ehss evaluate``: numbers, tables and CSVs computed here, prose in
 templates/comparison.md.j2, figures in :mod:`ehss_gym.reporting.comparison_figures`.
 
-:func:`write_report` writes ``REPORT.md``, ``episodes.csv``, ``summary.csv``, ``comparisons.csv`` (learned policies
+:func:`write_report` writes ``REPORT.md``, ``episodes.csv.gz``, ``summary.csv``, ``comparisons.csv`` (learned policies
 in today's loop), ``steps.csv`` (the step suite, with each episode's ratio to the physical bound) and ``figures/``
 for the :class:`~ehss_gym.evaluation.harness.Results` of :func:`ehss_gym.evaluation.evaluate`.
 """
@@ -9,6 +9,7 @@ for the :class:`~ehss_gym.evaluation.harness.Results` of :func:`ehss_gym.evaluat
 from __future__ import annotations
 
 import csv
+import gzip
 import io
 import math
 import os
@@ -48,7 +49,7 @@ from ehss_gym.evaluation.suites import (
     UNMODELLED_SEED_START,
 )
 from ehss_gym.infra.fmt import fmt_cell
-from ehss_gym.infra.util import atomic_write_text
+from ehss_gym.infra.util import atomic_write, atomic_write_text
 from ehss_gym.study.bound_table import case, kept_step_bound, prefetch
 
 from .comparison_figures import FIGURE_KINDS, make_figures
@@ -418,8 +419,27 @@ def _plant_column(res: Results):
     return lambda rows, columns: ([{**r, "plant": label} for r in rows], ["plant", *columns])
 
 
+EPISODES_FILE = "episodes.csv.gz"  # one row per episode: gzip keeps the full-evaluation table a few MB
+
+
+def write_episodes(path: str, text: str) -> None:
+    """Write the episode table ``text`` gzip-compressed to ``path``, byte for byte the same for the same text (no
+    time stamp or file name in the gzip header: the local backend and a Ray cluster write the same bytes); a plain
+    ``episodes.csv`` that an earlier release wrote beside it is removed, so the folder holds one episode table."""
+    atomic_write(path, lambda f: f.write(gzip.compress(text.encode(), mtime=0)))
+    old = os.path.join(os.path.dirname(path), "episodes.csv")
+    if os.path.isfile(old):
+        os.remove(old)
+
+
+def read_episodes(folder: str) -> list[dict]:
+    """The episode rows (strings, as :class:`csv.DictReader` reads them) of the report in ``folder``."""
+    with gzip.open(os.path.join(folder, EPISODES_FILE), "rt", newline="") as f:
+        return list(csv.DictReader(f))
+
+
 def write_report(res: Results, out: str) -> str:
-    """Write REPORT.md, episodes.csv, summary.csv, comparisons.csv, steps.csv and figures/ under ``out``; returns
+    """Write REPORT.md, episodes.csv.gz, summary.csv, comparisons.csv, steps.csv and figures/ under ``out``; returns
     REPORT.md.
 
     Every file is written atomically; REPORT.md last, so an interrupted run leaves the previous report. The wall
@@ -430,7 +450,7 @@ def write_report(res: Results, out: str) -> str:
     t0 = time.perf_counter()
     os.makedirs(os.path.join(out, "figures"), exist_ok=True)
     tag = _plant_column(res)
-    atomic_write_text(os.path.join(out, "episodes.csv"), csv_text(*tag(res.rows, EPISODE_COLUMNS)))
+    write_episodes(os.path.join(out, EPISODES_FILE), csv_text(*tag(res.rows, EPISODE_COLUMNS)))
     atomic_write_text(os.path.join(out, "summary.csv"), csv_text(*tag(res.summary, _columns(res.summary))))
     if res.comparisons:
         atomic_write_text(os.path.join(out, "comparisons.csv"),
@@ -457,5 +477,6 @@ def write_report(res: Results, out: str) -> str:
     return path
 
 
-__all__ = ["DEFAULT_OUT", "EPISODE_COLUMNS", "STEP_COLUMNS", "fmt", "csv_text", "ci_cell", "gate_cell",
+__all__ = ["DEFAULT_OUT", "EPISODE_COLUMNS", "EPISODES_FILE", "write_episodes", "read_episodes",
+           "STEP_COLUMNS", "fmt", "csv_text", "ci_cell", "gate_cell",
            "step_rows", "prefetch_bounds", "report_context", "report_text", "write_report"]

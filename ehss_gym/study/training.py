@@ -242,9 +242,16 @@ def heldout_targets(summary: list[dict], names: list[str]) -> list[dict]:
     return out
 
 
+def is_trained(run: dict) -> bool:
+    """True if a run's kept policy is a trained one: its validation figure fell below the step-0 policy's
+    (``best_is_untrained`` false); a run whose best policy is the untrained one is the base law, not a learned one."""
+    s = run["summary"]
+    return not s.get("best_is_untrained", s["best_step"] == 0)
+
+
 def validation_target(rs: list[dict]) -> dict:
-    """Target (c) of one group: the seeds whose kept policy is a trained one (``best_is_untrained`` false)."""
-    trained = sum(1 for r in rs if not r["summary"].get("best_is_untrained", r["summary"]["best_step"] == 0))
+    """Target (c) of one group: the seeds whose kept policy is a trained one (:func:`is_trained`)."""
+    trained = sum(1 for r in rs if is_trained(r))
     return {"trained": trained, "seeds": len(rs), "met": trained >= TARGET_TRAINED_SEEDS}
 
 
@@ -268,7 +275,7 @@ def seed_table(groups: dict, results: dict) -> dict[tuple, list[dict]]:
             rows.append({"seed": r["config"]["seed"], "run": os.path.basename(r["dir"]),
                          "step0": history_figure(r, 0), "best": s["best_validation"]["figure"],
                          "best_step": s["best_step"], "final": s["final_validation"]["figure"],
-                         "untrained": bool(s.get("best_is_untrained", s["best_step"] == 0)),
+                         "untrained": not is_trained(r),
                          **{suite: (v[i] if i < len(v) else math.nan) for suite, v in per_suite.items()},
                          "wall_s": s["wall_s"]})
         out[k] = rows
@@ -361,6 +368,9 @@ def ship(groups: dict, models_dir: str, made_by: str) -> Shipment:
     groups into one policy per ``<agent>-<task>-n<n>``), and retire every other model there (its ``.json`` and
     ``.safetensors`` deleted): the models folder then holds this shipment only.
 
+    Only learned policies ship: a group ships if its validation target is met (:func:`validation_target`: at least
+    ``TARGET_TRAINED_SEEDS`` seeds whose validation figure fell below the step-0 policy's), and then only its trained
+    seeds (:func:`is_trained`); a seed whose best policy is the untrained one is the base law under another name.
     A model already there with the same weights and settings is left as it is, so re-running the report does not
     rewrite the package's model files (``metadata.made_by`` keeps the command that first shipped it). A group
     without safe weights (a SAC run trained before SAC runs wrote them) is not shipped; a shipment that writes
@@ -380,8 +390,14 @@ def ship(groups: dict, models_dir: str, made_by: str) -> Shipment:
                                           "'<run>/best', algo='sac') writes them); its models stay in its run folders "
                                           "(sb3:<run>/best/model.zip)"))
             continue
+        v = validation_target(rs)
+        if not v["met"]:
+            out.skipped.append((label(k), f"the validation figure of {v['trained']} of its {v['seeds']} seeds fell "
+                                          f"below the step-0 policy's (the rule ships a group with at least "
+                                          f"{TARGET_TRAINED_SEEDS}); the others kept the untrained policy"))
+            continue
         out.written += [ship_run(r, f"{label(base + ('',))}-seed{r['config']['seed']}", models_dir, made_by)
-                        for r in rs]
+                        for r in rs if is_trained(r)]
     if out.written:
         keep = {os.path.basename(p) for p in out.written}
         for fn in sorted(os.listdir(models_dir)):
@@ -476,7 +492,7 @@ def run_training_study(runs: list[str], episodes: int = 48, exploration: str | N
 
 
 __all__ = ["TrainingStudy", "Shipment", "run_training_study", "task_analyses", "SUITES", "TARGET_UNMODELLED_RATIO",
-           "TARGET_HELDOUT_HI", "TARGET_TRAINED_SEEDS", "TARGET_SEEDS", "read_json", "kept_model",
+           "TARGET_HELDOUT_HI", "TARGET_TRAINED_SEEDS", "TARGET_SEEDS", "read_json", "kept_model", "is_trained",
            "load_runs", "variant", "group_key", "group_runs", "label", "learned_kind", "group_spec", "evaluate_groups",
            "ci_hi", "ci_lo", "run_figures", "best_row", "unmodelled_target", "heldout_targets", "validation_target",
            "history_figure", "seed_table", "base_law_diagnostics", "mean_validation", "choose_variants", "ship_run",
