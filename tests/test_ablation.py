@@ -2,6 +2,7 @@
 
 import csv
 import io
+import os
 
 from ehss_gym.reporting import ablation as report
 from ehss_gym.study import ablation as ab
@@ -82,3 +83,15 @@ def test_undefined_figure_is_not_admissible():
     r = result(CELLS[0], 0.8, 1.0)
     r["final"] = r["U"]["figure"] = None
     assert not ab.admissible(r)
+
+
+def test_the_ablation_pins_mkl_before_it_rescores_a_policy(tmp_path, monkeypatch):
+    """run_ablation re-scores each cell's policy with torch: MKL's code path is pinned first, as in training and in
+    the harness (unpinned, an AVX-512 CPU's float32 kernels moved one cell's figure from 1.0228 to 1.0322)."""
+    from ehss_gym.infra.execution import BLAS_ENV
+
+    for key in BLAS_ENV:
+        monkeypatch.delenv(key, raising=False)
+    monkeypatch.setattr(ab, "scripted_on_validation", lambda env_kwargs: {})  # episodes: not what this test is about
+    study = ab.run_ablation(str(tmp_path), train=False, progress=False)
+    assert study.order == [] and all(os.environ.get(k) == v for k, v in BLAS_ENV.items())

@@ -57,6 +57,7 @@ from ehss_gym.evaluation.heldout import (
     run_episodes,
     selection_key,
 )
+from ehss_gym.infra.execution import pin_blas
 from ehss_gym.train.config import Config, Launch
 from ehss_gym.train.launch import launch_executor, run_seeds
 
@@ -273,6 +274,9 @@ def run_ablation(runs_dir: str, timesteps: int = TIMESTEPS, workers: int = 2, tr
         train: train what is missing; False: report what is there.
         progress: progress bars.
     """
+    # before the first forward pass: the re-scored policies act as in training and in the harness (an unpinned MKL
+    # may pick other float32 kernels on an AVX-512 CPU, a last-bit action change the switching loop amplifies)
+    pin_blas()
     first = stage1()
     if train:
         train_cells(first, runs_dir, timesteps, workers, progress)
