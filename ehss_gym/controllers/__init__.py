@@ -42,11 +42,12 @@ Every policy here has ``predict(observation, state=None, episode_start=None, det
 """
 
 from .base import ScriptedPolicy
-from .clf import DCOMP_SAMPLES, DOB_HZ, DOB_ROWS, SCRIPTED_FORMS, CLFPolicy, parse_scripted
+from .clf import DCOMP_SAMPLES, DOB_HZ, DOB_ROWS, SCRIPTED_FORMS, CLFPolicy, dob_rows, parse_scripted
 from .feedforward import ConstantResidualPolicy, FrictionFeedforwardPolicy
 from .pid import PID_GAINS, PID_RELAY, PID_RELAY_GAINS, RULES, PIDPolicy, default_pid_gains, relay_experiment, tune_pid
 
-__all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "DOB_HZ", "DOB_ROWS", "DCOMP_SAMPLES",
+__all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "DOB_HZ", "DOB_ROWS", "dob_rows",
+           "DCOMP_SAMPLES",
            "PIDPolicy",
            "FrictionFeedforwardPolicy", "ConstantResidualPolicy", "tune_pid", "relay_experiment", "PID_GAINS",
            "PID_RELAY_GAINS", "PID_RELAY", "RULES", "default_pid_gains"]

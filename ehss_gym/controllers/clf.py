@@ -48,6 +48,15 @@ DOB_ROWS: dict[str, dict[str, float]] = {
 # choice of an earlier sweep of 5..160 Hz on 48 training scenarios per task at n = 2 (``python tools/dob_sweep.py``),
 # kept for names used outside the evaluation (where the task's row of DOB_ROWS replaces it).
 DOB_HZ = 20.0
+
+
+def dob_rows(tasks, law_table=None) -> dict[str, dict[str, float]]:
+    """``dob-n2``'s observer settings per task (``dob_hz`` [Hz], ``smoothing``, ``layer_gain``): a law table's rows
+    where one is given (:class:`ehss_gym.envs.law_table.LawTable`: the tasks it tuned an observer for, the others left
+    out), else the built-in :data:`DOB_ROWS` (Table I's tuning) for every task of ``tasks``."""
+    if law_table is None:
+        return {t: dict(DOB_ROWS[t]) for t in tasks}
+    return {t: dict(law_table.tasks[t].dob) for t in tasks if t in law_table.tasks and law_table.tasks[t].dob}
 # The reference delay [control samples] of ``dcomp-n<k>``, both tasks: the choice of
 # ``python tools/compensator_sweep.py`` on 48 training scenarios per task drawn with the unmodelled effects (the env's
 # ``unmodelled_effects=True``; their delay is 1 or 2 samples) by its rule, written before it ran (no failure, then the

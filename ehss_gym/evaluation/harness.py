@@ -34,6 +34,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ehss_gym.controllers import dob_rows
 from ehss_gym.core.response import step_metrics
 from ehss_gym.core.rig import as_rig
 from ehss_gym.envs.rollouts import rollout as run_rollout
@@ -260,7 +261,7 @@ def _tuned_rows(spec: PolicySpec, table) -> PolicySpec:
     if table is None:
         return spec
     if spec.kind == "clf" and spec.env_kwargs.get("dob_hz") and spec.env_kwargs.get("n") == 2:
-        rows = {t: dict(table.tasks[t].dob) for t in spec.tasks if t in table.tasks and table.tasks[t].dob}
+        rows = dob_rows(spec.tasks, table)
         return replace(spec, task_kwargs=rows, source=spec.source + f"; observer rows of {table.describe()}")
     if spec.kind == "pid" and not spec.runs[0].get("gains"):
         gains = {t: table.tasks[t].pid for t in spec.tasks if t in table.tasks and table.tasks[t].pid}

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ehss_gym.agents.safeweights import shipped_models
-from ehss_gym.controllers import DOB_ROWS, parse_scripted
+from ehss_gym.controllers import dob_rows, parse_scripted
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
 from ehss_gym.envs.config import DEFAULTS, LOOP_KEYS, in_legacy_loop
@@ -136,7 +136,7 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
         what = "the env's default CLF law" if not law else ", ".join(f"{k} {v}" for k, v in law.items())
         rows = {}
         if "dob_hz" in kw and n == 2 and not {"dob_hz", "smoothing", "layer_gain"} & set(over):
-            rows = {t: dict(DOB_ROWS[t]) for t in TASKS}  # the tuned observer rows (a law table's replace them)
+            rows = dob_rows(TASKS)  # the tuned observer rows (a law table's replace them)
             what += ", disturbance observer at " + ", ".join(f"{r['dob_hz']:.3g} Hz ({t})" for t, r in rows.items())
         elif "dob_hz" in kw:
             what += f", disturbance observer at {kw['dob_hz']:g} Hz"

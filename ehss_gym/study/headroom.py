@@ -49,7 +49,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ehss_gym.controllers import DOB_ROWS, CLFPolicy, ConstantResidualPolicy, FrictionFeedforwardPolicy, parse_scripted
+from ehss_gym.controllers import CLFPolicy, ConstantResidualPolicy, FrictionFeedforwardPolicy, dob_rows, parse_scripted
 from ehss_gym.core.rig import Rig
 from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.config import DEFAULTS
@@ -473,16 +473,9 @@ def plan(cfg: HeadroomConfig) -> list[Job]:
 
 
 def _dob_row(v: Variant, task: str, cfg: HeadroomConfig) -> dict:
-    """The observer's settings tuned for the plant (the law table's dob-n2 row of ``task``, without a table the built-in
-    :data:`ehss_gym.controllers.DOB_ROWS`) for ``dob-n2``; {} else."""
-    laws = cfg.law_settings
-    if v.policy != "dob-n2":
-        return {}
-    if laws is None:  # the built-in tuning (Table I's)
-        return dict(DOB_ROWS[task])
-    if task not in laws.tasks or laws.tasks[task].dob is None:
-        return {}
-    return dict(laws.tasks[task].dob)
+    """The observer's settings tuned for the plant (:func:`ehss_gym.controllers.dob_rows`: the law table's row of
+    ``task``, without a table the built-in tuning) for ``dob-n2``; {} else."""
+    return dob_rows((task,), cfg.law_settings).get(task, {}) if v.policy == "dob-n2" else {}
 
 
 def _cost(c: dict) -> float:
