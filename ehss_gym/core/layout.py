@@ -164,7 +164,7 @@ M_DST_MAX = 38
 M_TRK_STEPS = 39  # tracking window
 M_TRK_SUM_E2 = 40
 M_TRK_SUM_ABS = 41
-M_N_VMODEL_DEC = 42  # steps on which the model's V' at the applied current is < 0 (sign(s) (psi + G u_app) < 0)
+M_N_VMODEL_DEC = 42  # steps with the model's V' < 0 at the applied current (sign(s) (psi + G u_app) < 0), or s = 0
 N_METRICS = 43
 LOST_TRACK_WINDOW = 0.1  # [s] time constant of the windowed (exponential moving) RMS of e
 

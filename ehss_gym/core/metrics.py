@@ -48,9 +48,10 @@ control period, T the simulated time):
 - ``peak_u``: max |commanded u|; ``peak_u_applied``; ``rms_u`` [mA].
 - ``saturation``: share of steps on which the current limit was active.
 - ``v_decrease``: share of steps on which V fell from the previous step.
-- ``v_model_decrease``: share of steps on which the model's V' = a + b u at the applied current is negative
-  (sign(s) (psi + G u) < 0, :func:`model_v_decreasing`): what the Lyapunov-constrained residual keeps
-  (``Scenario.lyapunov_kappa``) wherever the law itself makes V decrease within the current limit.
+- ``v_model_decrease``: share of steps on which the model's Lyapunov condition holds at the applied current: V' = a +
+  b u < 0 (sign(s) (psi + G u) < 0), or s = 0, where V = 0 is its minimum and V' = 0 at every current
+  (:func:`model_v_decreasing`): what the Lyapunov-constrained residual keeps (``Scenario.lyapunov_kappa``) wherever
+  the law itself makes V decrease within the current limit.
 - with a step reference, ``step_rise_time``, ``step_settling_time``, ``step_overshoot``, ``step_peak_time`` and
   ``step_steady_state_error`` (:func:`step_summary`).
 """
@@ -243,12 +244,16 @@ def accumulate(acc, info, h, k, events):
 
 @jit_inline
 def model_v_decreasing(info):
-    """1.0 if the model's V' at the sample's applied current is negative, else 0.0.
+    """1.0 if the model's Lyapunov condition holds at the sample's applied current, else 0.0: V' < 0, or s = 0.
 
     V' = (s/sigma)^(n-1) (psi + G u) / sigma with n even has the sign of s (psi + G u), taken by signs (a product of
-    tiny values could underflow to 0).
+    tiny values could underflow to 0). At s = 0 exactly V = 0 is its minimum and V' = 0 at every current, so no
+    current can do better: the condition (V' < 0 wherever V > 0) holds there. A bumpless start has s = 0 at t = 0
+    (the reference model starts at the measured output and its estimated derivatives).
     """
     s = info[I_S]
+    if s == 0.0:
+        return 1.0
     x = info[I_PSI] + info[I_G] * info[I_UAPP]
     return 1.0 if (s > 0.0 and x < 0.0) or (s < 0.0 and x > 0.0) else 0.0
 

@@ -314,7 +314,7 @@ class EHSSTrackingEnv(gym.Env):
             nearest current with which the model's V' of the law's CLF is at most kappa times the law's own decrease
             (Sontag's -sqrt(a^2 + b^4) for the plain law), wherever the law makes V decrease; kappa in [0, 1), None
             = off. ``info["metrics"]["v_model_decrease"]`` is the episode's share of control periods with the model's
-            V' < 0. See docs/MODEL.md, "Lyapunov-constrained residual".
+            V' < 0 (or s = 0, V at its minimum). See docs/MODEL.md, "Lyapunov-constrained residual".
         reference_delay: delay compensation [control samples], in [0, 8]: the law tracks the reference model's output
             and its derivatives of that many samples earlier (interpolated between samples), so that with a sensor
             delay of as many samples the true output tracks y_d instead of leading it; 0 = off. See docs/MODEL.md,
