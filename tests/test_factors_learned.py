@@ -117,6 +117,8 @@ def test_verdict_rule():
     assert v["widens"] == ["noise"]
     assert v["removed_share"]["delay"] == pytest.approx(0.0)
     assert fl.verdict(1.015, {"friction": 2.0})["gap"] == "level"
+    across = fl.verdict(0.95, {"delay": 1.24})  # the advantage turned into a larger loss: explained, not widened
+    assert across["explained"] == ["delay"] and across["widens"] == [] and across["removed_share"]["delay"] > 1
     loss = fl.verdict(1.5, {"friction": 1.01, "noise": 1.6})
     assert loss["gap"] == "loss" and loss["explained"] == ["friction"] and loss["widens"] == ["noise"]
 

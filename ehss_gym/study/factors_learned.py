@@ -21,9 +21,9 @@ out. Removing the noise moves an episode from the chatter class to the effort cl
 **The rule** (:func:`verdict`, written before the runs): a learned group's G on a suite is *level* with clf-n2 if
 it lies within :data:`NEAR` (2 %) of 1; otherwise its advantage (G < 1) or loss (G > 1) is *explained by* a cause
 if removing that cause takes G within 2 % of 1 or across 1, and *mostly* due to a cause if removing it takes away
-at least half of log G (:data:`MOSTLY`); a cause whose removal widens the gap by more than 2 % *works for* the gap
-(the gap is larger without it). Which window carries the gap: each class's share of log G (G is the geometric mean
-of its class figures, so log G is the mean of their logs).
+at least half of log G (:data:`MOSTLY`); a cause whose removal widens the gap by more than 2 % on the same side of
+1 *works for* the gap (the gap is larger without it). Which window carries the gap: each class's share of log G (G
+is the geometric mean of its class figures, so log G is the mean of their logs).
 """
 
 from __future__ import annotations
@@ -129,8 +129,9 @@ def verdict(g: float, removed_g: dict) -> dict:
     Returns:
         {"gap": "advantage", "loss" or "level"; "explained": causes whose removal takes G within NEAR of 1 or across
         it; "mostly": causes whose removal takes away at least MOSTLY of log G (the explained ones included);
-        "widens": causes whose removal widens the gap by more than NEAR; "removed_share": cause -> the share of
-        log G its removal takes away (1 = all of it, > 1 across 1, < 0 the gap widened)}.
+        "widens": causes whose removal widens the gap by more than NEAR, G on the same side of 1;
+        "removed_share": cause -> the share of log G its removal takes away (1 = all of it, > 1 across 1, < 0 the gap
+        widened)}.
     """
     near = math.log1p(NEAR)
     lg = math.log(g) if g > 0 else math.nan
@@ -148,7 +149,7 @@ def verdict(g: float, removed_g: dict) -> dict:
             explained.append(cause)
         if share[cause] >= MOSTLY:
             mostly.append(cause)
-        if abs(lr) - abs(lg) > near:
+        if lr * lg > 0 and abs(lr) - abs(lg) > near:  # the same side of 1, further from it
             widens.append(cause)
     return {"gap": "advantage" if lg < 0 else "loss", "explained": explained, "mostly": mostly, "widens": widens,
             "removed_share": share}
