@@ -343,8 +343,22 @@ def _gather(batches: Sequence[EpisodeBatch], done: dict) -> tuple[list, dict]:
     return rows, traces
 
 
+def _checked_episodes(episodes: Sequence[Episode], cfg: EvalConfig) -> list[Episode]:
+    """Episodes given to :func:`evaluate`; ValueError for one outside ``cfg``'s suites and tasks or a repeated id."""
+    out = list(episodes)
+    keys = [(ep.suite, ep.task, ep.episode_id) for ep in out]
+    bad = [k for k in keys if k[0] not in cfg.suites or k[1] not in cfg.tasks]
+    if bad or not out:
+        raise ValueError(f"episodes must be a non-empty list of episodes of the suites {list(cfg.suites)} and tasks "
+                         f"{list(cfg.tasks)}, got {bad[0] if bad else 'none'}")
+    if len(set(keys)) != len(keys):
+        raise ValueError("episodes: each (suite, task, episode_id) must be unique")
+    return out
+
+
 def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None = None, workers: int | None = None,
-             progress: bool = True, command: str = "ehss evaluate", executor: Executor | None = None) -> Results:
+             progress: bool = True, command: str = "ehss evaluate", executor: Executor | None = None,
+             episodes: Sequence[Episode] | None = None) -> Results:
     """Evaluate policies on the configured suites (see the module docstring).
 
     Args:
@@ -356,6 +370,9 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
         command: the command line recorded in the report.
         executor: where the episodes run (:mod:`ehss_gym.infra.execution`; its backend, and its store if it has
             one); default: this machine's processes, ``workers`` of them, nothing stored.
+        episodes: the episodes (default: :func:`~ehss_gym.evaluation.suites.build_episodes` of ``cfg``); given, they
+            replace the suites' (e.g. the same episodes with one cause removed, ``ehss factors --learned``), each
+            id unique within its suite and task, every one a suite and task of ``cfg``.
 
     Raises:
         PolicyError: a policy that cannot be loaded, whose shapes do not fit the env, or (among ``specs``) that acts
@@ -371,7 +388,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
     loaded = _load_runs(specs, cfg, notes)
     specs = [replace(s, tasks=tuple(t for t in s.tasks if t in cfg.tasks)) for s in specs]
     specs = [s for s in specs if s.tasks]
-    episodes = build_episodes(cfg)
+    episodes = build_episodes(cfg) if episodes is None else _checked_episodes(episodes, cfg)
     batches = make_batches(specs, episodes, cfg.chunk)
     executor = executor or Executor(Backend("local", workers=workers), progress=progress)
     remote = executor.backend.name != "local"

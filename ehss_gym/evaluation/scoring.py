@@ -54,6 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ehss_gym.core.layout import QUIET_STARTUP
 from ehss_gym.core.resolution import (
     CURRENT_FLOOR,
     ERROR_RESOLUTION,
@@ -81,6 +82,8 @@ CLASS_METRICS = {
     "effort": ("tv_u_rate", "rms_u"),
     "chatter": ("tv_u_rate", "rms_u"),
 }
+# the start-up window's pair (t < QUIET_STARTUP: outside every class; a diagnostic of where an error comes from)
+STARTUP_METRICS = ("su_rmse", "su_iae")
 # an IAE metric -> the key of its window's duration [s] (metrics.summarize_acc)
 IAE_WINDOW = {"trk_iae": "t_tracking", "dst_iae": "t_disturbance"}
 
@@ -119,7 +122,9 @@ class Floors:
         e = self.error[task]
         if key in IAE_WINDOW:
             return e * float(m[IAE_WINDOW[key]]) if self.iae_per_window else e
-        if key in ("trk_rmse", "dst_peak"):
+        if key == "su_iae":  # the start-up window lasts QUIET_STARTUP in every episode
+            return e * QUIET_STARTUP if self.iae_per_window else e
+        if key in ("trk_rmse", "dst_peak", "su_rmse"):
             return e
         raise KeyError(f"no floor for metric {key!r}")
 
@@ -209,8 +214,15 @@ def class_log_ratio(m: dict, ref: dict, cls: str, task: str, floors: Floors = PH
     """log q_c of one episode of ``task`` (module docstring): half the sum of the log ratios of the class's two
     metrics, each floored (``floors``, the ruler's by default); NaN if a metric is undefined (no sample in the class's
     window)."""
+    return pair_log_ratio(m, ref, CLASS_METRICS[cls], task, floors)
+
+
+def pair_log_ratio(m: dict, ref: dict, keys: Sequence[str], task: str, floors: Floors = PHYSICAL_FLOORS) -> float:
+    """Half the sum of the log ratios of two metrics ``keys`` of one episode (``m``) to the reference's on it
+    (``ref``), each floored as the ruler floors it; NaN if a metric is undefined. A class's pair
+    (:data:`CLASS_METRICS`) or the start-up window's (:data:`STARTUP_METRICS`, which ranks nothing)."""
     out = 0.0
-    for key in CLASS_METRICS[cls]:
+    for key in keys:
         a, b = m[key], ref[key]
         if not (math.isfinite(a) and math.isfinite(b)):
             return math.nan
@@ -536,5 +548,6 @@ __all__ = ["CLASSES", "CLASS_METRICS", "IAE_WINDOW", "Floors", "FLOORS", "PHYSIC
            "FLOOR_SOURCES", "POSITION_RESOLUTION", "VELOCITY_RESOLUTION", "VALVE_THRESHOLD", "VALVE_BANDWIDTH",
            "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE", "ABSOLUTE_LEVELS", "absolute_levels", "METRICS",
            "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios", "failure",
-           "figure_of", "rank_key", "ratio_rows", "matrix", "Block", "figure_statistics", "is_earlier_loop", "policy_n",
+           "figure_of", "rank_key", "ratio_rows", "pair_log_ratio", "STARTUP_METRICS",
+           "matrix", "Block", "figure_statistics", "is_earlier_loop", "policy_n",
            "summarize"]

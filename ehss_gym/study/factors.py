@@ -30,12 +30,13 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 
 from ehss_gym.core import layout
-from ehss_gym.core.scenarios import heldout_scenarios
+from ehss_gym.core.scenarios import PHYSICAL_FIELDS, heldout_scenarios
 from ehss_gym.core.sim import Scenario, simulate_batch
 from ehss_gym.envs import EnvConfig
 from ehss_gym.evaluation.harness import evaluate
@@ -63,31 +64,56 @@ MOVE = 2.0  # [-] the check: the class moves by at least this factor
 NO_NOISE = (0.0, 0.0, 0.0, 0.0)
 
 
-def _no_friction(sc: Scenario) -> Scenario:
-    return sc.replace(friction=tuple((0.0, t0, t1) for _, t0, t1 in sc.friction))
+# Each cause is removed by a function of an episode's physical fields (a mapping: ``Episode.physical``, or a
+# Scenario's via :func:`physical`) returning the fields it changes; the scripted table here and the learned
+# policies' (:mod:`ehss_gym.study.factors_learned`, through the harness) remove a cause with the same function.
+def _no_friction(p: Mapping) -> dict:
+    return {"friction": tuple((0.0, t0, t1) for _, t0, t1 in p["friction"])}
 
 
-def _no_mismatch(sc: Scenario) -> Scenario:
-    return sc.replace(plant=sc.model or sc.plant, model=None)
+def _no_mismatch(p: Mapping) -> dict:
+    return {"plant": p["model"] or p["plant"], "model": None}
 
 
-def _no_noise(sc: Scenario) -> Scenario:
-    return sc.replace(noise_std=NO_NOISE)
+def _no_noise(p: Mapping) -> dict:
+    return {"noise_std": NO_NOISE}
 
 
+def _no_valve(p: Mapping) -> dict:
+    return {"unmodelled": replace(p["unmodelled"], threshold=0.0, hysteresis=0.0)}
+
+
+def _no_delay(p: Mapping) -> dict:
+    return {"unmodelled": replace(p["unmodelled"], delay=0)}
+
+
+def _no_quantisation(p: Mapping) -> dict:
+    return {"unmodelled": replace(p["unmodelled"], encoder_counts=0, velocity_step=0.0)}
+
+
+# cause -> the function that removes it (the unmodelled groups: ehss_gym.core.unmodelled)
+CAUSES = {"friction": _no_friction, "mismatch": _no_mismatch, "noise": _no_noise, "valve": _no_valve,
+          "delay": _no_delay, "quantisation": _no_quantisation}
 REMOVE = {"as is": (), "no friction": (_no_friction,), "no mismatch": (_no_mismatch,), "no noise": (_no_noise,),
           "none of them": (_no_friction, _no_mismatch, _no_noise)}
 
 
+def physical(sc: Scenario) -> dict:
+    """A scenario's physical fields (:data:`ehss_gym.core.scenarios.PHYSICAL_FIELDS`)."""
+    return {f: getattr(sc, f) for f in PHYSICAL_FIELDS}
+
+
+def removed(p: Mapping, fns: Sequence) -> dict:
+    """Physical fields ``p`` with each cause of ``fns`` (functions of :data:`CAUSES`) removed, in order."""
+    out = dict(p)
+    for fn in fns:
+        out.update(fn(out))
+    return out
+
+
 def variants(scenarios: Sequence[Scenario]) -> dict[str, list[Scenario]]:
     """Factor -> the scenarios with that cause (or all of them) removed."""
-    out = {}
-    for name in FACTORS:
-        scs = list(scenarios)
-        for fn in REMOVE[name]:
-            scs = [fn(sc) for sc in scs]
-        out[name] = scs
-    return out
+    return {name: [sc.replace(**removed(physical(sc), REMOVE[name])) for sc in scenarios] for name in FACTORS}
 
 
 def class_level(metrics: Sequence[dict], cls: str, task: str, floors: Floors = PHYSICAL_FLOORS) -> float:
@@ -231,5 +257,6 @@ def run(tasks: Sequence[str] = TASKS, episodes: int = 48, episode_seconds: float
     return [task_factors(t, episodes, episode_seconds) for t in tasks]
 
 
-__all__ = ["PROG", "FACTORS", "CHECKS", "MOVE", "RANK_SUITES", "variants", "class_level", "startup_share",
+__all__ = ["PROG", "FACTORS", "CAUSES", "physical", "removed",
+           "CHECKS", "MOVE", "RANK_SUITES", "variants", "class_level", "startup_share",
            "task_factors", "rankings", "run"]
