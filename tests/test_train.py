@@ -183,7 +183,11 @@ def test_training_smoke(tmp_path):
     key = list(groups)[0]
     report_writer.plot_curve(key, groups[key], str(tmp_path / "curves.png"))
     assert (tmp_path / "curves.png").stat().st_size > 1000
-    shipped = analysis.ship(groups, str(tmp_path / "models"), made_by="test").written
+    # one seed is no shippable group (the rule asks for 4 trained seeds); its kept policy copied as one shipment would
+    shipment = analysis.ship(groups, str(tmp_path / "models"), made_by="test")
+    assert shipment.written == [] and "at least 4" in dict(shipment.skipped)[analysis.label(key)]
+    models = str(tmp_path / "models")
+    shipped = [analysis.ship_run(groups[key][0], "residual-ppo-velocity-n2-seed0", models, made_by="test")]
     assert [os.path.basename(p) for p in shipped] == ["residual-ppo-velocity-n2-seed0"]
     ship_pol = load_policy(shipped[0])
     assert ship_pol.name == "residual-ppo-velocity-n2-seed0" and ship_pol.metadata["made_by"].endswith("by test")
@@ -191,7 +195,7 @@ def test_training_smoke(tmp_path):
     assert np.array_equal(ship_pol.predict(obs)[0], best.predict(obs)[0])
     # shipping the same model again leaves the files as they are (made_by records the first shipping)
     stamp = os.stat(shipped[0] + ".json").st_mtime_ns
-    assert analysis.ship(groups, str(tmp_path / "models"), made_by="another command").written == shipped
+    assert analysis.ship_run(groups[key][0], "residual-ppo-velocity-n2-seed0", models, "another command") == shipped[0]
     assert os.stat(shipped[0] + ".json").st_mtime_ns == stamp and load_policy(shipped[0]).metadata == ship_pol.metadata
 
 
