@@ -34,10 +34,15 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     args.started = started  # for the reports' timing lines: the command's own start-up counts too
     args.argv = argv  # the command line, for the made-by lines of figures
-    if getattr(args, "no_progress", False):  # also hides the note while the kernels compile, here and in workers
+    quiet = getattr(args, "no_progress", False) and NO_COMPILE_NOTE_ENV not in os.environ
+    if quiet:  # also hides the note while the kernels compile, here and in the worker processes started meanwhile
         os.environ[NO_COMPILE_NOTE_ENV] = "1"
-    runner = importlib.import_module(f"{__name__}.{args.module}")  # the command's dependencies load here
-    return int(runner.run(args) or 0)
+    try:
+        runner = importlib.import_module(f"{__name__}.{args.module}")  # the command's dependencies load here
+        return int(runner.run(args) or 0)
+    finally:
+        if quiet:
+            del os.environ[NO_COMPILE_NOTE_ENV]
 
 
 __all__ = ["main", "build_parser", "COMMANDS"]

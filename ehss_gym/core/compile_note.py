@@ -34,8 +34,8 @@ PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # A compilation of the package's kernels comes as several top-level ones (gym.make, reset and the first step each
 # compile their own), a few milliseconds of Python apart: the note ends once none followed for this long [s].
 QUIET_SECONDS = 2.0
-# CPU time of a cold compile, as measured (README, "How long it takes"): the env's first step, and `ehss evaluate`
-# (the env's kernels, the simulator's and the step bound's) [CPU-s].
+# CPU time of a cold compile, as measured (README, "How long it takes"): the env's kernels (a first env step, a small
+# evaluation), and every kernel the commands use (the env's, the simulator's and the step bound's: ehss warmup) [CPU-s]
 TYPICAL_CPU_S = (45, 80)
 
 
