@@ -3,8 +3,8 @@ and ``ehss warmup``, which compiles them ahead.
 
 The subprocess tests compile only what ``gym.make`` compiles (two small kernels, under a CPU-second) in a fresh
 numba cache under tmp_path: about 6 CPU-seconds for the file's default tests (three interpreters that import the
-package), not the tens of seconds of the env's first step. The ``slow`` test compiles the env's kernels cold (about
-50 CPU-seconds).
+package; pytest's start-up included), not the tens of seconds of the env's first step. The ``slow`` test compiles
+the env's kernels cold (about 56 CPU-seconds).
 """
 
 import os
