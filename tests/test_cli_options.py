@@ -46,7 +46,7 @@ def test_every_command_has_a_description_and_every_option_its_default():
             shown = action.default not in (None, False) and action.help not in (None, "==SUPPRESS==")
             if shown and action.option_strings and action.dest not in ("help", "module"):
                 assert "default" in p.formatter_class(name)._get_help_string(action), (name, action.dest)
-        one_process = ("simulate", "reproduce", "noise", "factors", "baselines", "bench", "fidelity", "plant")
+        one_process = ("simulate", "reproduce", "noise", "factors", "baselines", "bench", "fidelity", "plant", "warmup")
         assert "--workers" in text or name in one_process, name
 
 

@@ -11,10 +11,12 @@ convention).
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 import time
 
 from ehss_gym._version import __version__
+from ehss_gym.infra import NO_COMPILE_NOTE_ENV
 
 from .options import COMMANDS
 from .options import build_parser as _build_parser
@@ -32,8 +34,15 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     args.started = started  # for the reports' timing lines: the command's own start-up counts too
     args.argv = argv  # the command line, for the made-by lines of figures
-    runner = importlib.import_module(f"{__name__}.{args.module}")  # the command's dependencies load here
-    return int(runner.run(args) or 0)
+    quiet = getattr(args, "no_progress", False) and NO_COMPILE_NOTE_ENV not in os.environ
+    if quiet:  # also hides the note while the kernels compile, here and in the worker processes started meanwhile
+        os.environ[NO_COMPILE_NOTE_ENV] = "1"
+    try:
+        runner = importlib.import_module(f"{__name__}.{args.module}")  # the command's dependencies load here
+        return int(runner.run(args) or 0)
+    finally:
+        if quiet:
+            del os.environ[NO_COMPILE_NOTE_ENV]
 
 
 __all__ = ["main", "build_parser", "COMMANDS"]

@@ -464,6 +464,13 @@ def add_bench(p) -> None:
                    help=f"comma-separated subset of {','.join(known)} (default: all)")
 
 
+def add_warmup(p) -> None:
+    p.add_argument("--part", choices=("sim", "env"), default=None,
+                   help="only the simulator's kernels (simulate, reproduce, the step bounds) or only the env's "
+                        "(env, evaluate, train) (default: both)")
+    add_progress(p)
+
+
 def add_evaluate(p) -> None:
     quick = EvalConfig.quick()
     full = EvalConfig()
@@ -694,6 +701,11 @@ COMMANDS = (
     Command("fidelity", "the digital filters against the analog ones, open and closed loop",
             "Measure the digital filters (zoh, foh) against the analog ones, open and closed loop, at h = 30, 10, "
             "3 us; writes reports/fidelity and the table in docs/MODEL.md.", add_fidelity, "fidelity"),
+    Command("warmup", "compile the simulator's kernels into numba's cache now (a Docker image, a Ray node)",
+            "Compile numba's kernels into its cache (NUMBA_CACHE_DIR, else beside the package's sources) by running "
+            "what the commands run, tiny, so that the first real run loads them instead of compiling them for tens "
+            "of CPU-seconds; prints the CPU time it took. With a warm cache it only loads them.", add_warmup,
+            "warmup"),
 )
 
 

@@ -21,6 +21,10 @@ from collections.abc import Sequence
 
 import numba as nb
 
+from .compile_note import install
+
+install()  # a note on stderr while the kernels compile on a cold cache (core/compile_note.py)
+
 jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
 # The hot per-period kernels (lanes, controller, env step) are compiled without numba's reference-counting
 # runtime (NRT): they never allocate, and with NRT every array view they take (z[b], work[0], events[b], ...)

@@ -9,3 +9,6 @@ import os
 BACKENDS = ("local", "ray")
 RAY_INSTALL = "pip install 'ehss-gym[ray]'"
 DEFAULT_STORE = os.path.join("runs", "jobs")
+# set (to anything but empty) to hide the note on stderr while numba compiles the kernels on a cold cache
+# (ehss_gym.core.compile_note); the commands' --no-progress sets it
+NO_COMPILE_NOTE_ENV = "EHSS_GYM_NO_COMPILE_NOTE"
