@@ -79,6 +79,26 @@ def test_per_lane_feedforward_equals_one_policy_per_episode_and_a_zero_bias_equa
         rollout(FrictionFeedforwardPolicy(cfg, friction_by_lane=events), kw, scs[:1])
 
 
+def test_the_combined_oracles_start_from_their_compensation_and_never_end_above_it():
+    # two unmodelled episodes of different delays: at the base width alone the search's run of each is the
+    # compensated law's own run (delay known, both known), to the last bit; with a grid its pick is never worse than
+    # that run by the search's own objective, and where it moved the width the metrics moved with it
+    cfg = hr.HeadroomConfig.quick_config(tasks=("position",), episodes=2)
+    eps = hr.suite_episodes(cfg, "position")["unmodelled"]
+    assert len({ep.physical["unmodelled"].delay for ep in eps}) == 2
+    kw = {"task": "position", **cfg.eval_config().env_kwargs()}
+    known = hr._known("position", kw, eps, None)
+    width = float(EnvConfig.from_kwargs(kw).loop.smoothing)
+    only_base = hr.Search1D(grid=(width,), lo=0.1, hi=1e6, step=0.25, rounds=0)
+    for run, ref in ((hr._delay_width, "delay known"), (hr._both_width, "both known")):
+        ms, vals = run("position", kw, eps, only_base)
+        assert vals == [width, width] and all(_same(a, b) for a, b in zip(ms, known[ref][0]))
+        ms, vals = run("position", kw, eps, hr.QUICK_WIDTH)
+        for m, v, k, noisy in zip(ms, vals, known[ref][0], hr._noisy(eps)):
+            assert hr._objective(m, k, noisy, "position") <= 0.0
+            assert _same(m, k) == (v == width)
+
+
 def _same(a: dict, b: dict) -> bool:
     """Two metrics dicts equal value for value (NaN equal to NaN)."""
     return a.keys() == b.keys() and all(a[k] == b[k] or (a[k] != a[k] and b[k] != b[k]) for k in a)
@@ -121,7 +141,8 @@ def test_quick_headroom_report(tmp_path):
     assert sum(1 for ln in lines if "| heldout | dob-n2 | 5, 20 | the same to the last bit |" in ln) == 2
     assert sum(1 for ln in lines if "| heldout | dcomp-n2 | 5, 20 | the same to the last bit |" in ln) == 2
     # the oracles knowing the unmodelled effects run on the unmodelled suite only; the ideal corrections' sizes
-    known = {r["suite"] for r in rows if r["variant"] in ("delay known", "valve known", "both known")}
+    known = {r["suite"] for r in rows if r["variant"] in ("delay known", "valve known", "both known",
+                                                          "delay known, best width", "both known, best width")}
     assert known == {"unmodelled"}
     corr = _csv(out / "corrections.csv")
     assert {r["task"] for r in corr} == set(cfg.tasks)

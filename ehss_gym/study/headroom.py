@@ -14,7 +14,9 @@ chatter), the figures against the base law (the env's tuned n = 2 law, zero resi
   width w, the boundary layer, with the best per-episode overall figure, by the same search); on the unmodelled suite
   (:data:`KNOWN_SUITES`), **delay known**, **valve known** and **both known**, which know the episode's own sensor delay
   and valve threshold and hysteresis and compensate them (the law's reference delayed by the delay, the valve's inverse
-  on the law's current: :mod:`ehss_gym.core.compensators`);
+  on the law's current: :mod:`ehss_gym.core.compensators`), and **delay known, best width** and **both known, best
+  width**, which add the best width's search to them (what knowing the effects and the episode in hindsight reach
+  together);
 - ``dcomp-n2``, the causal counterpart of the delay compensation (the reference delayed by a fixed number of samples
   chosen on training episodes, :data:`ehss_gym.controllers.DCOMP_SAMPLES`), beside ``dob-n2``;
 - the sizes of the ideal corrections on the unmodelled suite (:mod:`ehss_gym.study.corrections`).
@@ -265,22 +267,32 @@ def _best_bias(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, 
     return search_episodes(search, 0.0, run_values, _noisy(eps), task, physical_floors(cfg.plant))
 
 
-def _best_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, list]:
-    """Per episode the best smoothing width w [unit of s] of the law (:func:`search_episodes`); one rollout per
-    distinct width (a width is an env setting, the same for every episode of a rollout)."""
+def _best_width(task: str, kw: dict, eps: list, search: Search1D,
+                settings_of: Callable = lambda ep: {}) -> tuple[list, list]:
+    """Per episode the best smoothing width w [unit of s] of the law (:func:`search_episodes`), each episode with the
+    loop settings ``settings_of(episode)`` besides (default none: the law as the env has it); one rollout per
+    distinct width and setting (both are env settings, the same for every episode of a rollout)."""
 
     def run_values(values, idx):
         out: list = [None] * len(idx)
         for w in dict.fromkeys(values):
             at = [j for j, v in enumerate(values) if v == w]
-            wkw = {**kw, "smoothing": w}
-            res = rollout(CLFPolicy(EnvConfig.from_kwargs(wkw)), wkw, [eps[idx[j]] for j in at])[0]
-            for j, m in zip(at, res):
+            for j, m in zip(at, _grouped({**kw, "smoothing": w}, [eps[idx[j]] for j in at], settings_of)):
                 out[j] = m
         return out
 
     cfg = EnvConfig.from_kwargs(kw)
     return search_episodes(search, float(cfg.loop.smoothing), run_values, _noisy(eps), task, physical_floors(cfg.plant))
+
+
+def _delay_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, list]:
+    """The episode's sensor delay known (:func:`_known`) and its best width in hindsight (:func:`_best_width`)."""
+    return _best_width(task, kw, eps, search, lambda ep: delay_known(ep.physical))
+
+
+def _both_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, list]:
+    """The episode's sensor delay and valve known (:func:`_known`) and its best width in hindsight."""
+    return _best_width(task, kw, eps, search, lambda ep: {**delay_known(ep.physical), **valve_known(ep.physical)})
 
 
 @dataclass(frozen=True)
@@ -347,6 +359,12 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("both known", "oracle", "clf-n2", "free", True,
             "the episode's sensor delay and valve (both compensations)", None, made_by="delay known",
             suites=KNOWN_SUITES),
+    Variant("delay known, best width", "oracle", "clf-n2", "free", True,
+            "the episode's sensor delay, and in hindsight its best boundary-layer width with the delay compensated",
+            _delay_width, "width", suites=KNOWN_SUITES),
+    Variant("both known, best width", "oracle", "clf-n2", "free", True,
+            "the episode's sensor delay and valve, and in hindsight its best boundary-layer width with both "
+            "compensated", _both_width, "width", suites=KNOWN_SUITES),
 )
 VARIANT_BY_NAME = {v.name: v for v in VARIANTS}
 
