@@ -44,6 +44,13 @@ if "MPLCONFIGDIR" not in os.environ:
     os.environ["MPLCONFIGDIR"] = tempfile.mkdtemp(prefix="ehss-matplotlib-")
     atexit.register(shutil.rmtree, os.environ["MPLCONFIGDIR"], True)
 
+# stable-baselines3 makes a folder SB3-<time> in the system's temporary folder for every learn() without a logger of
+# its own (sb3's logger.configure with no folder), left behind after the test: one folder of the session instead
+# (SB3_LOGDIR, which it reads first), shared by every process started from here, removed at exit
+if "SB3_LOGDIR" not in os.environ:
+    os.environ["SB3_LOGDIR"] = tempfile.mkdtemp(prefix="ehss-sb3-")
+    atexit.register(shutil.rmtree, os.environ["SB3_LOGDIR"], True)
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SKIPPED_DIRS = {".git", "__pycache__", ".pytest_cache", ".ruff_cache"}
 EDITOR_FILES = (".swp", ".swo", "~")  # an editor's files, saved beside the sources while the tests run
