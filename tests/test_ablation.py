@@ -38,6 +38,16 @@ def test_stage_cells():
     assert ab.stage2(CELLS[:1])[0].hp()["exploration"] == "gsde"
 
 
+def test_stage3_puts_the_leader_on_the_distribution_it_has_not_trained_on():
+    lead = ab.Cell("physical", "schedule")
+    (third,) = ab.stage3(lead, {c.label for c in CELLS})
+    assert (third.reward, third.action, third.exploration, third.base) == ("physical", "schedule", "gaussian", "law")
+    env = third.hp()["env_kwargs"]
+    assert third.distribution == "mixture" and env["unmodelled_share"] == 0.5 and env["unmodelled_effects"]
+    assert ab.stage3(lead, {third.label}) == []  # already run in stage 2: nothing new
+    assert [c.distribution for c in ab.stage3(third, set())] == ["unmodelled"]
+
+
 def test_sets_draw_with_and_without_the_effects():
     kw = ab.Cell("class", "current", distribution="mixture").config("/tmp/never-written").env_kwargs()
     assert ab.set_kwargs(kw, "U")["unmodelled_share"] == 1.0 and ab.set_kwargs(kw, "U")["unmodelled_effects"]
@@ -66,16 +76,20 @@ def test_tie_is_relative_to_the_leader():
 def test_report_renders_the_study(tmp_path):
     res = [result(CELLS[0], 0.80, 1.04), result(CELLS[1], 1.20, 0.90, h_failed=True)]
     second = [result(ab.stage2(CELLS[:1])[2], 0.55, 1.3, u0=0.67, h0=1.79)]
-    study = ab.Ablation(ab.rank(res), second, ab.rank(res + second), ["some-cell"],
-                        {"U": row(0.67), "H": row(1.79)}, {r["label"]: "ehss train ..." for r in res + second})
+    (lead_mix,) = ab.stage3(CELLS[0], {r["label"] for r in res + second})
+    third = [result(lead_mix, 0.81, 0.99)]  # ties with the leader on U, lower H: it wins
+    cells = res + second + third
+    study = ab.Ablation(ab.rank(res), second, third, ab.rank(cells), ["some-cell"],
+                        {"U": row(0.67), "H": row(1.79)}, {r["label"]: "ehss train ..." for r in cells})
     files = report.write_report(study, str(tmp_path), "ehss ablation --runs R --out O")
     text = (tmp_path / "ABLATION.md").read_text()
     assert len(files) == 3 and (tmp_path / "curves.png").stat().st_size > 0
-    assert f"Winner by the rule: `{CELLS[0].label}`" in text
+    assert f"Winner by the rule: `{lead_mix.label}`" in text
+    assert "## Stage 3: the leader of stages 1-2 on the other training distribution" in text
     assert "dcomp-n2 0.670 on U" in text and "Not finished (not in the tables): some-cell" in text
-    assert "1 of 3 cells end below dcomp-n2 on U (0.670)" in text and "FAILED (1)" in text
+    assert "1 of 4 cells end below dcomp-n2 on U (0.670)" in text and "FAILED (1)" in text
     rows = list(csv.reader(io.StringIO((tmp_path / "ablation.csv").read_text())))
-    assert tuple(rows[0]) == report.CSV_COLUMNS and len(rows) == 1 + 2 * 3
+    assert tuple(rows[0]) == report.CSV_COLUMNS and len(rows) == 1 + 2 * 4
     assert rows[1][:6] == [CELLS[0].label, "class", "current", "gaussian", "law", "unmodelled"]
 
 

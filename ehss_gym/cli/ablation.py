@@ -4,8 +4,8 @@
     ehss ablation --runs runs/ablation --out reports/training/ablation [--workers 2] [--report-only]
 
 Trains the cells that have not finished (one ``ehss train`` process each, at most ``--workers`` at a time; stage 2
-once stage 1 has finished), ranks them by the rule written before the runs and writes ABLATION.md, curves.png and
-ablation.csv. Bad input (no finished cell to report) prints a message and exits with 2.
+once stage 1 has finished, stage 3 once stage 2 has), ranks them by the rule written before the runs and writes
+ABLATION.md, curves.png and ablation.csv. Bad input (no finished cell to report) prints a message and exits with 2.
 """
 
 from __future__ import annotations

@@ -689,7 +689,8 @@ COMMANDS = (
             "Train residual PPO on the position task with the unmodelled effects, one seed per cell: reward (class, "
             "physical) x action (current, reference, schedule, reference-schedule), then on stage 1's two best "
             "cells exploration (gsde, pink), the base law with its reference delayed (dcomp) and the mixture "
-            "training distribution (half the episodes with the effects); rank the cells by the rule written in "
+            "training distribution (half the episodes with the effects), then the leader of both on the "
+            "distribution it was not trained on; rank the cells by the rule written in "
             "ehss_gym.study.ablation (final policies on validation episodes with and without the effects) and "
             "write ABLATION.md, its validation curves and CSV.", add_ablation, "ablation"),
     Command("tune", "hyperparameter search for the residual agent (Ray Tune, Optuna TPE, ASHA)",

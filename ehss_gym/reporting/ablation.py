@@ -30,7 +30,8 @@ CSV_COLUMNS = ("cell", "reward", "action", "exploration", "base", "distribution"
 def plot_curves(study: ab.Ablation, path: str, made_by: str = COMMAND) -> None:
     """Each cell's validation figure over training steps, one panel per stage, with clf-n2 (1) and dcomp-n2."""
     stages = [(name, rs) for name, rs in (("stage 1: reward x action", study.stage1),
-                                          ("stage 2: exploration x base", study.stage2)) if rs]
+                                          ("stage 2: exploration x base", study.stage2),
+                                          ("stage 3: the leader's distributions", study.stage3)) if rs]
     fig, axes = plt.subplots(1, max(len(stages), 1), figsize=(6.5 * max(len(stages), 1), 4.6), squeeze=False)
     for ax, (title, rs) in zip(axes[0], stages):
         for r in rs:
@@ -78,7 +79,7 @@ def ablation_csv(study: ab.Ablation) -> str:
     buf = io.StringIO()
     w = csv.writer(buf)
     w.writerow(CSV_COLUMNS)
-    for r in study.stage1 + study.stage2:
+    for r in study.stage1 + study.stage2 + study.stage3:
         c = r["cell"]
         for x in r["history"]:
             w.writerow([r["label"], c.reward, c.action, c.exploration, c.base, c.distribution]
@@ -92,9 +93,10 @@ def markdown(study: ab.Ablation, command: str, figure: str) -> str:
     header = ["place", "reward", "action", "exploration", "base", "distribution", "U step 0", "U final",
               "U final: tracking", "disturbance", "effort", "chatter", "H step 0", "H final", "admissible",
               "beats step 0", "curve's best @step", "CPU [min]", "wall [min]"]
-    all_cells = study.stage1 + study.stage2
+    all_cells = study.stage1 + study.stage2 + study.stage3
     return render("ablation.md.j2", command=command, made_by=COMMAND, ab=ab, header=header,
                   stage1_rows=cell_rows(study.stage1, order), stage2_rows=cell_rows(study.stage2, order),
+                  stage3_rows=cell_rows(study.stage3, order),
                   winner=order[0] if order else None, beaten=[r for r in all_cells if r["beats_step0"]],
                   below_dcomp=[r for r in all_cells if r["final"] is not None and study.dcomp["U"]["figure"] is not None
                                and r["final"] < study.dcomp["U"]["figure"]],
