@@ -177,13 +177,14 @@ COMMON_ENV = {"agent_period": 20}
 # 300k steps per cell, judged by a rule written before the runs), physical-schedule-gaussian-law:
 # - unmodelled_effects: every training episode draws the valve's threshold and hysteresis, the sensors' delay and
 #   quantisation and their noise (docs/ENV.md): where the law's model is wrong the errors are physical, and that is
-#   what a residual can learn. (Half the episodes with the effects, on the reference-schedule action: U 0.952,
-#   H 1.060, against 0.883 and 1.375 with all of them.)
+#   what a residual can learn. (Half the episodes with the effects, the ablation's stage 3 on this cell: U 0.991,
+#   H 1.020, against 0.957 and 1.039 with all of them; both admissible, and the rule ranks U first.)
 # - action "schedule": the agent scales the law's boundary-layer width, sigma and observer bandwidth within stated
-#   ranges at its rate (docs/ENV.md, "Actions"), the gain-scheduling route. It was the only cell whose final policy
-#   was admissible (held-out figure H 1.020 <= 1.05) and below its step-0 policy on the unmodelled set (U 0.965). The
-#   reference-shifting actions reached lower U (final 0.871-0.883) but lost on the held-out episodes (H 1.38-1.43);
-#   the current residual U 0.914, H 2.11. On 5 seeds the winner's best validation figure fell below step 0 in 5 of 5.
+#   ranges at its rate (docs/ENV.md, "Actions"), the gain-scheduling route. It was the only cell of stages 1-2 whose
+#   final policy was admissible (held-out figure H 1.039 <= 1.05), and it ends below its step-0 policy on the
+#   unmodelled set (U 0.957). The current residual reached lower U (final 0.777-0.891) and the reference-shifting
+#   actions 0.921-1.031, but both lost on the held-out episodes (H 1.92-2.35 and 1.28-1.78). On 5 seeds the winner's
+#   best validation figure fell below step 0 in 5 of 5.
 # - the physical per-step reward (weight 1; docs/RL.md, "Physical reward"): the episode's sum ranks fixed policies as
 #   the ruler does, on the ruler's physical floors, with no dependence on the history (the class reward's step pays a
 #   change of a running log ratio). Saturation weight 1 (the ruler's gate fails a mean saturation share above 10 %),
