@@ -180,13 +180,27 @@ def _grouped(kw: dict, eps: list, settings_of: Callable) -> list[dict]:
     return out
 
 
+def _delay_of(ep) -> dict:
+    """The loop settings that compensate an episode's own sensor delay."""
+    return delay_known(ep.physical)
+
+
+def _valve_of(ep) -> dict:
+    """The loop settings that invert an episode's own valve."""
+    return valve_known(ep.physical)
+
+
+def _both_of(ep) -> dict:
+    """Both compensations of an episode's own effects."""
+    return {**_delay_of(ep), **_valve_of(ep)}
+
+
 def _known(task: str, kw: dict, eps: list, search) -> dict:
     """The oracles that know the episode's unmodelled effects: its delay, its valve, and both."""
-    delays = [delay_known(ep.physical)["reference_delay"] for ep in eps]
-    return {"delay known": (_grouped(kw, eps, lambda ep: delay_known(ep.physical)), delays),
-            "valve known": (_grouped(kw, eps, lambda ep: valve_known(ep.physical)), [None] * len(eps)),
-            "both known": (_grouped(kw, eps, lambda ep: {**delay_known(ep.physical), **valve_known(ep.physical)}),
-                           delays)}
+    delays = [_delay_of(ep)["reference_delay"] for ep in eps]
+    return {"delay known": (_grouped(kw, eps, _delay_of), delays),
+            "valve known": (_grouped(kw, eps, _valve_of), [None] * len(eps)),
+            "both known": (_grouped(kw, eps, _both_of), delays)}
 
 
 def _feedforward(task: str, kw: dict, eps: list, search) -> dict:
@@ -287,12 +301,12 @@ def _best_width(task: str, kw: dict, eps: list, search: Search1D,
 
 def _delay_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, list]:
     """The episode's sensor delay known (:func:`_known`) and its best width in hindsight (:func:`_best_width`)."""
-    return _best_width(task, kw, eps, search, lambda ep: delay_known(ep.physical))
+    return _best_width(task, kw, eps, search, _delay_of)
 
 
 def _both_width(task: str, kw: dict, eps: list, search: Search1D) -> tuple[list, list]:
     """The episode's sensor delay and valve known (:func:`_known`) and its best width in hindsight."""
-    return _best_width(task, kw, eps, search, lambda ep: {**delay_known(ep.physical), **valve_known(ep.physical)})
+    return _best_width(task, kw, eps, search, _both_of)
 
 
 @dataclass(frozen=True)
