@@ -668,6 +668,54 @@ def test_ship_writes_every_group_and_retires_the_rest(tmp_path):
     assert an.ship(only_sac, str(models), made_by="t").retired == [] and len(os.listdir(models)) == 9
 
 
+def test_the_archive_keeps_what_the_report_reads_and_reads_back_as_the_runs(tmp_path):
+    """An archived run holds its config, summary, validation history and kept model only (safe weights, or an SB3
+    run's zip, statistics and settings), loads back as the same runs and groups, is left as it is when archived again,
+    and two runs of one name are refused with both named."""
+    from ehss_gym.agents.safeweights import shipped_models
+    from ehss_gym.study import training as an
+
+    stem = shipped_models()["residual-ppo-velocity-n2-seed0"]
+    runs_dir = tmp_path / "runs"
+    for seed in range(2):
+        d = _fake_run(runs_dir, "residual-ppo", "velocity", 2, seed, stem)
+        (d / "checkpoints").mkdir()
+        (d / "checkpoints" / "step_64.zip").write_bytes(b"big")  # not read by the report: not kept
+        (d / "best" / "model.zip").write_bytes(b"zip")  # the SB3 copy beside the safe weights: not kept either
+    sac = _fake_run(runs_dir, "residual-sac", "velocity", 2, 0)
+    for f in ("vecnormalize.pkl", "model.json"):
+        (sac / "best" / f).write_bytes(b"x")
+    groups = an.group_runs(an.load_runs(str(runs_dir)))
+    written = an.archive(groups, str(tmp_path / "kept"))
+    assert sorted(os.path.basename(w) for w in written) == sorted(os.listdir(runs_dir))
+
+    def files(d):
+        return sorted(os.path.relpath(os.path.join(r, f), d) for r, _, fs in os.walk(d) for f in fs)
+
+    ppo = os.path.join(tmp_path, "kept", "residual-ppo_velocity_n2_s0")
+    assert files(ppo) == ["best/policy.json", "best/policy.safetensors", "config.json", "evaluations.json",
+                          "summary.json"]
+    assert files(os.path.join(tmp_path, "kept", sac.name)) == [
+        "best/model.json", "best/model.zip", "best/vecnormalize.pkl", "config.json", "evaluations.json",
+        "summary.json"]
+    again = an.group_runs(an.load_runs(str(tmp_path / "kept")))
+    assert list(again) == list(groups)
+    for k in groups:
+        for a, b in zip(groups[k], again[k]):
+            assert (a["config"], a["summary"], a["history"]) == (b["config"], b["summary"], b["history"])
+            assert an.record_files(a) == an.record_files(b)
+            for rel in an.record_files(a):
+                assert (pathlib.Path(a["dir"]) / rel).read_bytes() == (pathlib.Path(b["dir"]) / rel).read_bytes(), rel
+    stamp = os.stat(os.path.join(ppo, "config.json")).st_mtime_ns
+    an.archive(groups, str(tmp_path / "kept"))
+    assert os.stat(os.path.join(ppo, "config.json")).st_mtime_ns == stamp
+    other = tmp_path / "other"
+    _fake_run(other, "residual-ppo", "velocity", 4, 0, stem).rename(other / "residual-ppo_velocity_n2_s0")
+    both = an.group_runs(an.load_runs(str(runs_dir)) + an.load_runs(str(other)))
+    with pytest.raises(ValueError, match="two runs are named 'residual-ppo_velocity_n2_s0'"):
+        an.archive(both, str(tmp_path / "clash"))
+
+
 def test_an_old_sac_run_is_exported_evaluated_and_shipped_as_safe_weights(tmp_path, monkeypatch):
     """A SAC run trained before SAC runs wrote safe weights (best/model.zip + vecnormalize.pkl + model.json only) is
     scored as its zip and not shipped, the reason naming the export; exported to best/policy, its actions are the SB3

@@ -530,6 +530,12 @@ def add_headroom(p) -> None:
                    help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
     p.add_argument("--n-boot", type=int_at_least("--n-boot", 100), default=None,
                    help="bootstrap replicates (default 2000; --quick 500)")
+    p.add_argument("--causes", nargs="?", const="all", default=None, metavar="CAUSES",
+                   help="instead of the headroom table: the unmodelled suite's variants (the base law, dob-n2, "
+                        "dcomp-n2 and the oracles that know the unmodelled effects or search the width) with each "
+                        "cause removed in turn, judged by the rule of ehss factors --learned; writes CAUSES.md and "
+                        "causes.csv. CAUSES: a comma-separated subset of friction,mismatch,noise,valve,delay,"
+                        "quantisation (default: all of them)")
     add_workers(p)
     add_out(p, "output folder", os.path.join("reports", "headroom"))
     add_quick(p, "2 episodes per suite, short suites, agent periods 5 and 20, small searches (CI smoke run; numbers "
@@ -578,6 +584,10 @@ def add_training_report(p) -> None:
     p.add_argument("--ship", default=None, metavar="FOLDER",
                    help="ship every group's kept policies here as safe weights (e.g. ehss_gym/models), and "
                         "delete the models there that this shipment does not write")
+    p.add_argument("--archive", default=None, metavar="FOLDER",
+                   help="keep every run's records here (config, summary, validation history and kept model, about "
+                        "45 kB per run; e.g. reports/training/runs), so that --runs FOLDER regenerates the report "
+                        "once the run folders are gone")
     add_workers(p, "evaluation processes")
     p.set_defaults(workers=2)
     add_progress(p)

@@ -1,5 +1,6 @@
 """The headroom table's report (``ehss headroom``): ``HEADROOM.md`` (prose in templates/headroom.md.j2),
-``headroom.csv`` and ``headroom.png``, from :func:`ehss_gym.study.headroom.run`."""
+``headroom.csv`` and ``headroom.png``, from :func:`ehss_gym.study.headroom.run`; and with ``--causes``, ``CAUSES.md``
+(templates/headroom_causes.md.j2) and ``causes.csv``, from :func:`ehss_gym.study.headroom_causes.run`."""
 
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from ehss_gym.study.headroom import (  # noqa: E402
     MIN_EPISODES,
     VARIANTS,
 )
+from ehss_gym.study.headroom_causes import SUITE as CAUSE_SUITE  # noqa: E402
 
 from .comparison import csv_text  # noqa: E402
 from .render import render  # noqa: E402
@@ -177,10 +179,49 @@ def write_report(res: dict, out: str, command: str) -> str:
     return path
 
 
+def _join(names) -> str:
+    return ", ".join(names) or "-"
+
+
+def _cause_tables(t: dict, causes: tuple) -> dict:
+    """One task of the cause split: the overall figure of every variant on every version of the episodes (CI on the
+    episodes as they are), and the rule's verdict per variant."""
+    versions = list(t["versions"])
+    names = [d["policy"] for d in t["versions"][versions[0]]]
+    by = {v: {d["policy"]: d for d in stats} for v, stats in t["versions"].items()}
+    figures = []
+    for n in names:
+        d0 = by[versions[0]][n]
+        cells = [_ci(d0["figure"], d0["figure_lo"], d0["figure_hi"])]
+        cells += [fmt_cell(by[v][n]["figure"]) if n in by[v] else "n/a" for v in versions[1:]]
+        figures.append([n, *cells])
+    verdicts = []
+    for n, vd in t["verdicts"].items():
+        share = vd["removed_share"]
+        verdicts.append([n, vd["gap"], _join(vd["explained"]), _join(vd["mostly"]), _join(vd["widens"]),
+                         *[fmt_cell(share[c]) if c in share else "-" for c in causes]])
+    return {"task": t["task"], "episodes": t["episodes"], "versions": versions, "figures": figures,
+            "verdicts": verdicts}
+
+
+def write_causes(res: dict, out: str, command: str) -> str:
+    """Write CAUSES.md and causes.csv under ``out``; returns CAUSES.md's path."""
+    os.makedirs(out, exist_ok=True)
+    rows = [{**d, "version": v} for t in res["tasks"] for v, stats in t["versions"].items() for d in stats]
+    atomic_write_text(os.path.join(out, "causes.csv"), csv_text(rows, ("version", *COLUMNS)))
+    causes = tuple(res["causes"])
+    text = render("headroom_causes.md.j2", command=command, version=__version__, res=res, cfg=res["cfg"],
+                  suite=CAUSE_SUITE, causes=causes, tasks=[_cause_tables(t, causes) for t in res["tasks"]],
+                  plant=res["cfg"].eval_config().rig.text())
+    path = os.path.join(out, "CAUSES.md")
+    atomic_write_text(path, text)
+    return path
+
+
 def _periods_text(periods: str, agent_periods: tuple) -> str:
     every = ", ".join(str(p) for p in agent_periods)
     return {"all": every, "free": f"{FREE_PERIOD} (cannot matter)",
             "check": f"{BASE_PERIOD}; {every} on {CHECK_SUITE} (the check)"}[periods]
 
 
-__all__ = ["DEFAULT_OUT", "COLUMNS", "plot_headroom", "write_report"]
+__all__ = ["DEFAULT_OUT", "COLUMNS", "plot_headroom", "write_report", "write_causes"]

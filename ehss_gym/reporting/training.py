@@ -224,10 +224,10 @@ def results_json(study) -> str:
     return json.dumps(out, indent=1, default=str) + "\n"
 
 
-def command_line(runs: list[str], out: str, episodes: int, ship: str | None) -> str:
+def command_line(runs: list[str], out: str, episodes: int, ship: str | None, archive: str | None = None) -> str:
     """The command that writes the report with these settings (printed at the top of TRAINING.md)."""
     return (f"{COMMAND} --runs {' '.join(runs)} --out {out} --episodes {episodes}"
-            + (f" --ship {ship}" if ship else ""))
+            + (f" --ship {ship}" if ship else "") + (f" --archive {archive}" if archive else ""))
 
 
 def write_report(study, out: str, command: str) -> list[str]:

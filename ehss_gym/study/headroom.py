@@ -465,7 +465,7 @@ def suite_episodes(cfg: HeadroomConfig, task: str) -> dict[str, list]:
     return out
 
 
-def _job(config: dict, seed: int, context) -> dict:
+def variant_job(config: dict, seed: int, context) -> dict:
     """An executor job: one variant on one (task, suite) at one agent period; plain data back."""
     v = VARIANT_BY_NAME[config["variant"]]
     out = v.run(config["task"], config["env_kwargs"], config["episodes"], config["search"])
@@ -480,6 +480,16 @@ def _job(config: dict, seed: int, context) -> dict:
     return {name: {"metrics": m, "values": vals, "first": first} for name, (m, vals) in made.items()}
 
 
+def variant_config(cfg: HeadroomConfig, v: Variant, task: str, suite: str, eps: list, ap: int,
+                   env_suite: str | None = None) -> dict:
+    """The job config of variant ``v`` on ``eps`` of (task, suite) at agent period ``ap`` (:func:`variant_job`); the
+    env settings are those of suite ``env_suite`` (default: ``suite``)."""
+    kw = {"task": task, **parse_scripted(v.policy), **SUITE_ENV.get(env_suite or suite, {}), "agent_period": ap,
+          **cfg.eval_config().env_kwargs(), **_dob_row(v, task, cfg)}
+    return {"variant": v.name, "task": task, "suite": suite, "agent_period": ap, "env_kwargs": kw, "episodes": eps,
+            "search": getattr(cfg, v.search) if v.search else None}
+
+
 def plan(cfg: HeadroomConfig) -> list[Job]:
     """Every job of the study: per task, suite, variant and agent period."""
     jobs = []
@@ -487,12 +497,8 @@ def plan(cfg: HeadroomConfig) -> list[Job]:
         for suite, eps in suite_episodes(cfg, task).items():
             for v in (v for v in VARIANTS if not v.made_by and (not v.suites or suite in v.suites)):
                 for ap in cfg.periods_of(v, suite):
-                    kw = {"task": task, **parse_scripted(v.policy), **SUITE_ENV.get(suite, {}), "agent_period": ap,
-                          **cfg.eval_config().env_kwargs(), **_dob_row(v, task, cfg)}
-                    search = getattr(cfg, v.search) if v.search else None
-                    config = {"variant": v.name, "task": task, "suite": suite, "agent_period": ap, "env_kwargs": kw,
-                              "episodes": eps, "search": search}
-                    jobs.append(Job(_job, config, seed=0, label=f"{task}/{suite}/{v.name}@{ap}"))
+                    jobs.append(Job(variant_job, variant_config(cfg, v, task, suite, eps, ap), seed=0,
+                                    label=f"{task}/{suite}/{v.name}@{ap}"))
         eps = suite_episodes(cfg, task).get(CORRECTIONS_SUITE)
         if eps:  # the ideal corrections' sizes (ehss_gym.study.corrections)
             kw = {"task": task, **parse_scripted(REFERENCE_POLICY), **cfg.eval_config().env_kwargs()}
@@ -528,7 +534,14 @@ def label(v: Variant, ap: int, cfg: HeadroomConfig) -> str:
     return v.name if v.periods == "free" else f"{v.name} @{ap}"
 
 
-def _rows(done: list[tuple[Job, dict]], cfg: HeadroomConfig) -> list[dict]:
+def row_meta(cfg: HeadroomConfig) -> dict:
+    """Row label -> its variant's name, kind, agent period, what it observes and whether the period cannot matter."""
+    return {label(v, ap, cfg): {"variant": v.name, "kind": v.kind, "agent_period": ap, "observes": v.observes,
+                                "period_free": v.period_free}
+            for v in VARIANTS for ap in dict.fromkeys(cfg.periods_of(v, CHECK_SUITE) + cfg.periods_of(v, ""))}
+
+
+def episode_rows(done: list[tuple[Job, dict]], cfg: HeadroomConfig) -> list[dict]:
     """Harness-like per-episode rows (suite, task, policy, run, episode, noisy, metrics; a searched oracle's chosen
     value and the base law's value of its setting) of finished jobs."""
     rows = []
@@ -564,7 +577,7 @@ def period_check(rows: list, v: Variant, cfg: HeadroomConfig, suite: str, task: 
     return {"variant": v.name, "suite": suite, "task": task, "periods": periods, "max_rel_diff": worst}
 
 
-def _block_stats(rows: list, suite: str, task: str, names: list, meta: dict, cfg: HeadroomConfig) -> list[dict]:
+def block_stats(rows: list, suite: str, task: str, names: list, meta: dict, cfg: HeadroomConfig) -> list[dict]:
     """Per policy of one (task, suite): class and overall figures against the base law with CIs, and the gate."""
     blk = Block(rows, names, suite, task)
     ecfg = EvalConfig(n_boot=cfg.n_boot, seed=cfg.seed)
@@ -603,7 +616,7 @@ def run(cfg: HeadroomConfig | None = None, executor: Executor | None = None, pro
 
     Returns:
         {"cfg", "blocks" (per task and suite: "task", "suite", "episodes", "classes", "stats" (one row per policy:
-        :func:`_block_stats`), "headroom" (:func:`headroom`), "checks" (:func:`period_check`)), "corrections" (per
+        :func:`block_stats`), "headroom" (:func:`headroom`), "checks" (:func:`period_check`)), "corrections" (per
         task the ideal corrections' sizes on the unmodelled suite: :func:`ehss_gym.study.corrections.summarize`),
         "jobs", "computed", "skipped", "wall_s"}.
     """
@@ -614,11 +627,9 @@ def run(cfg: HeadroomConfig | None = None, executor: Executor | None = None, pro
     done = list(zip(jobs, executor.map(jobs, desc=PROG)))
     corrections = {j.config["task"]: summarize_corrections(r, j.config["task"]) for j, r in done
                    if j.config.get("corrections")}
-    rows = _rows([(j, r) for j, r in done if not j.config.get("corrections")], cfg)
+    rows = episode_rows([(j, r) for j, r in done if not j.config.get("corrections")], cfg)
     ratio_rows(rows, physical_floors(cfg.eval_config().rig))
-    meta = {label(v, ap, cfg): {"variant": v.name, "kind": v.kind, "agent_period": ap, "observes": v.observes,
-                                "period_free": v.period_free}
-            for v in VARIANTS for ap in dict.fromkeys(cfg.periods_of(v, CHECK_SUITE) + cfg.periods_of(v, ""))}
+    meta = row_meta(cfg)
     blocks = []
     for task in cfg.tasks:
         for suite in SUITES:
@@ -626,7 +637,7 @@ def run(cfg: HeadroomConfig | None = None, executor: Executor | None = None, pro
                                               for r in rows)]
             if not present:
                 continue
-            stats = _block_stats(rows, suite, task, present, meta, cfg)
+            stats = block_stats(rows, suite, task, present, meta, cfg)
             classes = [c for c in CLASSES if any(math.isfinite(d.get(c, math.nan)) for d in stats)]
             checks = [c for v in VARIANTS if (c := period_check(rows, v, cfg, suite, task)) is not None]
             n_eps = len({r["episode"] for r in rows if r["suite"] == suite and r["task"] == task})
@@ -637,5 +648,6 @@ def run(cfg: HeadroomConfig | None = None, executor: Executor | None = None, pro
 
 
 __all__ = ["PROG", "AGENT_PERIODS", "BASE_PERIOD", "FREE_PERIOD", "MATERIAL", "MIN_EPISODES", "EPISODES", "CHECK_SUITE",
-           "Search1D", "BIAS", "WIDTH", "Variant", "VARIANTS", "SideBySide", "HeadroomConfig", "suite_episodes",
-           "search_episodes", "plan", "label", "period_check", "headroom", "run"]
+           "Search1D", "BIAS", "WIDTH", "Variant", "VARIANTS", "VARIANT_BY_NAME", "SideBySide", "HeadroomConfig",
+           "suite_episodes", "search_episodes", "plan", "variant_config", "variant_job", "label", "row_meta",
+           "episode_rows", "block_stats", "period_check", "headroom", "run"]

@@ -409,6 +409,61 @@ def ship(groups: dict, models_dir: str, made_by: str) -> Shipment:
     return out
 
 
+# ---------------------------------------------------------------------------------------------------
+# The runs' records
+
+
+RUN_RECORD = ("config.json", "summary.json", "evaluations.json")  # a run's files the report reads (with its model)
+SB3_KEPT = ("model.zip", "vecnormalize.pkl", "model.json")  # a kept SB3 model without safe weights (best/)
+
+
+def record_files(run: dict) -> list[str]:
+    """The files of a run the report reads, relative to its folder: :data:`RUN_RECORD` and its kept model (the safe
+    weights ``best/policy.*``, else the SB3 files of ``best/``)."""
+    stem = kept_model(run)
+    if stem.endswith(".zip"):
+        kept = [os.path.join("best", f) for f in SB3_KEPT if os.path.isfile(os.path.join(run["dir"], "best", f))]
+    else:
+        kept = [os.path.relpath(p, run["dir"]) for p in model_paths(stem)]
+    return [*RUN_RECORD, *kept]
+
+
+def archive(groups: dict, folder: str) -> list[str]:
+    """Keep the records of every run of ``groups`` in ``folder/<run folder's name>``: what the report reads
+    (:func:`record_files`), not the checkpoints, logs or the final model, so that ``ehss training-report --runs
+    <folder>`` gives the same report once the run folders are gone (about 45 kB per run). A file already there with
+    the same bytes is left as it is. Returns the folders written.
+
+    Raises:
+        ValueError: two runs with the same folder name (archive them apart).
+    """
+    by_name: dict[str, dict] = {}
+    for rs in groups.values():
+        for r in rs:
+            name = os.path.basename(os.path.normpath(r["dir"]))
+            if name in by_name:
+                raise ValueError(f"two runs are named {name!r} ({by_name[name]['dir']} and {r['dir']}): archive "
+                                 f"them to different folders")
+            by_name[name] = r
+    out = []
+    for name, r in sorted(by_name.items()):
+        dst = os.path.join(folder, name)
+        for rel in record_files(r):
+            src, to = os.path.join(r["dir"], rel), os.path.join(dst, rel)
+            if os.path.abspath(src) == os.path.abspath(to):
+                continue
+            with open(src, "rb") as f:
+                blob = f.read()
+            if os.path.isfile(to):
+                with open(to, "rb") as f:
+                    if f.read() == blob:
+                        continue
+            os.makedirs(os.path.dirname(to), exist_ok=True)
+            atomic_write(to, lambda f, b=blob: f.write(b))
+        out.append(dst)
+    return out
+
+
 def exploration_is_current(study: dict) -> bool:
     """True if an exploration-noise study's JSON (:mod:`ehss_gym.study.exploration`) measured today's residual agent:
     its rows in today's format and its env settings today's recipe's for its task and n."""
@@ -461,7 +516,8 @@ def task_analyses(task: str, res, groups: dict) -> dict:
 
 
 def run_training_study(runs: list[str], episodes: int = 48, exploration: str | None = None, ship_to: str | None = None,
-                       workers: int = 2, progress: bool = True, made_by: str = "ehss training-report") -> TrainingStudy:
+                       workers: int = 2, progress: bool = True, made_by: str = "ehss training-report",
+                       archive_to: str | None = None) -> TrainingStudy:
     """Evaluate the finished runs under the ``runs`` folders and judge them; optionally ship their policies.
 
     Args:
@@ -472,6 +528,7 @@ def run_training_study(runs: list[str], episodes: int = 48, exploration: str | N
         workers: evaluation worker processes.
         progress: show progress bars.
         made_by: the command, recorded with the evaluation and in the shipped models.
+        archive_to: keep the runs' records in this folder (:func:`archive`; e.g. ``reports/training/runs``), or None.
 
     Raises:
         ValueError: a missing ``runs`` folder, runs of one group with different settings, or no finished runs.
@@ -479,6 +536,8 @@ def run_training_study(runs: list[str], episodes: int = 48, exploration: str | N
     groups = group_runs([r for folder in runs for r in load_runs(folder)])
     if not groups:
         raise ValueError(f"no finished runs under {runs}")
+    if archive_to:
+        archive(groups, archive_to)
     results, tasks = {}, []
     for task in sorted({k[1] for k in groups}):
         t0 = time.perf_counter()
@@ -496,4 +555,4 @@ __all__ = ["TrainingStudy", "Shipment", "run_training_study", "task_analyses", "
            "load_runs", "variant", "group_key", "group_runs", "label", "learned_kind", "group_spec", "evaluate_groups",
            "ci_hi", "ci_lo", "run_figures", "best_row", "unmodelled_target", "heldout_targets", "validation_target",
            "history_figure", "seed_table", "base_law_diagnostics", "mean_validation", "choose_variants", "ship_run",
-           "ship", "exploration_is_current"]
+           "ship", "RUN_RECORD", "record_files", "archive", "exploration_is_current"]
