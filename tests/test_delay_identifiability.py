@@ -32,3 +32,32 @@ def test_the_rate_slope_is_the_gain_on_the_rate():
     f = di.features(x, rate).reshape(-1, 2)  # rows: mean, std, lags..., slope, corr
     slope, corr = f[-2], f[-1]
     assert abs(slope[0] - 2.5e-4) < 1e-12 and abs(corr[0] - 1.0) < 1e-9 and abs(corr[1]) < 0.05
+
+
+def test_the_probe_is_a_square_wave_of_its_period_on_every_entry_and_zero_without_it():
+    obs = np.zeros((3, 5))
+    rec = di.Recorder(2, probe=0.5, period=4)
+    acts = [rec.predict(obs)[0] for _ in range(8)]
+    assert all(a.shape == (3, 2) and np.all(a == a[0, 0]) for a in acts)
+    assert [float(a[0, 0]) for a in acts] == [0.5, 0.5, -0.5, -0.5] * 2
+    assert len(rec.seen) == 8
+    base = di.Recorder(2)
+    assert not base.predict(obs)[0].any()
+    short = di.Recorder(1, probe=1.0, period=2, steps=3)  # the first 3 agent steps only
+    assert [float(short.predict(obs)[0][0, 0]) for _ in range(5)] == [1.0, -1.0, 1.0, 0.0, 0.0]
+
+
+def test_the_probe_cost_is_one_on_the_base_laws_own_runs_and_counts_the_current_it_adds():
+    from ehss_gym.envs.rollouts import rollout
+    from ehss_gym.evaluation.suites import EvalConfig, build_episodes
+
+    (ep,) = build_episodes(EvalConfig(suites=("unmodelled",), tasks=("position",), heldout_episodes=1))
+    kw = {"task": "position", "n": 2, "mode": "residual"}
+    (res,) = rollout(di.Recorder(1), kw, [ep.physical])
+    m, runs = res.metrics, [ep.physical]
+    g, cls = di.probe_cost([m], [m], runs, "position")
+    assert g == 1.0 and cls and all(v == 1.0 for v in cls.values())
+    more = {**m, "tv_u_rate": 16.0 * m["tv_u_rate"]}  # the probe's current changes: 16x the rate
+    g2, cls2 = di.probe_cost([more], [m], runs, "position")
+    current = "chatter" if "chatter" in cls2 else "effort"
+    assert cls2[current] > 1.5 and g2 > 1.1 and cls2["tracking"] == 1.0
