@@ -47,7 +47,7 @@ from ehss_gym.agents.specs import get_spec
 from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.actions import action_dims, action_mode
 from ehss_gym.envs.rollouts import rollout
-from ehss_gym.evaluation.scoring import episode_log_ratios
+from ehss_gym.evaluation.scoring import episode_log_ratios, figure_of
 from ehss_gym.evaluation.suites import EvalConfig, build_episodes
 
 LAGS = (1, 5)  # autocorrelation lags [agent steps]
@@ -95,8 +95,7 @@ def probe_cost(probed: list[dict], base: list[dict], runs: list[dict], task: str
         noisy = any(v > 0.0 for v in p["noise_std"])
         for c, v in episode_log_ratios(m, b, noisy, task).items():
             logs.setdefault(c, []).append(v)
-    cls = {c: math.exp(float(np.mean(v))) for c, v in logs.items()}
-    return math.exp(float(np.mean([math.log(v) for v in cls.values()]))), cls
+    return figure_of(logs)
 
 
 def logistic_fit(X: np.ndarray, y: np.ndarray, l2: float = L2, iters: int = 50) -> np.ndarray:

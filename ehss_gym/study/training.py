@@ -315,14 +315,19 @@ def choose_variants(groups: dict) -> dict[tuple, tuple]:
     return best
 
 
+def _holds(path: str, blob: bytes) -> bool:
+    """True if file ``path`` exists and holds exactly ``blob``."""
+    if not os.path.isfile(path):
+        return False
+    with open(path, "rb") as f:
+        return f.read() == blob
+
+
 def _same_model(dst: str, blob: bytes, cfg: dict) -> bool:
     """True if ``dst`` already holds these weights and this config (its ``made_by`` aside)."""
     st, js = model_paths(dst)
-    if not (os.path.isfile(st) and os.path.isfile(js)):
+    if not (_holds(st, blob) and os.path.isfile(js)):
         return False
-    with open(st, "rb") as f:
-        if f.read() != blob:
-            return False
     old = read_json(js)
     meta = {k: v for k, v in old.get("metadata", {}).items() if k != "made_by"}
     return {**old, "metadata": meta} == {**cfg, "metadata": {k: v for k, v in cfg["metadata"].items()
@@ -449,17 +454,12 @@ def archive(groups: dict, folder: str) -> list[str]:
     for name, r in sorted(by_name.items()):
         dst = os.path.join(folder, name)
         for rel in record_files(r):
-            src, to = os.path.join(r["dir"], rel), os.path.join(dst, rel)
-            if os.path.abspath(src) == os.path.abspath(to):
-                continue
-            with open(src, "rb") as f:
+            with open(os.path.join(r["dir"], rel), "rb") as f:
                 blob = f.read()
-            if os.path.isfile(to):
-                with open(to, "rb") as f:
-                    if f.read() == blob:
-                        continue
-            os.makedirs(os.path.dirname(to), exist_ok=True)
-            atomic_write(to, lambda f, b=blob: f.write(b))
+            to = os.path.join(dst, rel)
+            if not _holds(to, blob):  # (also when the archive is the runs' own folder)
+                os.makedirs(os.path.dirname(to), exist_ok=True)
+                atomic_write(to, lambda f, b=blob: f.write(b))
         out.append(dst)
     return out
 
