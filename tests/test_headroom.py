@@ -140,6 +140,13 @@ def test_quick_headroom_report(tmp_path):
     assert sum(1 for ln in lines if "| heldout | base law | 5, 20, 200 | the same to the last bit |" in ln) == 2
     assert sum(1 for ln in lines if "| heldout | dob-n2 | 5, 20 | the same to the last bit |" in ln) == 2
     assert sum(1 for ln in lines if "| heldout | dcomp-n2 | 5, 20 | the same to the last bit |" in ln) == 2
+    assert sum(1 for ln in lines if "| heldout | vinv-n2 | 5, 20 | the same to the last bit |" in ln) == 2
+    # a scripted compensator on a task where its rule chose none (COMPENSATOR_ROWS) is the base law, to the last bit
+    for name, task in (("dcomp-n2", "velocity"), ("vinv-n2", "position")):
+        for suite in {s for t, s in blocks if t == task}:
+            row = next(r for r in rows if r["task"] == task and r["suite"] == suite and r["variant"] == name)
+            ref = next(r for r in rows if r["task"] == task and r["suite"] == suite and r["policy"] == "clf-n2")
+            assert [row[c] for c in ("figure", *CLASSES)] == [ref[c] for c in ("figure", *CLASSES)], (name, suite)
     # the oracles knowing the unmodelled effects run on the unmodelled suite only; the ideal corrections' sizes
     known = {r["suite"] for r in rows if r["variant"] in ("delay known", "valve known", "both known",
                                                           "delay known, best width", "both known, best width")}

@@ -11,7 +11,7 @@ import warnings
 from dataclasses import replace
 
 from ehss_gym.evaluation import SUITES, TASKS, EvalConfig, PolicyWarning, default_specs, evaluate, parse_policies
-from ehss_gym.evaluation.specs import SCRIPTED_DEFAULT, scripted_spec
+from ehss_gym.evaluation.specs import SCRIPTED_DEFAULT, scripted_specs
 from ehss_gym.infra.execution import Executor
 from ehss_gym.reporting.comparison import DEFAULT_OUT, prefetch_bounds, write_report
 
@@ -57,14 +57,14 @@ def config_from_args(args) -> EvalConfig:
     return EvalConfig.quick(**changes) if args.quick else replace(EvalConfig(), **changes)
 
 
-def default_policies(args) -> list:
+def default_policies(args, cfg) -> list:
     """The policies evaluated without --policies: every shipped one on Table I; the scripted laws on another plant (the
     shipped learned policies were trained on Table I: name them with --policies to see them there)."""
     if args.plant is None:
-        return default_specs()
+        return default_specs(cfg.tasks)
     print("ehss evaluate: note: with --plant and no --policies the scripted laws are evaluated ("
           f"{', '.join(SCRIPTED_DEFAULT)}); the shipped learned policies were trained on Table I", file=sys.stderr)
-    return [scripted_spec(n) for n in SCRIPTED_DEFAULT]
+    return scripted_specs(SCRIPTED_DEFAULT, cfg.tasks)
 
 
 def run(args) -> int:
@@ -79,7 +79,7 @@ def run(args) -> int:
             warnings.simplefilter("always", PolicyWarning)
             cfg = config_from_args(args)
             plant_note(prog, args.plant, args.law_settings)
-            specs = default_policies(args) if args.policies is None else parse_policies(args.policies)
+            specs = default_policies(args, cfg) if args.policies is None else parse_policies(args.policies)
             for w in caught:
                 print(f"{prog}: warning: {w.message}", file=sys.stderr)
             with Executor(backend_from_args(args, args.workers), store_from_args(args),

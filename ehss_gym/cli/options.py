@@ -512,8 +512,8 @@ def add_factors(p) -> None:
     p.add_argument("--task", type=task_list, default=tuple(TASKS),
                    help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
     p.add_argument("--learned", action="store_true",
-                   help="instead of the default law's table: the scripted laws clf-n2, dob-n2, dcomp-n2 and the "
-                        "shipped n = 2 learned groups on the held-out and unmodelled suites, each cause removed in "
+                   help="instead of the default law's table: the scripted laws clf-n2, dob-n2, dcomp-n2, vinv-n2 and "
+                        "the shipped n = 2 learned groups on the held-out and unmodelled suites, each cause removed in "
                         "turn and the error split by time window; writes LEARNED.md and learned.csv")
     add_workers(p)
     add_out(p, "output folder", os.path.join("reports", "factors"))
@@ -532,9 +532,9 @@ def add_headroom(p) -> None:
                    help="bootstrap replicates (default 2000; --quick 500)")
     p.add_argument("--causes", nargs="?", const="all", default=None, metavar="CAUSES",
                    help="instead of the headroom table: the unmodelled suite's variants (the base law, dob-n2, "
-                        "dcomp-n2 and the oracles that know the unmodelled effects or search the width) with each "
-                        "cause removed in turn, judged by the rule of ehss factors --learned; writes CAUSES.md and "
-                        "causes.csv. CAUSES: a comma-separated subset of friction,mismatch,noise,valve,delay,"
+                        "dcomp-n2, vinv-n2 and the oracles that know the unmodelled effects or search the width) with "
+                        "each cause removed in turn, judged by the rule of ehss factors --learned; writes CAUSES.md "
+                        "and causes.csv. CAUSES: a comma-separated subset of friction,mismatch,noise,valve,delay,"
                         "quantisation (default: all of them)")
     add_workers(p)
     add_out(p, "output folder", os.path.join("reports", "headroom"))

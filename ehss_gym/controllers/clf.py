@@ -11,9 +11,13 @@ Scripted CLF policies are named (:func:`parse_scripted`):
   docs/MODEL.md, "Disturbance observer") at :data:`DOB_HZ`, with a zero residual: the scripted disturbance rejection
   a learned residual must beat. ``ehss evaluate`` and ``ehss headroom`` run ``dob-n2`` at its tuned settings per task,
   :data:`DOB_ROWS`.
-- ``dcomp-n<k>``: ``clf-n<k>`` with the law's reference delayed by :data:`DCOMP_SAMPLES` control samples (the loop
-  setting ``reference_delay``; docs/MODEL.md, "Compensating the unmodelled valve and sensors"), with a zero residual:
-  the scripted compensation of a sensor delay whose size is known only from the distribution it is drawn from.
+- ``dcomp-n<k>``: ``clf-n<k>`` with the law's reference delayed by the task's row of :data:`COMPENSATOR_ROWS`
+  (``reference_delay`` [control samples]; docs/MODEL.md, "Compensating the unmodelled valve and sensors"), with a zero
+  residual: the scripted compensation of a sensor delay whose size is known only from the distribution it is drawn
+  from.
+- ``vinv-n<k>``: ``clf-n<k>`` with the valve's dead band and hysteresis inverted on the law's current at the task's
+  row of :data:`COMPENSATOR_ROWS` (``inverse_threshold``, ``inverse_hysteresis`` [% of rated current]), with a zero
+  residual: the scripted valve compensation of a valve whose sizes are known only from their distribution.
 
 The start-up settings (bumpless start, reference shaper, the model's pressure domain) are the env's defaults in every
 case; pass them as env overrides to change them.
@@ -32,8 +36,8 @@ from .base import ScriptedPolicy
 _NAME_RE = re.compile(r"^(clf|" + "|".join(map(re.escape, names(LAWS))) + r")(?:-("
                       + "|".join(map(re.escape, names(ESTIMATORS))) + r"))?-n(\d+)$")
 _DOB_RE = re.compile(r"^dob-n(\d+)$")
-_DCOMP_RE = re.compile(r"^dcomp-n(\d+)$")
-SCRIPTED_FORMS = ("clf-n<k>", "<law>-n<k>", "<law>-<estimator>-n<k>", "dob-n<k>", "dcomp-n<k>")
+_COMPENSATOR_RE = re.compile(r"^(dcomp|vinv)-n(\d+)$")
+SCRIPTED_FORMS = ("clf-n<k>", "<law>-n<k>", "<law>-<estimator>-n<k>", "dob-n<k>", "dcomp-n<k>", "vinv-n<k>")
 # ``dob-n2``'s settings per task on Table I: the observer's cutoff f_d [Hz] with the law's smoothing width [unit of s]
 # and boundary-layer gain [-] (on clf-n2's sigma and f_r), tuned by ``ehss baselines`` with every other baseline
 # (reports/baselines/tuned.json; tests/test_baselines.py checks them). ``ehss evaluate`` and ``ehss headroom`` run
@@ -57,25 +61,62 @@ def dob_rows(tasks, law_table=None) -> dict[str, dict[str, float]]:
     if law_table is None:
         return {t: dict(DOB_ROWS[t]) for t in tasks}
     return {t: dict(law_table.tasks[t].dob) for t in tasks if t in law_table.tasks and law_table.tasks[t].dob}
-# The reference delay [control samples] of ``dcomp-n<k>``, both tasks: the choice of
-# ``python tools/compensator_sweep.py`` on 48 training scenarios per task drawn with the unmodelled effects (the env's
-# ``unmodelled_effects=True``; their delay is 1 or 2 samples) by its rule, written before it ran (no failure, then the
-# lowest geometric mean over the tasks of the ruler's overall figure against clf-n2, a tie to the smaller delay):
-# 0.811 at 1 sample (velocity 0.987, position 0.666), 0.821 at 2, 0.835 at 1.5 (the mean delay, which leaves half a
-# sample off on every episode), 1.012 at 3. The same sweep's valve inverse (threshold 0-0.5 %, hysteresis 0-3 % of
-# rated current) chose none: at the distribution's mean (0.375 %, 2.25 %) it gives 0.883 in velocity but 1.40 in
-# position (effort x1.90), 1.11 over both; so there is no scripted valve inverse.
-DCOMP_SAMPLES = 1.0
+# The compensators' settings of ``dcomp-n<k>`` (the reference delay [control samples]) and ``vinv-n<k>`` (the valve
+# inverse's threshold and hysteresis [% of rated current]) per task: the choice of ``python tools/compensator_sweep.py``
+# on 48 training scenarios per task drawn with the unmodelled effects (the env's ``unmodelled_effects=True``: delay 1
+# or 2 samples, threshold 0.25-0.5 %, hysteresis 1.5-3 %) by its rule, written before it ran (per task: no failure,
+# then the lowest overall figure of the ruler against clf-n2 on the same episodes, a tie within 1 % to the smaller
+# compensation). Its figures: the delay in velocity 0.993 at best (1.5 samples), a tie with none, so none; in position
+# 0.701 at 1 sample (0.711 at 2, 0.713 at 1.5); the valve inverse in velocity 0.857 at best (0.5 %, 2.25 %), the
+# smallest within 1 % being the distribution's mean (0.375 %, 2.25 %) at 0.864; in position no inverse helps (1.008
+# at the smallest, its effort up), so none. ``dcomp-n2`` acts in position only and ``vinv-n2`` in velocity only: on the
+# other task each is clf-n2.
+COMPENSATOR_ROWS: dict[str, dict[str, dict[str, float]]] = {
+    "dcomp": {"velocity": {"reference_delay": 0.0}, "position": {"reference_delay": 1.0}},
+    "vinv": {"velocity": {"inverse_threshold": 0.375, "inverse_hysteresis": 2.25},
+             "position": {"inverse_threshold": 0.0, "inverse_hysteresis": 0.0}},
+}
+COMPENSATOR_TEXT = {"dcomp": "its reference delayed by {reference_delay:g} control sample(s)",
+                    "vinv": "the valve's dead band and hysteresis inverted at {inverse_threshold:g} % and "
+                            "{inverse_hysteresis:g} % of rated current"}  # a row's words (str.format)
+DEFAULT_TASK = "velocity"  # the env's default task: the row a compensator name takes where no task is given
 
 
-def parse_scripted(name: str) -> dict | None:
+def compensator_kind(name: str) -> str | None:
+    """``"dcomp"`` or ``"vinv"`` for a scripted compensator's name (``dcomp-n<k>``, ``vinv-n<k>``), else None."""
+    m = _COMPENSATOR_RE.match(name)
+    return m.group(1) if m else None
+
+
+def compensator_rows(kind: str, tasks) -> dict[str, dict[str, float]]:
+    """The settings of the scripted compensator ``kind`` (``"dcomp"`` or ``"vinv"``) for each task of ``tasks``: its
+    rows of :data:`COMPENSATOR_ROWS` (Table I's training distribution of the unmodelled effects)."""
+    rows = COMPENSATOR_ROWS[kind]
+    bad = [t for t in tasks if t not in rows]
+    if bad:
+        raise ValueError(f"task must be one of {sorted(rows)}, got {bad[0]!r}")
+    return {t: dict(rows[t]) for t in tasks}
+
+
+def compensated_tasks(kind: str, tasks) -> tuple[str, ...]:
+    """The tasks of ``tasks`` on which the scripted compensator ``kind`` compensates anything (a nonzero setting): on
+    the others its rule chose none, so it is ``clf-n<k>`` there and is not run twice."""
+    return tuple(t for t, row in compensator_rows(kind, tasks).items() if any(v != 0.0 for v in row.values()))
+
+
+def parse_scripted(name: str, task: str | None = None) -> dict | None:
     """The env keyword arguments of a scripted CLF policy name, or None if ``name`` is not one.
+
+    Args:
+        name: the policy name (:data:`SCRIPTED_FORMS`).
+        task: the task the policy acts on, for the names whose settings depend on it (``dcomp-n<k>``,
+            ``vinv-n<k>``: the task's row of :data:`COMPENSATOR_ROWS`); default the env's default task.
 
     Returns:
         {"n": k, "mode": "residual"} plus "law" and "estimator" where the name gives them (``clf`` gives neither: the
-        env's defaults), or "dob_hz" (:data:`DOB_HZ` [Hz]) for ``dob-n<k>``, or "reference_delay"
-        (:data:`DCOMP_SAMPLES` [control samples]) for ``dcomp-n<k>``. n is validated by the env (an even
-        integer >= 2).
+        env's defaults), or "dob_hz" (:data:`DOB_HZ` [Hz]) for ``dob-n<k>``, or the compensator's settings for
+        ``dcomp-n<k>`` ("reference_delay" [control samples]) and ``vinv-n<k>`` ("inverse_threshold",
+        "inverse_hysteresis" [% of rated current]). n is validated by the env (an even integer >= 2).
 
     Raises:
         ValueError: ``clf-<estimator>-n<k>`` (the default law has no estimator variant by that name: use the law's).
@@ -83,9 +124,10 @@ def parse_scripted(name: str) -> dict | None:
     m = _DOB_RE.match(name)
     if m:
         return {"n": int(m.group(1)), "mode": "residual", "dob_hz": DOB_HZ}
-    m = _DCOMP_RE.match(name)
+    m = _COMPENSATOR_RE.match(name)
     if m:
-        return {"n": int(m.group(1)), "mode": "residual", "reference_delay": DCOMP_SAMPLES}
+        row = compensator_rows(m.group(1), (task or DEFAULT_TASK,))[task or DEFAULT_TASK]
+        return {"n": int(m.group(2)), "mode": "residual", **row}
     m = _NAME_RE.match(name)
     if not m:
         return None

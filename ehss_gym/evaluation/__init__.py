@@ -26,8 +26,8 @@ _EXPORTS = {
     **dict.fromkeys(("evaluate", "Results", "rollout"), ".harness"),
     **dict.fromkeys(("EvalConfig", "Episode", "build_episodes", "SUITES", "SWEEP_WINDOW", "TASKS", "UNITS"), ".suites"),
     **dict.fromkeys(("PolicySpec", "PolicyWarning", "saved_env_kwargs", "parse_policy", "parse_policies",
-                     "valid_forms", "scripted_spec", "learned_spec", "object_spec", "shipped_specs", "default_specs",
-                     "check_fit", "REFERENCE_POLICY", "SCRIPTED_DEFAULT"), ".specs"),
+                     "valid_forms", "scripted_spec", "scripted_specs", "learned_spec", "object_spec", "shipped_specs",
+                     "default_specs", "check_fit", "REFERENCE_POLICY", "SCRIPTED_DEFAULT"), ".specs"),
     "PolicyError": ".loading",
     **dict.fromkeys(("METRICS", "CLASSES", "summarize"), ".scoring"),
 }

@@ -53,6 +53,7 @@ from .specs import (
     object_spec,
     parse_policy,
     scripted_spec,
+    scripted_specs,
     shipped_specs,
 )
 from .suites import SUITE_ENV, SUITES, SWEEP_WINDOW, TASKS, UNITS, Episode, EvalConfig, build_episodes, step_of
@@ -412,7 +413,7 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
 # the names callers use as ``harness.<name>`` (the training report and validation: ``from ehss_gym.evaluation
 # import harness as ev``); each is defined in the module named in the package docstring
 __all__ = ["EvalConfig", "PolicySpec", "PolicyError", "Episode", "EpisodeBatch", "Results", "evaluate", "parse_policy",
-           "scripted_spec", "learned_spec", "object_spec", "shipped_specs", "default_specs",
+           "scripted_spec", "scripted_specs", "learned_spec", "object_spec", "shipped_specs", "default_specs",
            "build_episodes", "rollout", "check_fit", "make_batches", "run_batches", "default_workers",
            "REFERENCE_POLICY", "SCRIPTED_DEFAULT", "METRICS", "METRIC_KEYS", "TASKS", "SUITES", "UNITS",
            "SWEEP_WINDOW"]

@@ -32,7 +32,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ehss_gym.agents.safeweights import shipped_models
-from ehss_gym.controllers import dob_rows, parse_scripted
+from ehss_gym.controllers import (
+    COMPENSATOR_TEXT,
+    compensated_tasks,
+    compensator_kind,
+    compensator_rows,
+    dob_rows,
+    parse_scripted,
+)
 from ehss_gym.core.validate import check_even_n
 from ehss_gym.envs import ENV_ID, EnvConfig
 from ehss_gym.envs.config import DEFAULTS, LOOP_KEYS, in_legacy_loop
@@ -42,7 +49,7 @@ from .suites import TASKS
 
 # the law every ratio of the evaluation is taken to (evaluation.scoring): the env's default law
 REFERENCE_POLICY = f"clf-n{DEFAULTS.n}"
-SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "dob-n2", "dcomp-n2", "pid")
+SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "dob-n2", "dcomp-n2", "vinv-n2", "pid")
 LEARNED_KINDS = ("residual-ppo", "ppo-direct", "sb3")  # sb3: any algorithm, its mode from the saved env spec
 # The settings that shape the base law's closed loop (the env's loop settings but the task, n and when a run is
 # flagged as lost): a learned policy trained at other values is compared with the laws at its own.
@@ -103,7 +110,8 @@ def valid_forms() -> str:
     return ("clf-n<even n >= 2> (e.g. clf-n2, clf-n4, clf-n6), the CLF variants <law>-n<k> and "
             "<law>-<estimator>-n<k> (e.g. lin-sontag-n4, sontag-foh-n2), dob-n<even n> (the CLF law with the "
             "disturbance observer, e.g. dob-n2), dcomp-n<even n> (the CLF law with its reference delayed, e.g. "
-            "dcomp-n2), pid, residual-ppo:PATH, ppo-direct:PATH, "
+            "dcomp-n2), vinv-n<even n> (the CLF law with the valve's dead band and hysteresis inverted, e.g. vinv-n2), "
+            "pid, residual-ppo:PATH, ppo-direct:PATH, "
             "sb3:PATH (any SB3 algorithm, the mode from its saved env spec; PATH = an SB3 .zip, a safe-weights stem "
             f"PATH with PATH.safetensors + PATH.json, a glob matching several training seeds, or an rl-zoo3 run "
             f"folder), or a shipped model name ({shipped}); any of them as LABEL=SPEC to name it in the report")
@@ -115,7 +123,8 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
     :class:`PolicySpec` (runs on both tasks).
 
     Args:
-        name: "clf-n<even n>", "<law>-n<k>", "<law>-<estimator>-n<k>", "dob-n<even n>", "dcomp-n<even n>" or "pid".
+        name: "clf-n<even n>", "<law>-n<k>", "<law>-<estimator>-n<k>", "dob-n<even n>", "dcomp-n<even n>",
+            "vinv-n<even n>" or "pid".
         label: report name (default ``name``); needed when ``env_overrides`` change the law.
         env_overrides: env settings changed from the defaults (e.g. ``{"sigma": 1.0}``: the paper's scale).
         gains: PID only: task -> (kp [mA per output unit], ki [mA per unit*s], kd [mA per unit/s]) instead of
@@ -140,11 +149,15 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
             what += ", disturbance observer at " + ", ".join(f"{r['dob_hz']:.3g} Hz ({t})" for t, r in rows.items())
         elif "dob_hz" in kw:
             what += f", disturbance observer at {kw['dob_hz']:g} Hz"
-        if "reference_delay" in kw:
-            what += f", its reference delayed by {kw['reference_delay']:g} control sample(s)"
+        kind, tasks = compensator_kind(name), TASKS
+        if kind is not None and not set(kw) & set(over) - {"n", "mode"}:
+            # the task's own size; on a task where its rule chose none it is clf-n<k>, so it is not run there
+            tasks = compensated_tasks(kind, TASKS)
+            rows = compensator_rows(kind, tasks)
+            what += ", " + "; ".join(f"{COMPENSATOR_TEXT[kind].format(**r)} ({t})" for t, r in rows.items())
         src = f"scripted CLF law ({what}), n = {n}" + (f", {over}" if over else "")
         return PolicySpec(name=label or name, kind="clf", runs=[{"kind": "clf", "n": n}],
-                          env_kwargs={**kw, **over}, task_kwargs=rows, source=src)
+                          env_kwargs={**kw, **over}, tasks=tasks, task_kwargs=rows, source=src)
     if name == "pid":
         run = {"kind": "pid"}
         if gains:
@@ -518,10 +531,17 @@ def object_spec(name: str, policy, env_kwargs: dict | None = None, runs: Sequenc
                       source=f"Python object {type(objs[0]).__name__}")
 
 
-def default_specs() -> list[PolicySpec]:
-    """Every shipped policy: the scripted CLF (n = 2, 4, 6), the CLF law with the disturbance observer (n = 2) and
-    PID, and the models in ehss_gym/models."""
-    return [scripted_spec(n) for n in SCRIPTED_DEFAULT] + shipped_specs()
+def scripted_specs(names=SCRIPTED_DEFAULT, tasks=TASKS) -> list[PolicySpec]:
+    """The scripted policies ``names`` (:func:`scripted_spec`) that act on at least one task of ``tasks``: a scripted
+    compensator acts only on the tasks where its rule chose a compensation (``dcomp-n2`` position, ``vinv-n2``
+    velocity)."""
+    return [s for s in (scripted_spec(n) for n in names) if set(s.tasks) & set(tasks)]
+
+
+def default_specs(tasks=TASKS) -> list[PolicySpec]:
+    """Every shipped policy that acts on at least one task of ``tasks``: the scripted CLF (n = 2, 4, 6), the CLF law
+    with the disturbance observer or a compensator (n = 2) and PID, and the models in ehss_gym/models."""
+    return scripted_specs(SCRIPTED_DEFAULT, tasks) + [s for s in shipped_specs() if set(s.tasks) & set(tasks)]
 
 
 def controller_settings(env_kwargs: dict, task: str) -> dict:

@@ -13,7 +13,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from ehss_gym._version import __version__  # noqa: E402
-from ehss_gym.controllers import DCOMP_SAMPLES  # noqa: E402
+from ehss_gym.controllers import COMPENSATOR_ROWS  # noqa: E402
 from ehss_gym.evaluation.scoring import CLASSES  # noqa: E402
 from ehss_gym.evaluation.specs import REFERENCE_POLICY  # noqa: E402
 from ehss_gym.infra.fmt import fmt_cell  # noqa: E402
@@ -172,7 +172,7 @@ def write_report(res: dict, out: str, command: str) -> str:
                   classes=CLASSES, variants=variants, checks=_checks(blocks), material=MATERIAL,
                   min_episodes=MIN_EPISODES, free_period=FREE_PERIOD, base_period=BASE_PERIOD,
                   check_suite=CHECK_SUITE, bias=cfg.bias.describe(), width=cfg.width.describe(),
-                  corrections=corrections, dcomp_samples=DCOMP_SAMPLES,
+                  corrections=corrections, compensators=COMPENSATOR_ROWS,
                   plant=cfg.eval_config().rig.text())
     path = os.path.join(out, "HEADROOM.md")
     atomic_write_text(path, text)

@@ -53,7 +53,7 @@ from ehss_gym.evaluation.scoring import (
     rank_key,
     ratio_rows,
 )
-from ehss_gym.evaluation.specs import SCRIPTED_DEFAULT, scripted_spec
+from ehss_gym.evaluation.specs import SCRIPTED_DEFAULT, scripted_specs
 from ehss_gym.evaluation.suites import TASKS, EvalConfig
 from ehss_gym.infra.execution import Executor
 
@@ -230,7 +230,7 @@ def rankings(tasks: Sequence[str] = TASKS, episodes: int = 48, executor: Executo
     if quick:
         cfg = EvalConfig.quick(suites=RANK_SUITES, tasks=tuple(tasks), heldout_episodes=episodes, paper_seconds=2.0,
                                friction_levels=(1.8,), mismatch_levels=(0.2,))
-    specs = [scripted_spec(n) for n in SCRIPTED_DEFAULT]
+    specs = scripted_specs(SCRIPTED_DEFAULT, tasks)
     res = evaluate(specs, cfg, progress=progress, command=PROG, executor=executor)
     names = [s.name for s in res.specs]
     out = []

@@ -43,14 +43,14 @@ from ehss_gym.evaluation.scoring import (
     pair_log_ratio,
     physical_floors,
 )
-from ehss_gym.evaluation.specs import REFERENCE_POLICY, PolicySpec, scripted_spec, shipped_specs
+from ehss_gym.evaluation.specs import REFERENCE_POLICY, PolicySpec, scripted_specs, shipped_specs
 from ehss_gym.evaluation.suites import TASKS, Episode, EvalConfig, build_episodes
 from ehss_gym.infra.execution import Executor
 
 from .factors import CAUSES, PROG, removed
 
 SUITES = ("heldout", "unmodelled")
-SCRIPTED = ("clf-n2", "dob-n2", "dcomp-n2")
+SCRIPTED = ("clf-n2", "dob-n2", "dcomp-n2", "vinv-n2")
 LEARNED_FAMILIES = ("residual-ppo", "residual-sac")
 SUITE_CAUSES = {"heldout": ("friction", "mismatch", "noise"),
                 "unmodelled": ("friction", "mismatch", "noise", "valve", "delay", "quantisation")}
@@ -184,7 +184,7 @@ def run(tasks: Sequence[str] = TASKS, episodes: int = 16, executor: Executor | N
         episode id tagged with its variant, :func:`variant_of`), "wall_s"}.
     """
     t0 = time.perf_counter()
-    specs = list(specs) if specs is not None else ([scripted_spec(n) for n in SCRIPTED] + learned_specs(tasks))
+    specs = list(specs) if specs is not None else (scripted_specs(SCRIPTED, tasks) + learned_specs(tasks))
     cfg = EvalConfig(suites=SUITES, tasks=tuple(tasks), heldout_episodes=episodes, episode_seconds=episode_seconds,
                      n_boot=100)
     eps = variant_episodes(build_episodes(cfg))

@@ -17,8 +17,8 @@ chatter), the figures against the base law (the env's tuned n = 2 law, zero resi
   on the law's current: :mod:`ehss_gym.core.compensators`), and **delay known, best width** and **both known, best
   width**, which add the best width's search to them (what knowing the effects and the episode in hindsight reach
   together);
-- ``dcomp-n2``, the causal counterpart of the delay compensation (the reference delayed by a fixed number of samples
-  chosen on training episodes, :data:`ehss_gym.controllers.DCOMP_SAMPLES`), beside ``dob-n2``;
+- ``dcomp-n2`` and ``vinv-n2``, the causal counterparts of the delay compensation and the valve inverse (fixed sizes
+  per task chosen on training episodes, :data:`ehss_gym.controllers.COMPENSATOR_ROWS`), beside ``dob-n2``;
 - the sizes of the ideal corrections on the unmodelled suite (:mod:`ehss_gym.study.corrections`).
 
 **The agent period.** The residuals that change their current during an episode (the feed-forward doublets) run at
@@ -349,8 +349,11 @@ VARIANTS: tuple[Variant, ...] = (
             "nothing beyond the loop: the combined error s and the applied current (causal, every control period)",
             _law),
     Variant("dcomp-n2", "scripted", "dcomp-n2", "check", True,
-            "the delay distribution's best single compensation, chosen on training episodes (causal: the law's "
-            "reference delayed by a fixed number of samples)", _law),
+            "the delay distribution's best single compensation per task, chosen on training episodes (causal: the "
+            "law's reference delayed by a fixed number of samples; in velocity the rule chose none)", _law),
+    Variant("vinv-n2", "scripted", "vinv-n2", "check", True,
+            "the valve distribution's best single inverse per task, chosen on training episodes (causal: a fixed "
+            "dead band and hysteresis inverted on the law's current; in position the rule chose none)", _law),
     Variant("true model", "oracle", "clf-n2", "free", True,
             "the plant-model mismatch (the true plant's parameters)", _true_model),
     Variant("ff centred", "oracle", "clf-n2", "all", False,
@@ -369,7 +372,7 @@ VARIANTS: tuple[Variant, ...] = (
             "or a reference action)", _known, suites=KNOWN_SUITES),
     Variant("valve known", "oracle", "clf-n2", "free", True,
             "the episode's valve threshold and hysteresis (their inverse on the law's current; causal counterpart: "
-            "none, the distribution's best single inverse is none)", None, made_by="delay known", suites=KNOWN_SUITES),
+            "vinv-n2)", None, made_by="delay known", suites=KNOWN_SUITES),
     Variant("both known", "oracle", "clf-n2", "free", True,
             "the episode's sensor delay and valve (both compensations)", None, made_by="delay known",
             suites=KNOWN_SUITES),
@@ -484,7 +487,7 @@ def variant_config(cfg: HeadroomConfig, v: Variant, task: str, suite: str, eps: 
                    env_suite: str | None = None) -> dict:
     """The job config of variant ``v`` on ``eps`` of (task, suite) at agent period ``ap`` (:func:`variant_job`); the
     env settings are those of suite ``env_suite`` (default: ``suite``)."""
-    kw = {"task": task, **parse_scripted(v.policy), **SUITE_ENV.get(env_suite or suite, {}), "agent_period": ap,
+    kw = {"task": task, **parse_scripted(v.policy, task), **SUITE_ENV.get(env_suite or suite, {}), "agent_period": ap,
           **cfg.eval_config().env_kwargs(), **_dob_row(v, task, cfg)}
     return {"variant": v.name, "task": task, "suite": suite, "agent_period": ap, "env_kwargs": kw, "episodes": eps,
             "search": getattr(cfg, v.search) if v.search else None}
@@ -501,7 +504,7 @@ def plan(cfg: HeadroomConfig) -> list[Job]:
                                     label=f"{task}/{suite}/{v.name}@{ap}"))
         eps = suite_episodes(cfg, task).get(CORRECTIONS_SUITE)
         if eps:  # the ideal corrections' sizes (ehss_gym.study.corrections)
-            kw = {"task": task, **parse_scripted(REFERENCE_POLICY), **cfg.eval_config().env_kwargs()}
+            kw = {"task": task, **parse_scripted(REFERENCE_POLICY, task), **cfg.eval_config().env_kwargs()}
             jobs.append(Job(corrections_job, {"corrections": True, "task": task, "suite": CORRECTIONS_SUITE,
                                               "env_kwargs": kw, "episodes": eps, "agent_period": FREE_PERIOD,
                                               "search": None, "variant": "corrections"}, seed=0,

@@ -168,7 +168,7 @@ def evaluate_groups(groups: dict, episodes: int, workers: int, progress: bool, c
     """
     out = {}
     for task in sorted({k[1] for k in groups}):
-        specs = [ev.scripted_spec(name) for name in ev.SCRIPTED_DEFAULT]
+        specs = ev.scripted_specs(ev.SCRIPTED_DEFAULT, (task,))
         specs += [group_spec(k, rs) for k, rs in groups.items() if k[1] == task]
         cfg = ev.EvalConfig(suites=SUITES, tasks=(task,), heldout_episodes=episodes)
         out[task] = ev.evaluate(specs, cfg, workers=workers, progress=progress, command=command)
