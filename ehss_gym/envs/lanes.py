@@ -144,10 +144,18 @@ def base_law_run(sc: Scenario, agent_period: int) -> np.ndarray:
     """The metrics accumulator (M_*) of the base law's run of an episode's K whole agent steps: zero residual, the
     disturbance observer and the compensators off (the law alone, which a residual or the observer is measured
     against); what the class and the physical rewards take their constants from."""
-    K = sc.n_steps // agent_period
-    law = sc.replace(t_end=K * agent_period * sc.control_period, log_interval=sc.t_end, dob_hz=0.0, reference_delay=0.0,
-                     inverse_threshold=0.0, inverse_hysteresis=0.0)
-    return simulate_batch([law])[0].acc
+    return base_law_runs([sc], agent_period)[0]
+
+
+def base_law_runs(scs: list[Scenario], agent_period: int) -> list[np.ndarray]:
+    """:func:`base_law_run` of several episodes in one batch (:func:`ehss_gym.core.sim.simulate_batch`: lanes in
+    lock-step, each lane's arithmetic its own, so every accumulator is the one its episode's own run gives)."""
+    laws = []
+    for sc in scs:
+        K = sc.n_steps // agent_period
+        laws.append(sc.replace(t_end=K * agent_period * sc.control_period, log_interval=sc.t_end, dob_hz=0.0,
+                               reference_delay=0.0, inverse_threshold=0.0, inverse_hysteresis=0.0))
+    return [t.acc for t in simulate_batch(laws)]
 
 
 def class_coefficients(sc: Scenario, agent_period: int, base: np.ndarray | None = None) -> np.ndarray:
@@ -295,14 +303,34 @@ class Lanes:
         ev[:, :, EV_START] = ev[:, :, EV_END] = math.inf  # padding never fires
         return ev
 
-    def load(self, b: int, sc: Scenario) -> None:
-        """Put lane b at the start of scenario ``sc`` (rows as :meth:`ehss_gym.core.sim.LoopArrays.build` has them)."""
-        cfg = self.cfg
+    @staticmethod
+    def check(sc: Scenario) -> None:
+        """ValueError for a scenario the lanes cannot hold (a reference that is not parametric)."""
         if len(sc.reference.spec) != N_REF:
             parametric = ", ".join(f.name for f in REFERENCE_FAMILIES if f.parametric)
             raise ValueError(f"the env runs the parametric references ({parametric}), not a "
                              f"{sc.reference.family!r} reference: its lanes hold fixed-size rows; simulate it with "
                              "ehss_gym.simulate")
+
+    def needs_base_run(self) -> bool:
+        """The env's reward takes constants from the base law's run of each episode (:func:`base_law_run`)."""
+        rw = self.cfg.reward_weights
+        return rw.get("class", 0.0) > 0.0 or rw.get("physical", 0.0) > 0.0
+
+    def load_many(self, lanes, scs: list[Scenario]) -> None:
+        """:meth:`load` of several lanes, the base law's runs of their episodes (where the reward needs them) in one
+        batch (:func:`base_law_runs`): what a vector env's lanes that restart together cost."""
+        for sc in scs:  # a scenario the lanes cannot hold is refused before the batch runs
+            self.check(sc)
+        bases = base_law_runs(scs, self.cfg.agent_period) if self.needs_base_run() and len(scs) > 1 else None
+        for i, (b, sc) in enumerate(zip(lanes, scs)):
+            self.load(b, sc, None if bases is None else bases[i])
+
+    def load(self, b: int, sc: Scenario, base: np.ndarray | None = None) -> None:
+        """Put lane b at the start of scenario ``sc`` (rows as :meth:`ehss_gym.core.sim.LoopArrays.build` has them);
+        ``base``: the base law's run of it (:func:`base_law_run`), where the caller has it already."""
+        cfg = self.cfg
+        self.check(sc)
         if len(sc.friction) > self.events.shape[1]:
             ev = self._empty_events(self.B, len(sc.friction))
             ev[:, :self.events.shape[1]] = self.events
@@ -329,8 +357,8 @@ class Lanes:
         self.c[b // self.chunk][:, b % self.chunk] = self.tmp_c[:, 0]
         init_accumulator(self.acc[b], sc.lost_track_bound)
         rw = cfg.reward_weights
-        if rw.get("class", 0.0) > 0.0 or rw.get("physical", 0.0) > 0.0:
-            base = base_law_run(sc, cfg.agent_period)  # once for both rewards
+        if self.needs_base_run():
+            base = base_law_run(sc, cfg.agent_period) if base is None else base  # once for both rewards
             if rw.get("class", 0.0) > 0.0:
                 self.F[b, F_RCLS:F_RCLS + N_RCLS] = class_coefficients(sc, cfg.agent_period, base)
             if rw.get("physical", 0.0) > 0.0:

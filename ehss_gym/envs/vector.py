@@ -114,14 +114,22 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         """A Scenario with this env's controller settings (see EHSSTrackingEnv.scenario_template)."""
         return self._lanes.template
 
-    def _reset_lane(self, b: int, seed: int | None, options) -> dict:
-        if seed is not None or self._rngs[b] is None:
-            self._rngs[b], _ = seeding.np_random(seed)
-        sc, info = self._lanes.draw(b, self.config, self._rngs[b], options)
-        self._lanes.load(b, sc)
-        self._steps[b] = 0
-        self._n_clipped[b] = 0
-        return info
+    def _reset_lanes(self, lanes, seeds, options, infos: dict) -> dict:
+        """Start a new episode in each lane of ``lanes``: each draws its scenario from its own generator (seeded
+        where its seed is given, or the first time), then all load together (:meth:`Lanes.load_many`: the base law's
+        runs the reward needs in one batch); returns ``infos`` with their reset infos added. ``seeds`` and
+        ``options``: one per lane of ``lanes``."""
+        scs = []
+        for b, seed, opts in zip(lanes, seeds, options):
+            if seed is not None or self._rngs[b] is None:
+                self._rngs[b], _ = seeding.np_random(seed)
+            sc, info = self._lanes.draw(b, self.config, self._rngs[b], opts)
+            scs.append(sc)
+            infos = self._add_info(infos, info, b)
+        self._lanes.load_many(lanes, scs)
+        self._steps[lanes] = 0
+        self._n_clipped[lanes] = 0
+        return infos
 
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
         N = self.num_envs
@@ -145,11 +153,10 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
             if len(per_lane) != N:
                 raise ValueError(f"options['scenario'] as a list must give one scenario per sub-env ({N}), got "
                                  f"{len(per_lane)}")
-        infos: dict = {}
-        lanes = np.flatnonzero(mask)
-        for b in lanes:
-            opts = {**options, "scenario": per_lane[b]} if isinstance(per_lane, (list, tuple)) else (options or None)
-            infos = self._add_info(infos, self._reset_lane(int(b), seeds[b], opts), int(b))
+        lanes = [int(b) for b in np.flatnonzero(mask)]
+        opts = [{**options, "scenario": per_lane[b]} if isinstance(per_lane, (list, tuple)) else (options or None)
+                for b in lanes]
+        infos = self._reset_lanes(lanes, [seeds[b] for b in lanes], opts, {})
         self._lanes.observe(lanes)
         self._autoreset[lanes] = False
         self._ended[lanes] = False
@@ -170,10 +177,8 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
                              "clipped)")
         clipped = ((a > 1.0) | (a < -1.0)).any(axis=1)
         a = np.clip(a, -1.0, 1.0)
-        infos: dict = {}
         resetting = np.nonzero(self._autoreset)[0]
-        for b in resetting:
-            infos = self._add_info(infos, self._reset_lane(int(b), None, None), int(b))
+        infos = self._reset_lanes([int(b) for b in resetting], [None] * len(resetting), [None] * len(resetting), {})
         if len(resetting):
             lanes.observe(resetting)
             clipped[resetting] = False
