@@ -39,3 +39,16 @@ def test_factor_table_quick(tmp_path):
     text = (out / "FACTORS.md").read_text()
     assert "ehss factors" in text and "## velocity task" in text and ("check met" in text or "check NOT met" in text)
     assert (out / "factors.csv").read_text().startswith("task,factor,tracking")
+
+
+def test_the_rankings_rank_on_each_task_the_policies_that_act_on_it(monkeypatch):
+    """Both tasks at once (the held-out suite alone, to be quick): a scripted compensator is ranked only on the task
+    it acts on (``vinv-n2`` velocity, ``dcomp-n2`` position), every other scripted policy on both."""
+    monkeypatch.setattr(factors, "RANK_SUITES", ("heldout",))
+    blocks = factors.rankings(("velocity", "position"), 2, quick=True)
+    assert [(b["suite"], b["task"]) for b in blocks] == [("heldout", "velocity"), ("heldout", "position")]
+    for b in blocks:
+        ranked = {n for n, _ in b["orders"]["physical"]["overall"]}
+        velocity = b["task"] == "velocity"
+        assert ("vinv-n2" in ranked) == velocity and ("dcomp-n2" in ranked) == (not velocity)
+        assert {"clf-n2", "clf-n4", "clf-n6", "dob-n2", "pid"} <= ranked

@@ -232,10 +232,10 @@ def rankings(tasks: Sequence[str] = TASKS, episodes: int = 48, executor: Executo
                                friction_levels=(1.8,), mismatch_levels=(0.2,))
     specs = scripted_specs(SCRIPTED_DEFAULT, tasks)
     res = evaluate(specs, cfg, progress=progress, command=PROG, executor=executor)
-    names = [s.name for s in res.specs]
     out = []
     for suite in RANK_SUITES:
         for task in tasks:
+            names = [s.name for s in res.specs if task in s.tasks]  # a compensator acts on one task only
             orders = {}
             for floors in (NUMERIC_FLOORS, PHYSICAL_FLOORS):
                 rows = [dict(r) for r in res.rows]
