@@ -56,6 +56,25 @@ def paths(tmp: str) -> dict[str, dict]:
     }
 
 
+def openblas_core() -> str | None:
+    """The OpenBLAS kernel set ("core") that SciPy's BLAS runs on in this process, e.g. "SkylakeX" or "Haswell"; None
+    where it cannot be read. OpenBLAS picks it from the CPU's model, not its features: OpenBLAS 0.3.30 runs its
+    Haswell (AVX2) kernels on an AVX-512 AMD EPYC of family 26, so there its AVX2 path is the native one."""
+    import ctypes
+    import glob
+
+    import scipy
+
+    for lib in sorted(glob.glob(os.path.join(os.path.dirname(scipy.__file__), os.pardir, "scipy.libs", "*openblas*"))):
+        try:
+            corename = ctypes.CDLL(lib).scipy_openblas_get_corename
+        except (OSError, AttributeError):
+            continue
+        corename.restype = ctypes.c_char_p
+        return corename().decode()
+    return None
+
+
 def has_avx512() -> bool:
     """Whether this CPU has AVX-512 (on one without, every emulated path is the native one)."""
     import llvmlite.binding as ll

@@ -92,9 +92,9 @@ def test_the_pids_relay_experiment_runs_on_the_plant_it_will_control(monkeypatch
     loaded = []
     real_load = Lanes.load
 
-    def spy(self, b, sc):
+    def spy(self, b, sc, base=None):
         loaded.append(sc.plant)
-        return real_load(self, b, sc)
+        return real_load(self, b, sc, base)
 
     monkeypatch.setattr(Lanes, "load", spy)
     monkeypatch.setattr(pid_module, "_TUNED", {})
