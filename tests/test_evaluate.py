@@ -534,3 +534,17 @@ def test_the_episode_table_is_gzip_with_the_same_bytes_for_the_same_rows(tmp_pat
     back = comparison.read_episodes(str(tmp_path / "a"))
     assert [r["policy"] for r in back] == ["clf-n2", "pid"]
     assert float(back[0]["q_overall"]) == 0.1 + 0.2 and back[1]["q_overall"] == ""
+
+
+def test_the_default_chunk_gives_one_job_per_policy_run_task_and_suite():
+    """The default evaluation's suites each fit one job (``EvalConfig.chunk``): a learned policy then acts on all the
+    episodes of a suite in one batch, which fixes the batch its float32 forward pass rounds with; a smaller chunk
+    splits the largest suites."""
+    cfg = ev.EvalConfig()
+    eps = ev.build_episodes(cfg)
+    specs = [ev.parse_policy("clf-n2")]
+    batches = harness.make_batches(specs, eps, cfg.chunk)
+    groups = {(e.task, e.suite) for e in eps}
+    assert len(batches) == len(groups) and sorted((b.task, b.episodes[0].suite) for b in batches) == sorted(groups)
+    assert max(len(b.episodes) for b in batches) <= cfg.chunk
+    assert len(harness.make_batches(specs, eps, 24)) > len(groups)

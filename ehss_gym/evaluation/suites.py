@@ -97,7 +97,10 @@ class EvalConfig:
     step_amplitudes: tuple = STEP_AMPLITUDES
     n_boot: int = 2000
     seed: int = 0
-    chunk: int = 24
+    # 64: one job per policy run, task and suite of the default evaluation (its largest, robustness, has 50 episodes):
+    # a vector step's Python and the policy's forward pass cost the same for 24 lanes as for 48, so fewer, larger
+    # jobs are faster (the held-out suite's 2,496 episodes: 38 s against 49 s at 24, the same rows)
+    chunk: int = 64
     plant: Rig | None = None
     law_settings: LawTable | None = None
 
