@@ -159,7 +159,7 @@ def test_baselines_command_writes_its_report_and_law_settings(tmp_path):
 
     out = tmp_path / "b"
     argv = ["baselines", "--budget", "3", "--episodes", "2", "--seconds", "0.3", "--check-episodes", "2",
-            "--no-progress", "--out", str(out)]
+            "--compensator-episodes", "2", "--no-progress", "--out", str(out)]
     assert main(argv) == 0
     res = json.loads((out / "tuned.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-finite {c}"))
     assert res["settings"]["budget"] == 3 and res["command"].startswith("ehss baselines --budget 3")
@@ -183,11 +183,20 @@ def test_baselines_command_writes_its_report_and_law_settings(tmp_path):
         assert laws.dob == {k: res["baselines"][f"{task}/dob-n2"]["settings"][k]
                             for k in ("dob_hz", "smoothing", "layer_gain")}
         assert laws.pid == tuple(res["baselines"][f"{task}/pid"]["settings"][k] for k in ("kp", "ki", "kd"))
+        # the last stage: each compensator's whole grid on the tuned n = 2 law, its choice a row of the table
+        for kind, n_cands in (("dcomp", 7), ("vinv", 25)):
+            r = res["compensators"][task][kind]
+            assert len(r["evaluations"]) == n_cands and laws.compensators[kind] == r["chosen"]
+            assert r["chosen"] in [e["point"] for e in r["evaluations"]]
+    assert "## The compensators of the unmodelled valve and sensors" in text and "| velocity | vinv-n2 |" in text
+    assert "on 2 training scenarios (seeds 0..1) drawn with the unmodelled effects" in text
+    assert res["settings"]["compensator_episodes"] == 2
 
 
 def test_the_quick_form_is_a_usable_tuning():
     q = TuneSettings.quick()
     assert (q.budget, q.episodes, q.seconds, q.check_episodes) == (32, 12, 2.0, 48)
+    assert q.compensator_episodes == TuneSettings().compensator_episodes == 48  # 12 let noise pick a size
     grid = sum(len(ax.grid()) for ax in BASELINES[0].axes) - 3  # every axis' grid, the start's own points once
     assert grid < q.budget, "a quick run does not finish one pass over the law's grids"
 

@@ -16,6 +16,8 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,8 +26,17 @@ from hypothesis import strategies as st
 
 from ehss_gym.core.compensators import inverse_model_update, valve_inverse
 from ehss_gym.core.layout import L_E, L_X, L_YD, L_YE, N_LOOP
-from ehss_gym.core.scenarios import heldout_scenarios
-from ehss_gym.core.settings import C_HYSTERESIS, C_INV_HYSTERESIS, C_INV_THRESHOLD, C_THRESHOLD, N_CTRL, Scenario
+from ehss_gym.core.rig import as_rig
+from ehss_gym.core.scenarios import UNMODELLED_DISTRIBUTION, heldout_scenarios, sample_scenario
+from ehss_gym.core.settings import (
+    C_HYSTERESIS,
+    C_INV_HYSTERESIS,
+    C_INV_THRESHOLD,
+    C_THRESHOLD,
+    N_CTRL,
+    Scenario,
+    ctrl_row,
+)
 from ehss_gym.core.sim import simulate, simulate_batch
 from ehss_gym.core.unmodelled import Unmodelled
 from ehss_gym.core.unmodelled_kernels import valve_input
@@ -94,6 +105,35 @@ def test_a_valve_with_dead_band_and_hysteresis_behind_its_true_inverse_moves_the
             scale = np.abs(p.log[:, L_X:L_X + 4]).max(axis=0)
             assert np.all(np.abs(i.log[:, L_X:L_X + 4] - p.log[:, L_X:L_X + 4]) <= 1e-12 * scale)
     assert unsaturated >= (1 if task == "position" else 0)
+
+
+def test_on_a_rig_of_another_rated_current_the_valve_and_its_inverse_are_sized_on_that_current():
+    """On the compact 140 bar rig (rated current 15 mA) the valve drawn with the unmodelled effects (the env's
+    training draw and the unmodelled suite) has its threshold and hysteresis in percent of 15 mA, and the inverse at
+    the same percentages cancels it: the plant moves as without both, to rounding. Sized on Table I's 10 mA, the inverse
+    would leave a third of the valve's dead band and play in the loop."""
+    rig, laws = as_rig("compact140"), "reports/servo/baselines/law_settings.json"  # the rig's tuned law
+    laws = str(Path(__file__).resolve().parents[1] / laws)
+    tmpl = EnvConfig.from_kwargs({"task": "position", "plant": rig, "law_settings": laws}).template()
+    ev = [e for e in build_episodes(EvalConfig(tasks=("position",), suites=("unmodelled",), heldout_episodes=2,
+                                               plant=rig, law_settings=laws)) if e.suite == "unmodelled"]
+    assert tmpl.rated_current == rig.rated_current == 15.0
+    drawn = sample_scenario(7, tmpl, 0.5, UNMODELLED_DISTRIBUTION).unmodelled
+    assert drawn.rated_current == 15.0 and drawn.threshold_current == pytest.approx(drawn.threshold * 0.15)
+    assert len(ev) == 2 and all(e.physical["unmodelled"].rated_current == 15.0 for e in ev)
+    row = ctrl_row(tmpl.replace(inverse_threshold=0.5, inverse_hysteresis=3.0))
+    assert (row[C_INV_THRESHOLD], row[C_INV_HYSTERESIS]) == pytest.approx((0.075, 0.45))
+    um = replace(drawn, delay=0, encoder_counts=0, velocity_step=0.0)  # the valve alone
+    unsaturated = 0
+    for seed in range(6):  # (an episode whose start-up reaches the limit: the inverse cannot pass it)
+        sc = sample_scenario(seed, tmpl, 0.4).replace(noise_std=(0.0,) * 4)
+        plain, inv = simulate_batch([sc, sc.replace(unmodelled=um, inverse_threshold=um.threshold,
+                                                     inverse_hysteresis=um.hysteresis)])
+        if plain.metrics()["saturation"] == 0.0 and inv.metrics()["saturation"] == 0.0:
+            unsaturated += 1
+            scale = np.abs(plain.log[:, L_X:L_X + 4]).max(axis=0)
+            assert np.all(np.abs(inv.log[:, L_X:L_X + 4] - plain.log[:, L_X:L_X + 4]) <= 1e-12 * scale), seed
+    assert unsaturated >= 1
 
 
 @pytest.mark.parametrize(("task", "delay"), [("velocity", 2.0), ("position", 1.0), ("position", 3.0), ("velocity", 1.5),

@@ -1,22 +1,24 @@
-"""The scripted compensators ``dcomp-n<k>`` and ``vinv-n<k>``: their per-task rows, the specs the evaluation runs, and
-the sweep's rule that chose the rows (``tools/compensator_sweep.py``), on synthetic results and, marked slow, by
-rerunning the sweep itself."""
+"""The scripted compensators ``dcomp-n<k>`` and ``vinv-n<k>``: their per-task rows (Table I's built in, a plant's in its
+law table), the specs the evaluation runs, and the sweep's rule that chose the rows (:mod:`ehss_gym.study.compensators`,
+the last stage of ``ehss baselines``), on synthetic results and, marked slow, by rerunning the sweep itself."""
 
 from __future__ import annotations
 
-import importlib.util
+import json
 from pathlib import Path
 
 import pytest
 
 from ehss_gym.controllers import COMPENSATOR_ROWS, compensated_tasks, compensator_rows, parse_scripted
 from ehss_gym.envs.config import EnvConfig
-from ehss_gym.evaluation.specs import scripted_spec
+from ehss_gym.envs.law_table import LawSettingsError, load_law_table, table_from_dict
+from ehss_gym.evaluation import EvalConfig, PolicyError
+from ehss_gym.evaluation.harness import _check_tasks, _complete_specs
+from ehss_gym.evaluation.specs import scripted_spec, scripted_specs
+from ehss_gym.study import compensators as sweep
 
-_spec = importlib.util.spec_from_file_location(
-    "compensator_sweep", Path(__file__).resolve().parents[1] / "tools" / "compensator_sweep.py")
-sweep = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(sweep)
+ROOT = Path(__file__).resolve().parents[1]
+TASKS = ("velocity", "position")
 
 KEYS = {"dcomp": ("reference_delay",), "vinv": ("inverse_threshold", "inverse_hysteresis")}
 
@@ -74,8 +76,77 @@ def test_the_sweeps_rule_per_task_failure_first_then_the_lowest_then_the_smalles
 
 @pytest.mark.slow
 def test_the_shipped_rows_are_the_sweeps_choice():
-    """Reruns ``python tools/compensator_sweep.py`` (48 training scenarios per task and compensator, about a minute on
-    2 cores) and checks that its rule chooses the shipped rows."""
+    """Reruns the sweep on Table I's built-in laws (48 training scenarios per task and compensator, about 30 s) and
+    checks that its rule chooses the shipped rows."""
     for kind, cands in sweep.candidates().items():
-        for task in sweep.TASKS:
-            assert sweep.choose(sweep.sweep_task(task, cands, 48), cands) == COMPENSATOR_ROWS[kind][task], (kind, task)
+        for task in TASKS:
+            got = sweep.choose(sweep.sweep_task(task, cands, 48, 2.0), cands)
+            assert got == COMPENSATOR_ROWS[kind][task], (kind, task)
+
+
+def test_table_is_built_in_rows_are_the_shipped_baselines_reports():
+    """The built-in rows are what ``ehss baselines`` wrote for Table I (reports/baselines/law_settings.json)."""
+    table = load_law_table(ROOT / "reports" / "baselines" / "law_settings.json")
+    for kind in COMPENSATOR_ROWS:
+        assert compensator_rows(kind, TASKS, table) == COMPENSATOR_ROWS[kind], kind
+
+
+def _table(rows: dict | None) -> dict:
+    """A law-settings dict on Table I's n = 2 law with the compensator rows ``rows`` (task -> {"dcomp-n2": ...})."""
+    law = {"sigma": 1e5, "fr": 60.0, "smoothing": 100.0, "layer_gain": 3.0}
+    return {"plant": {"label": "test rig", "hash": "0"},
+            **{t: {"default_n": 2, "clf-n2": law, **((rows or {}).get(t, {}))} for t in TASKS}}
+
+
+PLANT_ROWS = {"velocity": {"dcomp-n2": {"reference_delay": 1.5},
+                           "vinv-n2": {"inverse_threshold": 0.0, "inverse_hysteresis": 0.0}},
+              "position": {"dcomp-n2": {"reference_delay": 2.0},
+                           "vinv-n2": {"inverse_threshold": 0.25, "inverse_hysteresis": 1.5}}}
+
+
+def test_a_law_table_carries_the_compensators_rows_and_names_a_bad_value():
+    table = table_from_dict(_table(PLANT_ROWS))
+    assert table.tasks["position"].compensators == {"dcomp": {"reference_delay": 2.0},
+                                                     "vinv": {"inverse_threshold": 0.25, "inverse_hysteresis": 1.5}}
+    assert table_from_dict(table.as_dict()) == table  # the file's content round-trips
+    assert json.loads(json.dumps(table.as_dict()))["velocity"]["dcomp-n2"] == {"reference_delay": 1.5}
+    bad = _table({"velocity": {"dcomp-n2": {"reference_delay": -1.0}}})
+    with pytest.raises(LawSettingsError, match=r"velocity\.dcomp-n2\.reference_delay \[control samples\] must be"):
+        table_from_dict(bad)
+    with pytest.raises(LawSettingsError, match=r"unknown key\(s\) \['delay'\]"):
+        table_from_dict(_table({"position": {"vinv-n2": {"delay": 1.0}}}))
+    with pytest.raises(LawSettingsError, match="unknown key 'dcomp-n4'"):
+        table_from_dict(_table({"position": {"dcomp-n4": {"reference_delay": 1.0}}}))
+
+
+def test_a_plants_law_table_sets_a_compensators_rows_and_tasks():
+    table = table_from_dict(_table(PLANT_ROWS))
+    assert parse_scripted("dcomp-n2", "velocity", table)["reference_delay"] == 1.5
+    spec = scripted_spec("dcomp-n2", laws=table)  # Table I's rows act on position only; this plant's on both
+    assert spec.tasks == TASKS and spec.env_kwargs_for("velocity")["reference_delay"] == 1.5
+    assert spec.env_kwargs_for("position")["reference_delay"] == 2.0 and "test rig" in spec.source
+    vinv = scripted_spec("vinv-n2", laws=table)  # the plant's rule chose none in velocity
+    assert vinv.tasks == ("position",) and vinv.env_kwargs_for("position")["inverse_threshold"] == 0.25
+    assert [s.name for s in scripted_specs(("clf-n2", "vinv-n2"), ("velocity",), table)] == ["clf-n2"]
+    # the evaluation applies its law table to a spec named without it (--policies dcomp-n2 --law-settings FILE)
+    cfg = EvalConfig(law_settings=table)
+    done = _complete_specs([scripted_spec("clf-n2"), scripted_spec("dcomp-n2", label="mine")], cfg, [])
+    assert done[1].name == "mine" and done[1].tasks == TASKS
+    assert done[1].env_kwargs_for("velocity")["reference_delay"] == 1.5
+    assert done[1].env_kwargs_for("velocity")["law_settings"] is table  # and still runs on the table's laws
+
+
+def test_a_law_table_without_compensator_rows_runs_none_and_says_why():
+    """A table of an earlier release has no compensator rows: Table I's are not used on its plant."""
+    table = table_from_dict(_table(None))
+    assert compensator_rows("dcomp", TASKS, table) == {}
+    with pytest.raises(ValueError, match="no dcomp-n2 row for task 'position'; ehss baselines writes it"):
+        parse_scripted("dcomp-n2", "position", table)
+    cfg = EvalConfig(law_settings=table)
+    specs = _complete_specs([scripted_spec("clf-n2"), scripted_spec("dcomp-n2")], cfg, [])
+    assert specs[1].tasks == ()
+    notes: list = []
+    _check_tasks(specs, cfg, set(), notes)  # a default policy: skipped with a note
+    assert any("dcomp-n2 acts on no task" in n for n in notes)
+    with pytest.raises(PolicyError, match="acts on no task.*rerun ehss baselines"):
+        _check_tasks(specs, cfg, {"dcomp-n2"}, [])

@@ -13,6 +13,7 @@ from tqdm import tqdm
 from ehss_gym.core.rig import as_rig
 from ehss_gym.reporting.baselines import DEFAULT_OUT, LAW_SETTINGS_FILE, write_report
 from ehss_gym.study.baselines import BASELINES, PROG, TuneSettings, tune
+from ehss_gym.study.compensators import evaluations
 
 from .common import plant_out_folder
 
@@ -24,7 +25,9 @@ def settings(args) -> TuneSettings:
                                                                           if r.task in args.task)
     return replace(base, budget=args.budget or base.budget, episodes=args.episodes or base.episodes,
                    seconds=args.seconds or base.seconds, plant=args.plant, rows=rows,
-                   check_episodes=base.check_episodes if args.check_episodes is None else args.check_episodes)
+                   check_episodes=base.check_episodes if args.check_episodes is None else args.check_episodes,
+                   compensator_episodes=(base.compensator_episodes if args.compensator_episodes is None
+                                         else args.compensator_episodes))
 
 
 def run(args) -> int:
@@ -32,7 +35,10 @@ def run(args) -> int:
     cfg = settings(args)
     cmd = " ".join([PROG] + [a for a in getattr(args, "argv", [])[1:]])
     t0 = time.perf_counter()
-    with tqdm(total=cfg.budget * len(cfg.rows or BASELINES), desc=PROG, disable=args.no_progress) as bar:
+    rows = [r for r in BASELINES if not cfg.rows or r.name in cfg.rows]
+    comps = evaluations() * len({r.task for r in rows}) if cfg.compensator_episodes else 0  # their candidates
+    total = cfg.budget * len(rows) + comps
+    with tqdm(total=total, desc=PROG, disable=args.no_progress) as bar:
         res = tune(cfg, progress=bar.update)
     out = plant_out_folder(args.out, args.quick, DEFAULT_OUT, args.plant)
     path = write_report(res, out, cmd, time.perf_counter() - t0)

@@ -64,7 +64,7 @@ def default_policies(args, cfg) -> list:
         return default_specs(cfg.tasks)
     print("ehss evaluate: note: with --plant and no --policies the scripted laws are evaluated ("
           f"{', '.join(SCRIPTED_DEFAULT)}); the shipped learned policies were trained on Table I", file=sys.stderr)
-    return scripted_specs(SCRIPTED_DEFAULT, cfg.tasks)
+    return scripted_specs(SCRIPTED_DEFAULT, cfg.tasks, cfg.law_settings)
 
 
 def run(args) -> int:

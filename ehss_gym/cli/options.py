@@ -559,6 +559,9 @@ def add_baselines(p) -> None:
     p.add_argument("--check-episodes", type=int_at_least("--check-episodes", 0), default=None,
                    help="held-out episodes of the check of the tuned n = 2 law after the search (saturation, limit "
                         "cycles through the friction events; default 48; 0: no check)")
+    p.add_argument("--compensator-episodes", type=int_at_least("--compensator-episodes", 0), default=None,
+                   help="training scenarios with the unmodelled effects on which the compensators (dcomp-n2, vinv-n2) "
+                        "are sized, seeds 0..N-1 (default 48, --quick too: fewer let noise pick a size; 0: not sized)")
     add_out(p, "output folder", os.path.join("reports", "baselines"))
     add_quick(p, "12 training episodes of 2 s and 32 evaluations per baseline: a few minutes on two cores, "
                  "coarser than the full run")
@@ -676,11 +679,14 @@ COMMANDS = (
             "The default law on the held-out suite with friction, model mismatch and sensor noise removed one at a "
             "time and all together: each metric class's level; writes FACTORS.md and factors.csv.", add_factors,
             "factors"),
-    Command("baselines", "tune every scripted baseline (CLF n=2/4/6, PID) by one coded search on training scenarios",
+    Command("baselines", "tune every scripted baseline (CLF n=2/4/6, observer, PID, compensators) on training "
+            "scenarios",
             "One deterministic coordinate search on log grids (then halving refinement), the same budget for every "
             "baseline, on training scenarios only; the objective is the ruler's overall figure against the env's "
-            "default law before tuning, with the failure gate. Writes tuned.json, BASELINES.md and convergence "
-            "figures, and applies the written defaults rule (which n is each task's default).", add_baselines,
+            "default law before tuning, with the failure gate. Applies the written defaults rule (which n is each "
+            "task's default), then sizes the compensators of the unmodelled valve and sensors (dcomp-n2, vinv-n2) "
+            "on the tuned n = 2 law over their whole grid. Writes tuned.json, law_settings.json, BASELINES.md and "
+            "convergence figures.", add_baselines,
             "baselines"),
     Command("headroom", "the headroom table: what a residual on the n=2 law could gain, and what it must observe",
             "For each task, suite of ehss evaluate and metric class: the base law, the disturbance-observer residual "

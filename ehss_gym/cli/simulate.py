@@ -49,7 +49,7 @@ def preset_scenario(preset: str, task: str, rig: Rig = TABLE_I, law_settings=Non
     law's settings from ``law_settings`` if given) or the law as printed ("paper")."""
     if preset == "recommended":
         return EnvConfig.from_kwargs({"task": task, "plant": rig, "law_settings": law_settings}).template()
-    return Scenario(task=task, plant=rig.plant, model=rig.model)
+    return Scenario(task=task, plant=rig.plant, model=rig.model, rated_current=rig.rated_current)
 
 
 def default_friction(reference: str) -> tuple:

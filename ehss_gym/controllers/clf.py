@@ -62,15 +62,16 @@ def dob_rows(tasks, law_table=None) -> dict[str, dict[str, float]]:
         return {t: dict(DOB_ROWS[t]) for t in tasks}
     return {t: dict(law_table.tasks[t].dob) for t in tasks if t in law_table.tasks and law_table.tasks[t].dob}
 # The compensators' settings of ``dcomp-n<k>`` (the reference delay [control samples]) and ``vinv-n<k>`` (the valve
-# inverse's threshold and hysteresis [% of rated current]) per task: the choice of ``python tools/compensator_sweep.py``
-# on 48 training scenarios per task drawn with the unmodelled effects (the env's ``unmodelled_effects=True``: delay 1
-# or 2 samples, threshold 0.25-0.5 %, hysteresis 1.5-3 %) by its rule, written before it ran (per task: no failure,
-# then the lowest overall figure of the ruler against clf-n2 on the same episodes, a tie within 1 % to the smaller
-# compensation). Its figures: the delay in velocity 0.993 at best (1.5 samples), a tie with none, so none; in position
-# 0.701 at 1 sample (0.711 at 2, 0.713 at 1.5); the valve inverse in velocity 0.857 at best (0.5 %, 2.25 %), the
-# smallest within 1 % being the distribution's mean (0.375 %, 2.25 %) at 0.864; in position no inverse helps (1.008
-# at the smallest, its effort up), so none. ``dcomp-n2`` acts in position only and ``vinv-n2`` in velocity only: on the
-# other task each is clf-n2.
+# inverse's threshold and hysteresis [% of rated current]) per task on Table I: the choice of ``ehss baselines``'s
+# compensator sweep (:mod:`ehss_gym.study.compensators`; reports/baselines/law_settings.json, which
+# tests/test_scripted_compensators.py checks them against) on 48 training scenarios per task drawn with the unmodelled
+# effects (the env's ``unmodelled_effects=True``: delay 1 or 2 samples, threshold 0.25-0.5 %, hysteresis 1.5-3 %) by
+# its rule, written before it ran (per task: no failure, then the lowest overall figure of the ruler against clf-n2 on
+# the same episodes, a tie within 1 % to the smaller compensation). Its figures: the delay in velocity 0.993 at best
+# (1.5 samples), a tie with none, so none; in position 0.701 at 1 sample (0.711 at 2, 0.713 at 1.5); the valve inverse
+# in velocity 0.857 at best (0.5 %, 2.25 %), the smallest within 1 % being the distribution's mean (0.375 %, 2.25 %) at
+# 0.864; in position no inverse helps (1.008 at the smallest, its effort up), so none. ``dcomp-n2`` acts in position
+# only and ``vinv-n2`` in velocity only: on the other task each is clf-n2. Another plant's rows are in its law table.
 COMPENSATOR_ROWS: dict[str, dict[str, dict[str, float]]] = {
     "dcomp": {"velocity": {"reference_delay": 0.0}, "position": {"reference_delay": 1.0}},
     "vinv": {"velocity": {"inverse_threshold": 0.375, "inverse_hysteresis": 2.25},
@@ -88,29 +89,36 @@ def compensator_kind(name: str) -> str | None:
     return m.group(1) if m else None
 
 
-def compensator_rows(kind: str, tasks) -> dict[str, dict[str, float]]:
-    """The settings of the scripted compensator ``kind`` (``"dcomp"`` or ``"vinv"``) for each task of ``tasks``: its
-    rows of :data:`COMPENSATOR_ROWS` (Table I's training distribution of the unmodelled effects)."""
+def compensator_rows(kind: str, tasks, law_table=None) -> dict[str, dict[str, float]]:
+    """The settings of the scripted compensator ``kind`` (``"dcomp"`` or ``"vinv"``) for each task of ``tasks``: a law
+    table's rows where one is given (:class:`ehss_gym.envs.law_table.LawTable`: the tasks it chose a size for, the
+    others left out), else the built-in :data:`COMPENSATOR_ROWS` (Table I's training distribution of the unmodelled
+    effects)."""
     rows = COMPENSATOR_ROWS[kind]
     bad = [t for t in tasks if t not in rows]
     if bad:
         raise ValueError(f"task must be one of {sorted(rows)}, got {bad[0]!r}")
-    return {t: dict(rows[t]) for t in tasks}
+    if law_table is None:
+        return {t: dict(rows[t]) for t in tasks}
+    return {t: dict(law_table.tasks[t].compensators[kind]) for t in tasks
+            if t in law_table.tasks and kind in law_table.tasks[t].compensators}
 
 
-def compensated_tasks(kind: str, tasks) -> tuple[str, ...]:
-    """The tasks of ``tasks`` on which the scripted compensator ``kind`` compensates anything (a nonzero setting): on
-    the others its rule chose none, so it is ``clf-n<k>`` there and is not run twice."""
-    return tuple(t for t, row in compensator_rows(kind, tasks).items() if any(v != 0.0 for v in row.values()))
+def compensated_tasks(kind: str, tasks, law_table=None) -> tuple[str, ...]:
+    """The tasks of ``tasks`` on which the scripted compensator ``kind`` compensates anything (a nonzero setting of
+    :func:`compensator_rows`): on the others its rule chose none, so it is ``clf-n<k>`` there and is not run twice."""
+    return tuple(t for t, row in compensator_rows(kind, tasks, law_table).items()
+                 if any(v != 0.0 for v in row.values()))
 
 
-def parse_scripted(name: str, task: str | None = None) -> dict | None:
+def parse_scripted(name: str, task: str | None = None, law_table=None) -> dict | None:
     """The env keyword arguments of a scripted CLF policy name, or None if ``name`` is not one.
 
     Args:
         name: the policy name (:data:`SCRIPTED_FORMS`).
         task: the task the policy acts on, for the names whose settings depend on it (``dcomp-n<k>``,
             ``vinv-n<k>``: the task's row of :data:`COMPENSATOR_ROWS`); default the env's default task.
+        law_table: the law table whose compensator rows replace :data:`COMPENSATOR_ROWS` (None: Table I's).
 
     Returns:
         {"n": k, "mode": "residual"} plus "law" and "estimator" where the name gives them (``clf`` gives neither: the
@@ -119,15 +127,20 @@ def parse_scripted(name: str, task: str | None = None) -> dict | None:
         "inverse_hysteresis" [% of rated current]). n is validated by the env (an even integer >= 2).
 
     Raises:
-        ValueError: ``clf-<estimator>-n<k>`` (the default law has no estimator variant by that name: use the law's).
+        ValueError: ``clf-<estimator>-n<k>`` (the default law has no estimator variant by that name: use the law's), or
+            a compensator whose ``law_table`` has no row for the task.
     """
     m = _DOB_RE.match(name)
     if m:
         return {"n": int(m.group(1)), "mode": "residual", "dob_hz": DOB_HZ}
     m = _COMPENSATOR_RE.match(name)
     if m:
-        row = compensator_rows(m.group(1), (task or DEFAULT_TASK,))[task or DEFAULT_TASK]
-        return {"n": int(m.group(2)), "mode": "residual", **row}
+        task = task or DEFAULT_TASK
+        rows = compensator_rows(m.group(1), (task,), law_table)
+        if task not in rows:
+            raise ValueError(f"scripted policy {name!r}: {law_table.describe()} have no {m.group(1)}-n2 row for "
+                             f"task {task!r}; ehss baselines writes it")
+        return {"n": int(m.group(2)), "mode": "residual", **rows[task]}
     m = _NAME_RE.match(name)
     if not m:
         return None

@@ -127,7 +127,8 @@ def sample_scenario(scenario_seed: int, template: Scenario, episode_seconds: flo
     Args:
         scenario_seed: integer >= 0 (training uses [0, TRAIN_SEED_LIMIT)).
         template: a Scenario carrying the controller settings and the rig: the plant's mismatch is drawn around
-            ``template.plant``, and the controller keeps ``template.model`` (the plant's parameters if None).
+            ``template.plant``, the controller keeps ``template.model`` (the plant's parameters if None), and the
+            valve's threshold and hysteresis drawn (``dist.unmodelled``) are percent of ``template.rated_current``.
         episode_seconds: duration [s]; None = ``dist.episode_seconds``.
         dist: the distribution.
     """
@@ -169,6 +170,8 @@ def sample_scenario(scenario_seed: int, template: Scenario, episode_seconds: flo
         noise = (0.0, 0.0, 0.0, 0.0)
     noise_seed = int(rng.integers(0, 2**52))
     unmodelled = NONE if dist.unmodelled is None else draw_unmodelled(int(scenario_seed), dist.unmodelled)
+    if not unmodelled.off and unmodelled.rated_current != template.rated_current:  # the rig's valve's sizes
+        unmodelled = replace(unmodelled, rated_current=template.rated_current)
     model = nominal if template.model is None else template.model
     return template.replace(reference=ref, friction=tuple(events), plant=plant, model=model, noise_std=noise,
                             seed=noise_seed, t_end=T, unmodelled=unmodelled)

@@ -1,7 +1,8 @@
 """The settings of one closed-loop run (:class:`Scenario`), the one list of loop settings, and the controller row.
 
 A :class:`Scenario` is every setting of a run. Its *physical* fields (:data:`PHYSICAL_FIELDS`: the reference, the
-friction events, the plants, the sensor noise, the duration) describe the episode; the others are the **loop
+friction events, the plants, the sensor noise, the duration, the valve's unmodelled effects and rated current)
+describe the episode; the others are the **loop
 settings** (:data:`LOOP_SETTINGS`): the controller and its limits. Every other list of settings derives from this one:
 the env's settings (:class:`ehss_gym.envs.config.EnvConfig`), what an exported policy pins, what the evaluation
 compares, the command line's flags (``ehss simulate``).
@@ -36,7 +37,7 @@ PAPER_FRICTION = ((1.8, 8.0, 10.0),)
 LAYER_GAIN_MAX = 100.0  # largest adaptive boundary-layer gain accepted (w_eff = gain * noise std of s)
 # Scenario fields an episode (not the controller) sets; the rest are the loop settings.
 PHYSICAL_FIELDS = ("reference", "friction", "plant", "model", "noise_std", "seed", "t_end", "log_interval",
-                   "unmodelled")
+                   "unmodelled", "rated_current")
 
 # --- The controller row (one per run): the loop settings as the kernels read them -----------------------
 C_ORDER = 0  # relative degree m: 3 velocity, 4 position
@@ -186,13 +187,17 @@ class Scenario:
     the true output leads y_d; against y_d of d samples before, the true output tracks y_d (the metrics still measure
     y - y_d). See docs/MODEL.md, "Compensating the unmodelled valve and sensors"."""
     inverse_threshold: float = 0.0
-    """the valve inverse's threshold [percent of the valve's rated current, 10 mA], in [0, THRESHOLD_MAX = 10]: the
+    """the valve inverse's threshold [percent of ``rated_current``], in [0, THRESHOLD_MAX = 10]: the
     commanded current is pre-compensated by the inverse of a dead band of this width and a play operator of width
     ``inverse_hysteresis`` (the valve model of ``unmodelled``), so that such a valve puts out the command itself;
     0 = none. See docs/MODEL.md, "Compensating the unmodelled valve and sensors"."""
     inverse_hysteresis: float = 0.0
-    """the valve inverse's hysteresis [percent of the valve's rated current], in [0, HYSTERESIS_MAX = 30]: the total
+    """the valve inverse's hysteresis [percent of ``rated_current``], in [0, HYSTERESIS_MAX = 30]: the total
     width of the play operator it inverts (``inverse_threshold``); 0 = none"""
+    rated_current: float = RATED_CURRENT
+    """the servo valve's rated current [mA] (> 0; Table I's valve: 10 mA): the valve inverse's sizes are percent of
+    it, and the unmodelled effects drawn for the episode (:func:`ehss_gym.core.scenarios.sample_scenario`) size the
+    valve's threshold and hysteresis on it; the env sets it to its rig's"""
     omega_max: float = 1e3
     """divergence bound on |x2| [rad/s]"""
     pressure_bound: float = 1.5
@@ -256,6 +261,8 @@ class Scenario:
                                                                    self.inverse_threshold, low=0.0, high=THRESHOLD_MAX))
         object.__setattr__(self, "inverse_hysteresis", check_finite(
             "inverse_hysteresis (% of rated current)", self.inverse_hysteresis, low=0.0, high=HYSTERESIS_MAX))
+        object.__setattr__(self, "rated_current", check_finite("rated_current (mA)", self.rated_current, low=0.0,
+                                                               low_open=True))
 
     def _check_episode(self) -> None:
         """The physical fields' checks."""
@@ -343,8 +350,8 @@ def ctrl_row(sc: Scenario) -> np.ndarray:
     unmodelled_slots(sc.unmodelled, row)
     row[C_LYAP_KAPPA] = -1.0 if sc.lyapunov_kappa is None else sc.lyapunov_kappa
     row[C_REF_DELAY] = sc.reference_delay
-    row[C_INV_THRESHOLD] = sc.inverse_threshold * RATED_CURRENT / 100.0
-    row[C_INV_HYSTERESIS] = sc.inverse_hysteresis * RATED_CURRENT / 100.0
+    row[C_INV_THRESHOLD] = sc.inverse_threshold * sc.rated_current / 100.0
+    row[C_INV_HYSTERESIS] = sc.inverse_hysteresis * sc.rated_current / 100.0
     return row
 
 

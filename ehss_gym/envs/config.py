@@ -302,7 +302,7 @@ class EnvConfig:
         loop["control_period"] = check_finite("control_period", loop["control_period"], low=1e-7, high=1e-2)
         loop["substeps"] = check_int("substeps", loop["substeps"], 1)
         # every loop setting checked, with the core record's messages; the template carries the rig
-        template = paper_scenario(Scenario(**loop, plant=rig.plant, model=rig.model))
+        template = paper_scenario(Scenario(**loop, plant=rig.plant, model=rig.model, rated_current=rig.rated_current))
         limit = template.current_limit
         scale = kwargs.get("residual_scale")
         if scale is None:

@@ -319,7 +319,7 @@ class EHSSTrackingEnv(gym.Env):
             and its derivatives of that many samples earlier (interpolated between samples), so that with a sensor
             delay of as many samples the true output tracks y_d instead of leading it; 0 = off. See docs/MODEL.md,
             "Compensating the unmodelled valve and sensors".
-        inverse_threshold: the valve inverse's dead band [% of the valve's rated current, 10 mA], in [0, 10]: the
+        inverse_threshold: the valve inverse's dead band [% of the rig's rated current], in [0, 10]: the
             commanded current (law plus residual) passes through the inverse of a valve dead band of this width and
             a play operator of width ``inverse_hysteresis`` before the current limit, so that such a valve puts out
             the command; 0 = none (both 0: off).

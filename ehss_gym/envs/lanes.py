@@ -4,7 +4,6 @@ info it reports (:func:`step_info`)."""
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 
@@ -446,10 +445,7 @@ class Lanes:
             info["scenario_name"] = "paper"
         elif choice == "random":
             seed = int(rng.integers(0, TRAIN_SEED_LIMIT))
-            sc = sample_scenario(seed, tmpl, cfg.episode_seconds, cfg.distribution())
-            if not sc.unmodelled.off and sc.unmodelled.rated_current != cfg.plant.rated_current:
-                # the valve's threshold and hysteresis are percent of the rig's rated current
-                sc = sc.replace(unmodelled=replace(sc.unmodelled, rated_current=cfg.plant.rated_current))
+            sc = sample_scenario(seed, tmpl, cfg.episode_seconds, cfg.distribution())  # the valve sized on the rig
             info["scenario_name"] = "random"
             info["scenario_seed"] = seed
         else:

@@ -3,8 +3,10 @@
 
 Per task it holds what the baselines' coded search tuned on training scenarios of that plant: the CLF law's sigma,
 f_r, smoothing width and boundary-layer gain for each n (``clf-n<k>``), the defaults rule's n, the disturbance
-observer's bandwidth with its smoothing and layer (``dob-n2``, on the n = 2 law's sigma and f_r) and the PID's gains
-(``pid``, direct mode), with the plant they were tuned on (its label and the hash of its values):
+observer's bandwidth with its smoothing and layer (``dob-n2``, on the n = 2 law's sigma and f_r), the PID's gains
+(``pid``, direct mode) and the two compensators' sizes chosen on the plant's unmodelled effects (``dcomp-n2``: the
+law's reference delay; ``vinv-n2``: the valve inverse's threshold and hysteresis; :mod:`ehss_gym.study.compensators`),
+with the plant they were tuned on (its label and the hash of its values):
 
 .. code-block:: json
 
@@ -13,7 +15,9 @@ observer's bandwidth with its smoothing and layer (``dob-n2``, on the n = 2 law'
                   "clf-n2": {"sigma": 7.0e5, "fr": 127.6, "smoothing": 64.9, "layer_gain": 11.8},
                   "clf-n4": {...}, "clf-n6": {...},
                   "dob-n2": {"dob_hz": 20.0, "smoothing": 64.9, "layer_gain": 11.8},
-                  "pid": {"kp": 0.1, "ki": 1.0, "kd": 0.01}},
+                  "pid": {"kp": 0.1, "ki": 1.0, "kd": 0.01},
+                  "dcomp-n2": {"reference_delay": 0.0},
+                  "vinv-n2": {"inverse_threshold": 0.375, "inverse_hysteresis": 2.25}},
      "position": {...}}
 
 An env made with it takes the row of its n (an n without a row: the file's default n's row) for every law setting
@@ -34,6 +38,11 @@ LAW_FIELDS = {"sigma": ("unit of s", 0.0, True), "fr": ("Hz", 0.0, True), "smoot
               "layer_gain": ("-", 0.0, False)}
 DOB_FIELDS = {"dob_hz": ("Hz", 0.0, True), "smoothing": ("unit of s", 0.0, False), "layer_gain": ("-", 0.0, False)}
 PID_FIELDS = {"kp": ("mA/U", 0.0, False), "ki": ("mA/(U s)", 0.0, False), "kd": ("mA s/U", 0.0, False)}
+# The compensators' rows (the row key is "<kind>-n2"): the reference delay [control samples] and the valve inverse's
+# threshold and hysteresis [% of rated current], each >= 0 (0: that compensation off).
+COMPENSATOR_FIELDS = {"dcomp": {"reference_delay": ("control samples", 0.0, False)},
+                      "vinv": {"inverse_threshold": ("% of rated current", 0.0, False),
+                               "inverse_hysteresis": ("% of rated current", 0.0, False)}}
 
 
 class LawSettingsError(ValueError):
@@ -49,12 +58,16 @@ class TaskLaws:
         clf: n -> {sigma [unit of s], fr [Hz], smoothing [unit of s], layer_gain [-]}.
         dob: the disturbance-observer residual's {dob_hz [Hz], smoothing, layer_gain} (None: not tuned).
         pid: the PID's gains (kp [mA/U], ki [mA/(U s)], kd [mA s/U]), direct mode (None: not tuned).
+        compensators: the compensators' rows chosen for the task: ``"dcomp"`` -> {reference_delay [control
+            samples]}, ``"vinv"`` -> {inverse_threshold, inverse_hysteresis [% of rated current]} (a kind left out:
+            not chosen; a file of an earlier release has none).
     """
 
     default_n: int
     clf: dict
     dob: dict | None = None
     pid: tuple | None = None
+    compensators: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -97,6 +110,7 @@ class LawTable:
                 d["dob-n2"] = dict(laws.dob)
             if laws.pid is not None:
                 d["pid"] = dict(zip(PID_FIELDS, laws.pid))
+            d.update({f"{kind}-n2": dict(row) for kind, row in laws.compensators.items()})
             out[t] = d
         return out
 
@@ -126,7 +140,8 @@ def _numbers(d, spec: dict, where: str, required=True) -> dict:
 def _task_laws(d, where: str) -> TaskLaws:
     if not isinstance(d, dict):
         raise LawSettingsError(f"{where} must be an object, got {type(d).__name__}")
-    valid = ("default_n", "dob-n2", "pid")
+    comp_keys = {f"{kind}-n2": kind for kind in COMPENSATOR_FIELDS}
+    valid = ("default_n", "dob-n2", "pid", *comp_keys)
     clf = {}
     for k, v in d.items():
         if k.startswith("clf-n"):
@@ -147,7 +162,9 @@ def _task_laws(d, where: str) -> TaskLaws:
         raise LawSettingsError(f"{where}.default_n = {default_n} has no clf-n{default_n} row")
     dob = _numbers(d["dob-n2"], DOB_FIELDS, f"{where}.dob-n2") if "dob-n2" in d else None
     pid = tuple(_numbers(d["pid"], PID_FIELDS, f"{where}.pid").values()) if "pid" in d else None
-    return TaskLaws(default_n=default_n, clf=clf, dob=dob, pid=pid)
+    comp = {kind: _numbers(d[key], COMPENSATOR_FIELDS[kind], f"{where}.{key}") for key, kind in comp_keys.items()
+            if key in d}
+    return TaskLaws(default_n=default_n, clf=clf, dob=dob, pid=pid, compensators=comp)
 
 
 def table_from_dict(data, *, source: str = "") -> LawTable:
@@ -201,4 +218,4 @@ def as_law_table(value) -> LawTable | None:
 
 
 __all__ = ["LawTable", "TaskLaws", "LawSettingsError", "table_from_dict", "load_law_table", "as_law_table",
-           "LAW_FIELDS", "DOB_FIELDS", "PID_FIELDS"]
+           "LAW_FIELDS", "DOB_FIELDS", "PID_FIELDS", "COMPENSATOR_FIELDS"]

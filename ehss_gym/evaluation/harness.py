@@ -257,10 +257,13 @@ def on_plant(spec: PolicySpec, cfg: EvalConfig, notes: list) -> PolicySpec:
 
 def _tuned_rows(spec: PolicySpec, table) -> PolicySpec:
     """A scripted spec with a law table's per-task rows: ``dob-n2``'s observer bandwidth, smoothing and layer, the
-    PID's gains (unless the spec gives its own); the CLF law's rows come with the table itself (env ``law_settings``).
+    compensators' sizes (and so the tasks they act on), the PID's gains (unless the spec gives its own); the CLF law's
+    rows come with the table itself (env ``law_settings``).
     """
     if table is None:
         return spec
+    if spec.kind == "clf" and spec.runs[0].get("scripted"):  # a compensator: the table's rows, tasks and words
+        return replace(scripted_spec(spec.runs[0]["scripted"], spec.name, laws=table), env_kwargs=spec.env_kwargs)
     if spec.kind == "clf" and spec.env_kwargs.get("dob_hz") and spec.env_kwargs.get("n") == 2:
         rows = dob_rows(spec.tasks, table)
         return replace(spec, task_kwargs=rows, source=spec.source + f"; observer rows of {table.describe()}")
@@ -277,11 +280,15 @@ def _check_tasks(specs: list, cfg: EvalConfig, named: set, notes: list) -> None:
     for spec in specs:
         if any(t in cfg.tasks for t in spec.tasks):
             continue
+        if spec.name in named and not spec.tasks:
+            raise PolicyError(f"policy {spec.name!r} acts on no task: {spec.source}; a law table without its rows "
+                              "is of an earlier release (rerun ehss baselines)")
         if spec.name in named:
             raise PolicyError(f"policy {spec.name!r} acts on task(s) {', '.join(spec.tasks)} only, and the evaluated "
                               f"tasks are {', '.join(cfg.tasks)} (--tasks): it would not be evaluated; add its task "
                               "or leave it out")
-        notes.append(f"{spec.name} acts on task {spec.tasks[0]!r} only, which is not evaluated; skipped.")
+        notes.append(f"{spec.name} acts on no task ({spec.source}); skipped." if not spec.tasks else
+                     f"{spec.name} acts on task {spec.tasks[0]!r} only, which is not evaluated; skipped.")
 
 
 def _load_runs(specs: list, cfg: EvalConfig, notes: list) -> dict:

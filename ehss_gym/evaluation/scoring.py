@@ -263,6 +263,26 @@ def rank_key(failed: bool, n_failed: int, g: float, name: str = "") -> tuple:
     return (bool(failed), int(n_failed) if failed else 0, math.isnan(g), g if not math.isnan(g) else 0.0, name)
 
 
+def gated_figure(metrics: Sequence[dict], anchor: Sequence[dict], noisy: Sequence[bool], task: str,
+                 floors: Floors = PHYSICAL_FLOORS) -> dict:
+    """The ruler's overall figure of per-episode ``metrics`` against the anchor's on the same episodes (of ``task``,
+    under the rig's ``floors``), with the gate: the objective of every tuning procedure (``ehss baselines``).
+
+    Returns:
+        {"figure" (G), "classes" ({class: G_c}), "failed", "n_failed", "saturation" (mean share), "key" (the order:
+        :func:`rank_key`)}.
+    """
+    logs: dict[str, list[float]] = {}
+    for m, a, nz in zip(metrics, anchor, noisy):
+        for c, v in episode_log_ratios(m, a, nz, task, floors).items():
+            logs.setdefault(c, []).append(v)
+    g, gc = figure_of(logs)
+    failed, n_failed = failure(list(metrics))
+    sat = float(np.mean([m["saturation"] for m in metrics]))
+    return {"figure": g, "classes": gc, "failed": failed, "n_failed": n_failed, "saturation": sat,
+            "key": rank_key(failed, n_failed, g)}
+
+
 def ratio_rows(rows: list, floors: Floors = PHYSICAL_FLOORS) -> None:
     """Add the per-episode ratios ``q_<class>`` and ``q_overall`` (NaN outside the episode's classes or where it or
     the reference law diverged) to every row, against the reference law on the same episode (metrics floored at
@@ -548,6 +568,6 @@ __all__ = ["CLASSES", "CLASS_METRICS", "IAE_WINDOW", "Floors", "FLOORS", "PHYSIC
            "FLOOR_SOURCES", "POSITION_RESOLUTION", "VELOCITY_RESOLUTION", "VALVE_THRESHOLD", "VALVE_BANDWIDTH",
            "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE", "ABSOLUTE_LEVELS", "absolute_levels", "METRICS",
            "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios", "failure",
-           "figure_of", "rank_key", "ratio_rows", "pair_log_ratio", "STARTUP_METRICS",
+           "figure_of", "rank_key", "gated_figure", "ratio_rows", "pair_log_ratio", "STARTUP_METRICS",
            "matrix", "Block", "figure_statistics", "is_earlier_loop", "policy_n",
            "summarize"]

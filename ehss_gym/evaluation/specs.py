@@ -118,7 +118,7 @@ def valid_forms() -> str:
 
 
 def scripted_spec(name: str, label: str | None = None, env_overrides: dict | None = None,
-                  gains: dict | None = None) -> PolicySpec:
+                  gains: dict | None = None, laws=None) -> PolicySpec:
     """A scripted CLF law (``clf-n<n>`` or a variant, :func:`ehss_gym.controllers.parse_scripted`) or ``pid`` as a
     :class:`PolicySpec` (runs on both tasks).
 
@@ -129,6 +129,8 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
         env_overrides: env settings changed from the defaults (e.g. ``{"sigma": 1.0}``: the paper's scale).
         gains: PID only: task -> (kp [mA per output unit], ki [mA per unit*s], kd [mA per unit/s]) instead of
             the tuned gains.
+        laws: a compensator's rows from this law table (:class:`ehss_gym.envs.law_table.LawTable`, a plant's)
+            instead of Table I's (the harness applies an evaluation's table to a spec made without it).
 
     Raises:
         PolicyError: an unknown name or an odd power factor.
@@ -149,14 +151,18 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
             what += ", disturbance observer at " + ", ".join(f"{r['dob_hz']:.3g} Hz ({t})" for t, r in rows.items())
         elif "dob_hz" in kw:
             what += f", disturbance observer at {kw['dob_hz']:g} Hz"
-        kind, tasks = compensator_kind(name), TASKS
+        kind, tasks, run = compensator_kind(name), TASKS, {"kind": "clf", "n": n}
         if kind is not None and not set(kw) & set(over) - {"n", "mode"}:
             # the task's own size; on a task where its rule chose none it is clf-n<k>, so it is not run there
-            tasks = compensated_tasks(kind, TASKS)
-            rows = compensator_rows(kind, tasks)
-            what += ", " + "; ".join(f"{COMPENSATOR_TEXT[kind].format(**r)} ({t})" for t, r in rows.items())
+            tasks = compensated_tasks(kind, TASKS, laws)
+            rows = compensator_rows(kind, tasks, laws)
+            what += ", " + ("; ".join(f"{COMPENSATOR_TEXT[kind].format(**r)} ({t})" for t, r in rows.items())
+                            or "no compensation chosen on any task")
+            if laws is not None:
+                what += f", rows of {laws.describe()}"
+            run["scripted"] = name  # the harness takes an evaluation's law table's rows from here
         src = f"scripted CLF law ({what}), n = {n}" + (f", {over}" if over else "")
-        return PolicySpec(name=label or name, kind="clf", runs=[{"kind": "clf", "n": n}],
+        return PolicySpec(name=label or name, kind="clf", runs=[run],
                           env_kwargs={**kw, **over}, tasks=tasks, task_kwargs=rows, source=src)
     if name == "pid":
         run = {"kind": "pid"}
@@ -531,11 +537,11 @@ def object_spec(name: str, policy, env_kwargs: dict | None = None, runs: Sequenc
                       source=f"Python object {type(objs[0]).__name__}")
 
 
-def scripted_specs(names=SCRIPTED_DEFAULT, tasks=TASKS) -> list[PolicySpec]:
+def scripted_specs(names=SCRIPTED_DEFAULT, tasks=TASKS, laws=None) -> list[PolicySpec]:
     """The scripted policies ``names`` (:func:`scripted_spec`) that act on at least one task of ``tasks``: a scripted
-    compensator acts only on the tasks where its rule chose a compensation (``dcomp-n2`` position, ``vinv-n2``
-    velocity)."""
-    return [s for s in (scripted_spec(n) for n in names) if set(s.tasks) & set(tasks)]
+    compensator acts only on the tasks where its rule chose a compensation (on Table I ``dcomp-n2`` position,
+    ``vinv-n2`` velocity; on another plant its law table ``laws`` says)."""
+    return [s for s in (scripted_spec(n, laws=laws) for n in names) if set(s.tasks) & set(tasks)]
 
 
 def default_specs(tasks=TASKS) -> list[PolicySpec]:

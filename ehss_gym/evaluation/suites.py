@@ -254,11 +254,9 @@ def build_episodes(cfg: EvalConfig) -> list[Episode]:
         if "step" in cfg.suites:
             out += _step_episodes(cfg, task, tmpl)
         if "unmodelled" in cfg.suites:
+            # the valve's threshold and hysteresis are percent of the rig's rated current (the template's)
             scs = heldout_scenarios(cfg.heldout_episodes, tmpl, cfg.episode_seconds, UNMODELLED_DISTRIBUTION,
                                     start=UNMODELLED_SEED_START)
-            rated = cfg.rig.rated_current  # the valve's threshold and hysteresis are percent of it
-            scs = [sc if sc.unmodelled.rated_current == rated else
-                   sc.replace(unmodelled=replace(sc.unmodelled, rated_current=rated)) for sc in scs]
             out += [Episode("unmodelled", task, f"unmodelled-{i}", _physical(sc),
                             scenario_seed=HELDOUT_SEED_BASE + UNMODELLED_SEED_START + i) for i, sc in enumerate(scs)]
     return out

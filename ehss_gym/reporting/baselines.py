@@ -19,6 +19,7 @@ from ehss_gym.evaluation.scoring import CLASSES  # noqa: E402
 from ehss_gym.infra.fmt import fmt_cell  # noqa: E402
 from ehss_gym.infra.util import atomic_write_text  # noqa: E402
 from ehss_gym.study.baselines import BASELINES, KEEP_MARGIN  # noqa: E402
+from ehss_gym.study.compensators import TIE  # noqa: E402
 from ehss_gym.study.friction_windows import LIMIT_CYCLE_REVERSALS, SATURATION_MAX  # noqa: E402
 
 from .render import render  # noqa: E402
@@ -80,6 +81,22 @@ def _check_rows(check: dict) -> list[list[str]]:
     return rows
 
 
+def _compensator_rows(comp: dict) -> list[list[str]]:
+    """The compensators' table: per task and compensator the lowest G, the chosen size and its G."""
+    rows = []
+    for task, kinds in comp.items():
+        for kind, r in kinds.items():
+            failed = sum(e["failed"] for e in r["evaluations"])
+            rows.append([task, f"{kind}-n2", _point(r["best"]), fmt_cell(r["best_figure"]),
+                         _point(r["chosen"]) if any(r["chosen"].values()) else "none", fmt_cell(r["figure"]),
+                         f"{failed} of {len(r['evaluations'])}"])
+    return rows
+
+
+def _point(p: dict) -> str:
+    return ", ".join(f"{k} = {v:g}" for k, v in p.items())
+
+
 def write_report(res: dict, out: str, command: str, wall_s: float) -> str:
     """Write tuned.json, law_settings.json, BASELINES.md and convergence_<task>.png under ``out``; returns
     BASELINES.md's path."""
@@ -103,7 +120,9 @@ def write_report(res: dict, out: str, command: str, wall_s: float) -> str:
                   runners=sorted({rows[n].runner for n in res["baselines"] if n in rows}), plant=res["plant"],
                   check=_check_rows(res["check"]), law_file=LAW_SETTINGS_FILE if res["check"] or any(
                       t in res["law_settings"] for t in ("velocity", "position")) else None,
-                  saturation_max=SATURATION_MAX, reversals=LIMIT_CYCLE_REVERSALS)
+                  saturation_max=SATURATION_MAX, reversals=LIMIT_CYCLE_REVERSALS,
+                  compensators=_compensator_rows(res.get("compensators") or {}), tie=TIE,
+                  compensator_episodes=res["settings"].get("compensator_episodes", 0))
     path = os.path.join(out, "BASELINES.md")
     atomic_write_text(path, text)
     return path

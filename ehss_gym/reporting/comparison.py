@@ -394,6 +394,7 @@ def report_context(res: Results, figs: dict, steps: list[dict], with_bound: bool
         "saturation_gate": SATURATION_GATE,
         "robust_seed_start": ROBUST_SEED_START, "sweep_window": SWEEP_WINDOW,
         "unmodelled_seed_start": UNMODELLED_SEED_START, "unmodelled_ranges": DATASHEET_RANGES,
+        "rated_current": res.cfg.rig.rated_current,
         "mismatch_friction": SWEEP_MISMATCH_FRICTION, "step_time": STEP_TIME, "step_seconds": STEP_SECONDS,
         "metric_rows": [[f"{_md(label)} (`{key}`)", unit, _md(text)] for key, label, unit, text in METRICS],
         "first": _first_screen(res), "blocks": _detail_blocks(res), "earlier_rows": earlier_rows(res),

@@ -28,7 +28,6 @@ import numpy as np
 
 from ehss_gym.core.layout import L_T, L_UAPP, L_UBASE, L_UCMD, L_YD, QUIET_STARTUP
 from ehss_gym.core.sim import simulate_batch
-from ehss_gym.core.unmodelled import RATED_CURRENT
 from ehss_gym.envs import EnvConfig
 
 BLOCK = 20  # [control periods] the closed-loop changes are of the currents' means over blocks of this many samples
@@ -45,10 +44,11 @@ def delay_known(physical: dict) -> dict:
 
 
 def valve_known(physical: dict) -> dict:
-    """The valve inverse knowing an episode's valve: its threshold and hysteresis [% of the 10 mA rated current]."""
+    """The valve inverse knowing an episode's valve: its threshold and hysteresis [% of its rated current, which the
+    loop's ``rated_current`` is: both are the rig's]."""
     um = physical["unmodelled"]
-    return {"inverse_threshold": 100.0 * um.threshold_current / RATED_CURRENT,
-            "inverse_hysteresis": 100.0 * um.hysteresis_current / RATED_CURRENT}
+    return {"inverse_threshold": 100.0 * um.threshold_current / um.rated_current,
+            "inverse_hysteresis": 100.0 * um.hysteresis_current / um.rated_current}
 
 
 def units(task: str) -> dict:

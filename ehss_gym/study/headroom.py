@@ -487,8 +487,9 @@ def variant_config(cfg: HeadroomConfig, v: Variant, task: str, suite: str, eps: 
                    env_suite: str | None = None) -> dict:
     """The job config of variant ``v`` on ``eps`` of (task, suite) at agent period ``ap`` (:func:`variant_job`); the
     env settings are those of suite ``env_suite`` (default: ``suite``)."""
-    kw = {"task": task, **parse_scripted(v.policy, task), **SUITE_ENV.get(env_suite or suite, {}), "agent_period": ap,
-          **cfg.eval_config().env_kwargs(), **_dob_row(v, task, cfg)}
+    ev = cfg.eval_config()  # its law table's compensator rows replace Table I's, where one is given
+    kw = {"task": task, **parse_scripted(v.policy, task, ev.law_settings), **SUITE_ENV.get(env_suite or suite, {}),
+          "agent_period": ap, **ev.env_kwargs(), **_dob_row(v, task, cfg)}
     return {"variant": v.name, "task": task, "suite": suite, "agent_period": ap, "env_kwargs": kw, "episodes": eps,
             "search": getattr(cfg, v.search) if v.search else None}
 
