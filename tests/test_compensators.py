@@ -136,6 +136,20 @@ def test_on_a_rig_of_another_rated_current_the_valve_and_its_inverse_are_sized_o
     assert unsaturated >= 1
 
 
+def test_a_valve_sized_on_another_rated_current_than_the_scenarios_is_refused_by_name():
+    """One valve: a scenario whose valve effects are percent of another rated current than its own is an error naming
+    both, not a valve silently sized on Table I's 10 mA; a valve without threshold or hysteresis needs none."""
+    sc = Scenario(rated_current=15.0)
+    with pytest.raises(ValueError, match=r"unmodelled.rated_current \(10 mA\) must be the scenario's rated_current "
+                                         r"\(15 mA, the rig's\).*Unmodelled\(\.\.\., rated_current=15\)"):
+        sc.replace(unmodelled=Unmodelled(threshold=0.3))
+    assert sc.replace(unmodelled=Unmodelled(threshold=0.3, rated_current=15.0)).unmodelled.threshold_current == \
+        pytest.approx(0.045)
+    assert sc.replace(unmodelled=Unmodelled(delay=2)).unmodelled.delay == 2  # no valve effect: no current involved
+    with pytest.raises(ValueError, match=r"rated_current \(mA\) must be"):
+        Scenario(rated_current=0.0)
+
+
 @pytest.mark.parametrize(("task", "delay"), [("velocity", 2.0), ("position", 1.0), ("position", 3.0), ("velocity", 1.5),
                                              ("position", 2.25)])
 def test_the_laws_errors_are_against_the_reference_model_of_d_samples_before(task, delay):

@@ -285,6 +285,11 @@ class Scenario:
         if not isinstance(self.unmodelled, Unmodelled):
             raise ValueError(f"unmodelled must be an ehss_gym.core.unmodelled.Unmodelled, got "
                              f"{type(self.unmodelled).__name__}")
+        um = self.unmodelled  # one valve: its threshold and hysteresis are percent of the scenario's rated current
+        if (um.threshold or um.hysteresis) and um.rated_current != self.rated_current:
+            raise ValueError(f"unmodelled.rated_current ({um.rated_current:g} mA) must be the scenario's "
+                             f"rated_current ({self.rated_current:g} mA, the rig's): build the valve as "
+                             f"Unmodelled(..., rated_current={self.rated_current:g})")
 
     @property
     def order(self) -> int:
