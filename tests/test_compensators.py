@@ -42,7 +42,7 @@ from ehss_gym.core.unmodelled import Unmodelled
 from ehss_gym.core.unmodelled_kernels import valve_input
 from ehss_gym.envs import EHSSTrackingEnv, EnvConfig
 from ehss_gym.evaluation.suites import EvalConfig, build_episodes
-from ehss_gym.study.corrections import episode_corrections
+from ehss_gym.study.corrections import episode_corrections, valve_known
 
 COMMANDS = st.lists(st.floats(-8.0, 8.0, allow_nan=False), min_size=1, max_size=80)
 
@@ -121,6 +121,10 @@ def test_on_a_rig_of_another_rated_current_the_valve_and_its_inverse_are_sized_o
     drawn = sample_scenario(7, tmpl, 0.5, UNMODELLED_DISTRIBUTION).unmodelled
     assert drawn.rated_current == 15.0 and drawn.threshold_current == pytest.approx(drawn.threshold * 0.15)
     assert len(ev) == 2 and all(e.physical["unmodelled"].rated_current == 15.0 for e in ev)
+    for e in ev:  # the headroom's valve-knowing oracle gives the valve's own percentages on this rig too
+        um = e.physical["unmodelled"]
+        assert valve_known(e.physical) == pytest.approx({"inverse_threshold": um.threshold,
+                                                         "inverse_hysteresis": um.hysteresis})
     row = ctrl_row(tmpl.replace(inverse_threshold=0.5, inverse_hysteresis=3.0))
     assert (row[C_INV_THRESHOLD], row[C_INV_HYSTERESIS]) == pytest.approx((0.075, 0.45))
     um = replace(drawn, delay=0, encoder_counts=0, velocity_step=0.0)  # the valve alone

@@ -15,10 +15,9 @@ import argparse
 from ehss_gym.core.rig import as_rig
 from ehss_gym.envs.law_table import load_law_table
 from ehss_gym.evaluation.scoring import CLASSES
+from ehss_gym.evaluation.suites import TASKS
 from ehss_gym.study.baselines import EPISODE_SECONDS, EPISODES
 from ehss_gym.study.compensators import tune_compensators
-
-TASKS = ("velocity", "position")
 
 
 def main() -> None:

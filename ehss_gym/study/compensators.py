@@ -96,14 +96,22 @@ def sweep_task(task: str, cands: Sequence[dict], episodes: int, seconds: float, 
     return out
 
 
+def lowest(results: Sequence[dict]) -> int:
+    """Rules 3-4: the index of the admissible candidate with the lowest G; 0 (the uncompensated law, the reference
+    itself) when none is admissible."""
+    ok = [i for i, r in enumerate(results) if not r["failed"]]
+    return min(ok, key=lambda i: results[i]["figure"]) if ok else 0
+
+
 def choose(results: Sequence[dict], cands: Sequence[dict]) -> dict:
     """Rules 3-5 on one task's results (:func:`sweep_task`): the chosen candidate (the uncompensated law, the first
-    candidate, when none is admissible: it is the reference itself)."""
-    ok = [i for i in range(len(cands)) if not results[i]["failed"]]
-    if not ok:
+    candidate, when none is admissible)."""
+    i_best = lowest(results)
+    if results[i_best]["failed"]:
         return dict(cands[0])
-    best = min(results[i]["figure"] for i in ok)
-    return dict(cands[min((i for i in ok if results[i]["figure"] <= (1.0 + TIE) * best), key=lambda i: size(cands[i]))])
+    best = results[i_best]["figure"]
+    ties = [i for i, r in enumerate(results) if not r["failed"] and r["figure"] <= (1.0 + TIE) * best]
+    return dict(cands[min(ties, key=lambda i: size(cands[i]))])
 
 
 def evaluations() -> int:
@@ -124,9 +132,7 @@ def tune_compensators(tasks: Sequence[str], episodes: int, seconds: float, env: 
         out[task] = {}
         for kind, cands in candidates().items():
             res = sweep_task(task, cands, episodes, seconds, env, progress)
-            chosen = choose(res, cands)
-            ok = [i for i in range(len(cands)) if not res[i]["failed"]] or [0]
-            best = min(ok, key=lambda i: res[i]["figure"])
+            chosen, best = choose(res, cands), lowest(res)
             out[task][kind] = {"chosen": chosen, "figure": res[cands.index(chosen)]["figure"], "best": cands[best],
                                "best_figure": res[best]["figure"],
                                "evaluations": [{"point": c, "objective": r["figure"], "classes": r["classes"],
@@ -135,5 +141,5 @@ def tune_compensators(tasks: Sequence[str], episodes: int, seconds: float, env: 
     return out
 
 
-__all__ = ["KINDS", "DELAYS", "THRESHOLDS", "HYSTERESES", "TIE", "candidates", "size", "sweep_task", "choose",
+__all__ = ["KINDS", "DELAYS", "THRESHOLDS", "HYSTERESES", "TIE", "candidates", "size", "sweep_task", "lowest", "choose",
            "evaluations", "tune_compensators"]
