@@ -18,13 +18,26 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 from ehss_gym import sine
 from ehss_gym.core.filters import butterworth_coefficients
 from ehss_gym.core.layout import I_SHIFT, I_URES, I_YD
-from ehss_gym.core.settings import C_DOB_GAIN, C_LAYER_GAIN, C_SHIFT, C_SIGMA, C_SMOOTH
+from ehss_gym.core.layout import MAX_DELAY
+from ehss_gym.core.settings import (
+    C_DOB_GAIN,
+    C_INV_HYSTERESIS,
+    C_INV_THRESHOLD,
+    C_LAYER_GAIN,
+    C_REF_DELAY,
+    C_SHIFT,
+    C_SIGMA,
+    C_SMOOTH,
+)
 from ehss_gym.core.unmodelled import Unmodelled
 from ehss_gym.envs import EHSSTrackingEnv, EHSSTrackingVectorEnv, EnvConfig
 from ehss_gym.envs.actions import ACTION_NAMES, FILTER_TAU, RATE_TIME, SCHEDULE_RANGES, action_mode
 from ehss_gym.envs.buffers import F_PEEK
 
 MODES = [m for m in ACTION_NAMES if m != "current"]
+# the settings a mode needs beyond the env's defaults: the compensation mode scales the loop's compensators
+COMPENSATORS = {"reference_delay": 1.0, "inverse_threshold": 0.375, "inverse_hysteresis": 2.25}
+NEEDS = {"compensation": COMPENSATORS}
 SHORT = 0.02  # [s]
 # the residual agents' reward (the class reward) and memory, so that their terms are compared too
 RECIPE = {"agent_period": 20, "memory_tau": 0.1, "unmodelled_effects": True,
@@ -41,7 +54,7 @@ def test_zero_action_is_the_base_law_bit_for_bit(task, mode):
     """Every mode with a = 0 throughout gives the current mode's zero-action episodes: observations (today's entries),
     rewards, infos and the episode's metrics, byte for byte (with the observer on, so the schedule's third entry and the
     observer's gain are exercised)."""
-    kw = {**RECIPE, "task": task, "episode_seconds": 0.3, "dob_hz": 20.0}
+    kw = {**RECIPE, "task": task, "episode_seconds": 0.3, "dob_hz": 20.0, **NEEDS.get(mode, {})}
     base = EHSSTrackingVectorEnv(3, **kw)
     other = EHSSTrackingVectorEnv(3, action=mode, **kw)
     D = base.single_observation_space.shape[0]
@@ -86,7 +99,8 @@ def _vector_against_singles(kw: dict, n: int, steps: int, seed: int) -> int:
 
 @pytest.mark.parametrize("mode", MODES)
 def test_vector_env_equals_single_envs(mode):
-    kw = {"task": "position", "action": mode, "episode_seconds": 0.01, "unmodelled_effects": True, "dob_hz": 20.0}
+    kw = {"task": "position", "action": mode, "episode_seconds": 0.01, "unmodelled_effects": True, "dob_hz": 20.0,
+          **NEEDS.get(mode, {})}
     assert _vector_against_singles(kw, 3, 60, 11) >= 3
 
 
@@ -95,8 +109,9 @@ def test_vector_env_equals_single_envs(mode):
 def test_gymnasium_and_sb3_checkers_pass_without_warnings(task, mode):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        gym_check_env(gym.make("EHSSTracking-v0", task=task, action=mode, episode_seconds=SHORT).unwrapped)
-        sb3_check_env(EHSSTrackingEnv(task=task, action=mode, episode_seconds=SHORT))
+        kw = {"task": task, "action": mode, "episode_seconds": SHORT, **NEEDS.get(mode, {})}
+        gym_check_env(gym.make("EHSSTracking-v0", **kw).unwrapped)
+        sb3_check_env(EHSSTrackingEnv(**kw))
 
 
 @pytest.mark.parametrize("mode, dob, k, extra", [
@@ -104,9 +119,10 @@ def test_gymnasium_and_sb3_checkers_pass_without_warnings(task, mode):
     ("reference", 0.0, 1, ["action", "ref_shift"]), ("schedule", 0.0, 2, ["action_width", "action_sigma", "width"]),
     ("schedule", 20.0, 3, ["action_width", "action_sigma", "action_observer", "width"]),
     ("reference-schedule", 0.0, 3, ["action_shift", "action_width", "action_sigma", "ref_shift", "width"]),
-    ("reference-schedule", 20.0, 3, ["action_shift", "action_width", "action_sigma", "ref_shift", "width"])])
+    ("reference-schedule", 20.0, 3, ["action_shift", "action_width", "action_sigma", "ref_shift", "width"]),
+    ("compensation", 20.0, 4, ["action_inverse", "action_delay", "action_width", "action_sigma", "width"])])
 def test_spaces_and_the_observation_entries_each_mode_adds(mode, dob, k, extra):
-    env = EHSSTrackingEnv(task="position", action=mode, dob_hz=dob, episode_seconds=SHORT)
+    env = EHSSTrackingEnv(task="position", action=mode, dob_hz=dob, episode_seconds=SHORT, **NEEDS.get(mode, {}))
     base = EHSSTrackingEnv(task="position", episode_seconds=SHORT)
     assert env.action_space.shape == (k,)
     names = [e[0] for e in env.observation_layout]
@@ -116,7 +132,7 @@ def test_spaces_and_the_observation_entries_each_mode_adds(mode, dob, k, extra):
 
 BAD = [
     ({"action": "torque"}, r"action must be one of \['current', 'rate', 'filtered', 'reference', 'schedule', "
-                           r"'reference-schedule'\]"),
+                           r"'reference-schedule', 'compensation'\]"),
     ({"action": "current", "action_bound": 1.0}, r"action_bound applies to the actions \['rate', 'filtered', "
                                                  r"'reference', 'reference-schedule'\].*action 'current' has none"),
     ({"action": "schedule", "action_bound": 1.0}, r"action 'schedule' has none"),
@@ -126,6 +142,9 @@ BAD = [
     ({"action": "reference", "estimator": "analog"}, r"action 'reference' shifts the law's digital reference model"),
     ({"action": "reference-schedule", "mode": "direct"}, r"action 'reference-schedule' acts through the law"),
     ({"action": "reference-schedule", "estimator": "analog"}, r"action 'reference-schedule' shifts the law's digital"),
+    ({"action": "compensation"}, r"action 'compensation' scales the loop's compensators: it needs reference_delay, "
+                                 r"inverse_threshold or inverse_hysteresis > 0"),
+    ({"action": "compensation", "mode": "direct", **COMPENSATORS}, r"action 'compensation' acts through the law"),
 ]
 
 
@@ -299,6 +318,41 @@ def test_the_combined_mode_is_each_of_its_parts_with_the_other_at_zero(part):
             assert np.array_equal(ib[key], io[key]), key
         for slot in (C_SHIFT, C_SMOOTH, C_LAYER_GAIN, C_SIGMA):
             assert np.array_equal(both._lanes.ctrl[:, slot], one._lanes.ctrl[:, slot])
+
+
+@pytest.mark.parametrize("task", ["velocity", "position"])
+def test_the_compensation_action_at_its_ends_is_the_loop_with_the_compensators_set_so(task):
+    """a_0 = -1 switches the valve inverse off, a_1 = +1 doubles the reference delay: the episode's applied currents and
+    errors are those of envs whose loop is set so (no inverse, twice the delay) with a zero current residual, byte for
+    byte (the unmodelled effects on: a valve with a dead band and hysteresis, a sensor delay)."""
+    kw = {**RECIPE, "task": task, "episode_seconds": 0.05}
+    comp = EHSSTrackingVectorEnv(2, action="compensation", **kw, **COMPENSATORS)
+    cases = {(-1.0, 0.0): {**COMPENSATORS, "inverse_threshold": 0.0, "inverse_hysteresis": 0.0},
+             (0.0, 1.0): {**COMPENSATORS, "reference_delay": 2.0},
+             (1.0, -1.0): {**COMPENSATORS, "reference_delay": 0.0, "inverse_threshold": 0.75,
+                           "inverse_hysteresis": 4.5}}
+    for (a0, a1), settings_ in cases.items():
+        ref = EHSSTrackingVectorEnv(2, **kw, **settings_)
+        comp.reset(seed=8)
+        ref.reset(seed=8)
+        a = np.tile(np.array([[a0, a1, 0.0, 0.0]], dtype=np.float32), (2, 1))
+        for _ in range(40):
+            _, _, tc, _, ic = comp.step(a)
+            _, _, tr, _, ir = ref.step(np.zeros((2, 1), dtype=np.float32))
+            assert np.array_equal(tc, tr)
+            for key in ("u_applied", "u_base", "e", "s"):
+                assert np.array_equal(ic[key], ir[key]), (a0, a1, key)
+        c = comp._lanes.ctrl
+        assert np.all(c[:, C_INV_THRESHOLD] == ref._lanes.ctrl[:, C_INV_THRESHOLD])
+        assert np.all(c[:, C_INV_HYSTERESIS] == ref._lanes.ctrl[:, C_INV_HYSTERESIS])
+        assert np.all(c[:, C_REF_DELAY] == ref._lanes.ctrl[:, C_REF_DELAY])
+
+
+def test_the_compensation_actions_scaled_delay_stays_within_the_delay_line():
+    env = EHSSTrackingEnv(task="position", action="compensation", reference_delay=6.0, episode_seconds=SHORT)
+    env.reset(seed=0)
+    env.step(np.array([0.0, 1.0, 0.0, 0.0], dtype=np.float32))
+    assert env.unwrapped._lanes.ctrl[0, C_REF_DELAY] == MAX_DELAY
 
 
 def test_bounds_default_per_task_and_are_settable():

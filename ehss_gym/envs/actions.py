@@ -26,6 +26,14 @@ the kernel reads, is its index in the table. Plain data (no numba): the settings
   and sigma factors): the route that compensates a delay and widens the boundary layer where no friction edge needs
   it. The disturbance observer's bandwidth is not scheduled in this mode (its action has 3 entries with the observer
   on or off).
+- ``compensation``: the loop's compensators of the unmodelled valve and sensor scaled at the agent rate, and the
+  schedule mode's width and sigma: a_0 scales the valve inverse's threshold and hysteresis, a_1 the reference delay,
+  each by the factor 1 + a in [0, 2] (a = -1 switches it off, a = 0 keeps the loop's setting); a_2 and a_3 are the
+  schedule mode's width and sigma factors. The route for a residual on top of a scripted compensator (``vinv-n2``,
+  ``dcomp-n2``): it can weaken a compensation where the episode's valve or sensor does not need it (a valve with no
+  dead band, where the inverse only adds current) and strengthen it where they need more (a delay of two samples
+  against a compensation of one). It needs a compensator on (``reference_delay`` or ``inverse_threshold`` /
+  ``inverse_hysteresis`` > 0); the scaled delay is at most :data:`~ehss_gym.core.layout.MAX_DELAY` samples.
 
 Every mode with a = 0 throughout is the base law, bit for bit (tests/test_actions.py). The bounds' defaults and their
 sources are in the rows (docs/ENV.md, "Action modes", has the measurement).
@@ -66,6 +74,9 @@ class ActionMode:
         observer_dim: one more action entry when the disturbance observer is on (``dob_hz`` > 0).
         shift: its first action entry shifts the law's reference (the law's reference shift is on).
         schedule: its entries from ``schedule`` on are the schedule mode's factors (None: it schedules nothing).
+        entries: the names of its action's entries in the observation (``action_<name>``); () names them from
+            ``shift`` and ``schedule``.
+        compensators: it scales the loop's compensators (one must be on).
     """
 
     name: str
@@ -80,6 +91,8 @@ class ActionMode:
     observer_dim: bool = False
     shift: bool = False
     schedule: int | None = None
+    entries: tuple = ()
+    compensators: bool = False
 
     def default_bound(self, task: str) -> float | None:
         """The default ``action_bound`` for ``task`` (None for a mode without a bound)."""
@@ -94,6 +107,11 @@ def period_constants(mode: ActionMode, bound: float | None, h: float) -> tuple[f
     if mode.period == "filtered_period":
         return -math.expm1(-h / FILTER_TAU), bound
     return 0.0, 0.0
+
+
+def compensation_factors(a: np.ndarray) -> np.ndarray:
+    """The compensation mode's factors 1 + a in [0, 2] of actions a in [-1, 1] (a = 0 gives exactly 1)."""
+    return 1.0 + a
 
 
 def schedule_factors(a: np.ndarray) -> np.ndarray:
@@ -136,6 +154,10 @@ ACTIONS: tuple[ActionMode, ...] = (
     ActionMode("reference-schedule", "a_0 the reference mode's shift D a_0 [output unit], a_1 and a_2 the schedule "
                "mode's width and sigma factors", "U", SHIFT_BOUND, SHIFT_SOURCE, "write_reference_schedule",
                resense=True, dims=3, shift=True, schedule=1),
+    ActionMode("compensation", "a_0 and a_1 scale the valve inverse and the reference delay by 1 + a in [0, 2], a_2 "
+               "and a_3 are the schedule mode's width and sigma factors", "", (),
+               "the loop's compensators (inverse_threshold, inverse_hysteresis, reference_delay)", "write_compensation",
+               resense=True, dims=4, schedule=2, entries=("inverse", "delay", "width", "sigma"), compensators=True),
 )
 ACTION_NAMES = tuple(row.name for row in ACTIONS)
 
@@ -154,9 +176,9 @@ def action_code(name: str) -> int:
 
 def action_dims(mode: ActionMode, dob_hz: float) -> int:
     """The size k of ``mode``'s action (the schedule mode's: 2, width and sigma, or 3 with the observer on; the
-    reference-schedule mode's 3)."""
+    reference-schedule mode's 3; the compensation mode's 4)."""
     return mode.dims + (1 if mode.observer_dim and dob_hz > 0.0 else 0)
 
 
 __all__ = ["ActionMode", "ACTIONS", "ACTION_NAMES", "RATE_TIME", "FILTER_TAU", "SCHEDULE_RANGES", "action_mode",
-           "action_code", "action_dims", "period_constants", "schedule_factors"]
+           "action_code", "action_dims", "period_constants", "schedule_factors", "compensation_factors"]

@@ -469,6 +469,10 @@ def _action_settings(kwargs: dict, d: EnvDefaults, template: Scenario, mode: str
     if row.shift and entry(ESTIMATORS, template.estimator).analog:
         raise ValueError(f"action {row.name!r} shifts the law's digital reference model: it needs a digital estimator "
                          f"(not {template.estimator!r})")
+    if row.compensators and not (template.reference_delay > 0.0 or template.inverse_threshold > 0.0
+                                 or template.inverse_hysteresis > 0.0):
+        raise ValueError(f"action {row.name!r} scales the loop's compensators: it needs reference_delay, "
+                         f"inverse_threshold or inverse_hysteresis > 0 (all are 0)")
     return {"action": row.name, "action_bound": bound}
 
 

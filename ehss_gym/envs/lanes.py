@@ -30,6 +30,7 @@ from ehss_gym.core.layout import (
     M_TRK_SUM_ABS,
     M_TRK_SUM_E2,
     M_TV_U,
+    MAX_DELAY,
     N_INFO,
     N_LOOP,
     N_METRICS,
@@ -52,10 +53,13 @@ from ehss_gym.core.scenarios import (
 from ehss_gym.core.settings import (
     C_BASE,
     C_DOB_GAIN,
+    C_INV_HYSTERESIS,
+    C_INV_THRESHOLD,
     C_LAYER_GAIN,
     C_NOISE_THETA,
     C_OMEGA_MAX,
     C_P_BOUND,
+    C_REF_DELAY,
     C_SEED,
     C_SHIFT,
     C_SHIFT_ON,
@@ -68,7 +72,15 @@ from ehss_gym.core.settings import (
 )
 from ehss_gym.core.sim import simulate_batch
 
-from .actions import ACTIONS, action_code, action_dims, action_mode, period_constants, schedule_factors
+from .actions import (
+    ACTIONS,
+    action_code,
+    action_dims,
+    action_mode,
+    compensation_factors,
+    period_constants,
+    schedule_factors,
+)
 from .buffers import (
     BB_ACT,
     BB_PRE,
@@ -514,6 +526,19 @@ def write_reference_schedule(lanes: Lanes, idx, a: np.ndarray) -> None:
     write_held(lanes, idx, a)
     _shift(lanes, idx, a[:, 0])
     _schedule(lanes, idx, a[:, 1:3])
+    lanes.resense(idx)
+
+
+def write_compensation(lanes: Lanes, idx, a: np.ndarray) -> None:
+    """The compensation action: a_0 scales the valve inverse's threshold and hysteresis, a_1 the reference delay (at
+    most MAX_DELAY samples), each the template's times 1 + a; a_2 and a_3 the width and sigma factors."""
+    write_held(lanes, idx, a)
+    f = compensation_factors(a[:, :2])
+    base = lanes.ctrl_base
+    lanes.ctrl[idx, C_INV_THRESHOLD] = base[C_INV_THRESHOLD] * f[:, 0]
+    lanes.ctrl[idx, C_INV_HYSTERESIS] = base[C_INV_HYSTERESIS] * f[:, 0]
+    lanes.ctrl[idx, C_REF_DELAY] = np.minimum(base[C_REF_DELAY] * f[:, 1], MAX_DELAY)
+    _schedule(lanes, idx, a[:, 2:4])
     lanes.resense(idx)
 
 

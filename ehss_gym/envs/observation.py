@@ -55,8 +55,11 @@ def action_entries(cfg: EnvConfig) -> list[tuple[str, int, float, bool, str]]:
     if row.name == "current":
         return []
     k = action_dims(row, cfg.dob_hz)
-    names = ["action"] if k == 1 else ["action_shift"] * row.shift + [
-        f"action_{r[0]}" for r in SCHEDULE_RANGES[:k - row.shift]]
+    if row.entries:
+        names = [f"action_{e}" for e in row.entries]
+    else:
+        names = ["action"] if k == 1 else ["action_shift"] * row.shift + [
+            f"action_{r[0]}" for r in SCHEDULE_RANGES[:k - row.shift]]
     out = [(name, -1 - (N_MEM + i), 1.0, False, "-") for i, name in enumerate(names)]
     unit = UNITS[cfg.task]
     if row.shift:
