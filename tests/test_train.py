@@ -236,6 +236,20 @@ def test_training_other_base_law(tmp_path):
     assert s["base_validation"]["figure"] != 1.0  # the n = 4 law against the n = 2 reference
 
 
+def test_training_on_a_compensator_with_the_compensation_action(tmp_path):
+    """A residual on top of a scripted compensator, scaling it (the compensation action): it starts as the compensated
+    law (its step-0 classes are its base law's), and its figures' reference is the n = 2 law without the compensator
+    and without the action (which needs one), so it is not 1."""
+    out = tmp_path / "comp"
+    hp = '{"action": "compensation", "inverse_threshold": 0.375, "inverse_hysteresis": 2.25, "unmodelled_effects": true}'
+    assert cli_main(["train", "--timesteps", "128", "--eval-freq", "128", "--out", str(out), *TINY,
+                     "--hp", f"env_kwargs={hp}"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    hist = json.loads((out / "evaluations.json").read_text())
+    assert hist[0]["figure"] == s["base_validation"]["figure"] != 1.0
+    assert {hist[0][f"rel_{c}"] for c in ("tracking", "disturbance", "effort", "chatter")} <= {1.0, None}
+
+
 def test_resume_after_sigkill(tmp_path):
     """Kill -9 a training process after its first checkpoint; --resume continues the step count."""
     out = tmp_path / "run"

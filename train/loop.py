@@ -139,7 +139,9 @@ def validation(cfg: Config, env_kwargs: dict) -> tuple[list, list[dict], list[di
     base = run_episodes({**base_kwargs, "mode": "residual"}, scenarios)  # the agent's own base law
     # the reference is the n = 2 law at its own settings: the same episodes (a pure function of their seeds) drawn
     # for its loop, which differs from this n's in more than n where the law's defaults are tuned per n
-    ref_kwargs = {**{k: v for k, v in base_kwargs.items() if k not in ADDON_KEYS}, "mode": "residual", "n": 2}
+    # (its action mode left out too: every mode's zero action is the base law, and a mode may need an add-on)
+    ref_kwargs = {**{k: v for k, v in base_kwargs.items() if k not in ADDON_KEYS + ("action", "action_bound")},
+                  "mode": "residual", "n": 2}
     same = cfg.n == 2 and not any(k in base_kwargs for k in ADDON_KEYS)
     reference = base if same else run_episodes(
         ref_kwargs, heldout_suite(ref_kwargs, cfg.eval_episodes, VALIDATION_START, cfg.eval_seconds))
