@@ -17,8 +17,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from ehss_gym import sine
 from ehss_gym.core.filters import butterworth_coefficients
-from ehss_gym.core.layout import I_SHIFT, I_URES, I_YD
-from ehss_gym.core.layout import MAX_DELAY
+from ehss_gym.core.layout import I_SHIFT, I_URES, I_YD, MAX_DELAY
 from ehss_gym.core.settings import (
     C_DOB_GAIN,
     C_INV_HYSTERESIS,

@@ -241,7 +241,8 @@ def test_training_on_a_compensator_with_the_compensation_action(tmp_path):
     law (its step-0 classes are its base law's), and its figures' reference is the n = 2 law without the compensator
     and without the action (which needs one), so it is not 1."""
     out = tmp_path / "comp"
-    hp = '{"action": "compensation", "inverse_threshold": 0.375, "inverse_hysteresis": 2.25, "unmodelled_effects": true}'
+    hp = ('{"action": "compensation", "inverse_threshold": 0.375, "inverse_hysteresis": 2.25, '
+          '"unmodelled_effects": true}')
     assert cli_main(["train", "--timesteps", "128", "--eval-freq", "128", "--out", str(out), *TINY,
                      "--hp", f"env_kwargs={hp}"]) == 0
     s = json.loads((out / "summary.json").read_text())

@@ -352,9 +352,9 @@ class EHSSTrackingEnv(gym.Env):
             windup; scale error_scale tau) and the action of the step before last ``prev_action`` [-]; tau [s] >=
             one agent step; None = none (the observation as without them). See docs/RL.md, "Memory".
         action: what the agent's action does, a row of :data:`ehss_gym.envs.actions.ACTIONS`: "current" (the
-            default: a residual current), "rate", "filtered", "reference", "schedule" or "reference-schedule" (the
-            action table above; the last three act through the law and need ``mode="residual"``, those that shift the
-            reference a digital estimator).
+            default: a residual current), "rate", "filtered", "reference", "schedule", "reference-schedule" or
+            "compensation" (the action table above; the last four act through the law and need ``mode="residual"``,
+            those that shift the reference a digital estimator, the compensation mode a compensator on).
         action_bound: the bound of the rate and filtered modes' residual R [mA] and of the reference and
             reference-schedule modes' shift D [output unit], > 0; None = the mode's default per task (the defaults
             table); the other modes have none.
