@@ -17,7 +17,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from ehss_gym import sine
 from ehss_gym.core.filters import butterworth_coefficients
-from ehss_gym.core.layout import I_SHIFT, I_URES, I_YD, MAX_DELAY
+from ehss_gym.core.layout import I_SHIFT, I_URES, I_YD, MAX_DELAY, N_LOOP
 from ehss_gym.core.settings import (
     C_DOB_GAIN,
     C_INV_HYSTERESIS,
@@ -27,20 +27,23 @@ from ehss_gym.core.settings import (
     C_SHIFT,
     C_SIGMA,
     C_SMOOTH,
+    N_CTRL,
 )
 from ehss_gym.core.unmodelled import Unmodelled
 from ehss_gym.envs import EHSSTrackingEnv, EHSSTrackingVectorEnv, EnvConfig
+from ehss_gym.envs import lanes as lanes_mod
 from ehss_gym.envs.actions import ACTION_NAMES, FILTER_TAU, RATE_TIME, SCHEDULE_RANGES, action_mode
-from ehss_gym.envs.buffers import F_PEEK
+from ehss_gym.envs.buffers import F_ACT, F_CTRL, F_PEEK, F_PEEKZ, F_URES, N_ACT
 
 MODES = [m for m in ACTION_NAMES if m != "current"]
 # the settings a mode needs beyond the env's defaults: the compensation mode scales the loop's compensators
 COMPENSATORS = {"reference_delay": 1.0, "inverse_threshold": 0.375, "inverse_hysteresis": 2.25}
 NEEDS = {"compensation": COMPENSATORS}
 SHORT = 0.02  # [s]
-# the residual agents' reward (the class reward) and memory, so that their terms are compared too
+# the residual agents' rewards (the class and the physical reward) and memory, so that their terms are compared too
 RECIPE = {"agent_period": 20, "memory_tau": 0.1, "unmodelled_effects": True,
-          "reward_weights": {"track": 0.0, "effort": 0.0, "rate": 0.0, "class": 1.0, "saturation": 1.0}}
+          "reward_weights": {"track": 0.0, "effort": 0.0, "rate": 0.0, "class": 1.0, "physical": 1.0,
+                             "saturation": 1.0}}
 
 
 def _k(env) -> int:
@@ -63,7 +66,7 @@ def test_zero_action_is_the_base_law_bit_for_bit(task, mode):
     for _ in range(40):  # past the episodes' ends: the autoreset is part of it
         ob, rb, tb, trb, ib = base.step(np.zeros((3, 1), dtype=np.float32))
         oo, ro, to, tro, io = other.step(np.zeros((3, _k(other)), dtype=np.float32))
-        assert np.array_equal(ob, oo[:, :D]) and np.array_equal(rb, ro)
+        assert np.array_equal(ob, oo[:, :D]) and np.array_equal(rb, ro) and np.all(np.isfinite(ro))
         assert np.array_equal(tb, to) and np.array_equal(trb, tro)
         for key in ("u_applied", "u_base", "e", "s", "V"):
             assert np.array_equal(ib[key], io[key]), key
@@ -151,6 +154,28 @@ BAD = [
 def test_bad_action_settings_name_the_setting_and_the_range(kwargs, match):
     with pytest.raises(ValueError, match=match):
         EHSSTrackingEnv(**kwargs)
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_an_action_is_kept_in_its_own_slots(mode):
+    """Every entry of the largest action of a mode lands in the lane's action block (F_ACT), and no other slot of the
+    lane's buffer moves when the action changes (a mode with more entries than the block once overwrote the physical
+    reward's constants behind it)."""
+    env = EHSSTrackingVectorEnv(2, action=mode, dob_hz=20.0, episode_seconds=0.3, **RECIPE | NEEDS.get(mode, {}))
+    env.reset(seed=2)
+    k = _k(env)
+    assert k <= N_ACT
+    lanes = env._lanes
+    before = lanes.F.copy()
+    a = np.full((2, k), 0.5, dtype=np.float32)
+    getattr(lanes_mod, action_mode(mode).write)(lanes, np.arange(2), a.astype(np.float64))
+    moved = set(np.flatnonzero(np.any(lanes.F != before, axis=0)))
+    # what a mode may move: its action block, the residual, the law's settings (the controller row) and the look-ahead
+    # of the next sample made again with them (the peek blocks)
+    may = set(range(F_ACT, F_ACT + k)) | {F_URES} | set(range(F_CTRL, F_CTRL + N_CTRL)) | set(
+        range(F_PEEK, F_PEEKZ + N_LOOP))
+    assert moved <= may, sorted(moved - may)
+    assert np.array_equal(lanes.F[:, F_ACT:F_ACT + k], a)
 
 
 def test_a_wrong_action_shape_or_nan_raises_and_out_of_range_is_clipped_and_counted():

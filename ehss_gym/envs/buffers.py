@@ -8,6 +8,8 @@ metrics accumulator), laid out by :mod:`ehss_gym.core.layout` and :mod:`ehss_gym
 from ehss_gym.core.layout import N_INFO, N_LOOP, N_METRICS, N_PARAM, N_REF
 from ehss_gym.core.settings import N_CTRL
 
+from .actions import ACTIONS
+
 # Per-agent-step statistics and reward-weight slots of the kernel.
 S_SUM_E2, S_N, S_SAT, S_TV0 = 0, 1, 2, 3  # S_TV0: the lane's accumulated control TV when the step began
 S_UMIN, S_UMAX = 4, 5  # smallest and largest applied current [mA] over the step's control periods
@@ -48,8 +50,9 @@ N_RPHYS = 11
 MEM_EINT, MEM_APREV2 = 0, 1
 N_MEM = 2
 # The agent's last action per lane in the action modes but "current" (their residual or law input is built from it;
-# up to 3 entries), after the memory features in the lane's block of extras (the observation reads both from there).
-N_ACT = 3
+# as many entries as the largest mode's action has), after the memory features in the lane's block of extras (the
+# observation reads both from there).
+N_ACT = max(row.dims + row.observer_dim for row in ACTIONS)
 
 # Per-lane float64 buffer F (B, N_F): column blocks, so one kernel argument carries them all (numba's
 # dispatch costs ~0.1 us per array argument, a large share of a 15 us step).
