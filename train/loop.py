@@ -45,7 +45,7 @@ from ehss_gym.agents.export import export_policy
 from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import resolved_env_kwargs
 from ehss_gym.envs import ENV_ID
-from ehss_gym.envs.config import ADDON_KEYS, plant_of
+from ehss_gym.envs.config import ADDON_KEYS, plant_of, reference_law_kwargs
 from ehss_gym.evaluation.heldout import VALIDATION_START, floors_of, heldout_suite, relative_scores, run_episodes
 from ehss_gym.infra.execution import pin_blas
 from ehss_gym.infra.fmt import fmt_num
@@ -139,9 +139,7 @@ def validation(cfg: Config, env_kwargs: dict) -> tuple[list, list[dict], list[di
     base = run_episodes({**base_kwargs, "mode": "residual"}, scenarios)  # the agent's own base law
     # the reference is the n = 2 law at its own settings: the same episodes (a pure function of their seeds) drawn
     # for its loop, which differs from this n's in more than n where the law's defaults are tuned per n
-    # (its action mode left out too: every mode's zero action is the base law, and a mode may need an add-on)
-    ref_kwargs = {**{k: v for k, v in base_kwargs.items() if k not in ADDON_KEYS + ("action", "action_bound")},
-                  "mode": "residual", "n": 2}
+    ref_kwargs = reference_law_kwargs(base_kwargs)
     same = cfg.n == 2 and not any(k in base_kwargs for k in ADDON_KEYS)
     reference = base if same else run_episodes(
         ref_kwargs, heldout_suite(ref_kwargs, cfg.eval_episodes, VALIDATION_START, cfg.eval_seconds))

@@ -227,6 +227,14 @@ NONE_IS_A_VALUE = tuple(f.name for f in fields(Scenario) if f.name in LOOP_KEYS 
 # sensors. A loop with one of them on is today's loop with an add-on (the scripted dob-n2 and dcomp-n2, a residual on
 # top of them), and the ruler's reference law has them off.
 ADDON_KEYS = ("dob_hz", "reference_delay", "inverse_threshold", "inverse_hysteresis")
+
+
+def reference_law_kwargs(env_kwargs: dict, addons: dict | None = None) -> dict:
+    """The env settings of the n = 2 law (a zero residual) in the loop of ``env_kwargs``: its add-ons
+    (:data:`ADDON_KEYS`) and its action mode left out (every mode's zero action is the base law, and a mode may need
+    an add-on), then ``addons`` put in (None: none, the ruler's reference law)."""
+    kw = {k: v for k, v in env_kwargs.items() if k not in ADDON_KEYS + ("action", "action_bound")}
+    return {**kw, **(addons or {}), "mode": "residual", "n": 2}
 # The loop of the first policies of release 0.1: the settings added since (the law, the adaptive boundary layer, the
 # bumpless start, the reference shaper, the model's pressure domain, the disturbance observer) at the values that
 # reproduce the loop before them. A policy whose recorded settings lack them was trained in that loop and acts in it
@@ -548,5 +556,5 @@ def defaults_table() -> str:
 __all__ = ["RATED", "plant_of", "law_table_of", "law_row", "PlantWarning", "untuned_note", "warn_untuned",
            "LawSettings", "LAW_KEYS", "LAW_DEFAULTS", "DEFAULT_N", "law_defaults",
            "TaskDefaults", "EnvDefaults", "DEFAULTS", "EnvConfig", "MODES", "SCENARIOS", "REWARD_KEYS", "LOOP_KEYS",
-           "ENV_KEYS", "POLICY_KEYS", "ADDON_KEYS", "FIXED_LOOP", "TASK_DEPENDENT", "NONE_IS_A_VALUE", "LEGACY_LOOP",
-           "in_legacy_loop", "SETTING_UNITS", "defaults_table"]
+           "ENV_KEYS", "POLICY_KEYS", "ADDON_KEYS", "reference_law_kwargs", "FIXED_LOOP", "TASK_DEPENDENT",
+           "NONE_IS_A_VALUE", "LEGACY_LOOP", "in_legacy_loop", "SETTING_UNITS", "defaults_table"]

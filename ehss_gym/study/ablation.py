@@ -51,7 +51,7 @@ import os
 from dataclasses import dataclass
 
 from ehss_gym.agents.safeweights import load_policy
-from ehss_gym.envs.config import ADDON_KEYS
+from ehss_gym.envs.config import reference_law_kwargs
 from ehss_gym.evaluation.heldout import (
     VALIDATION_START,
     floors_of,
@@ -185,8 +185,7 @@ def set_kwargs(env_kwargs: dict, name: str) -> dict:
 def law_episodes(env_kwargs: dict, addons: dict | None = None) -> list[dict]:
     """The n = 2 law at the settings of ``env_kwargs`` with the add-ons ``addons`` (None: none, the ruler's reference
     law) on the validation block's :data:`EVAL_EPISODES` episodes drawn for its loop."""
-    kw = {k: v for k, v in env_kwargs.items() if k not in ADDON_KEYS and k not in ("action", "action_bound")}
-    kw = {**kw, **(addons or {}), "mode": "residual", "n": 2}
+    kw = reference_law_kwargs(env_kwargs, addons)
     return run_episodes(kw, heldout_suite(kw, EVAL_EPISODES, VALIDATION_START))
 
 
