@@ -89,9 +89,11 @@ N_LWORK = 7
 @jit
 def check_state(z, ctrl, plant_p):
     """DIV_* code of a loop state: non-finite, or outside the velocity/pressure bounds."""
-    for i in range(z.shape[0]):
-        if not math.isfinite(z[i]):
-            return DIV_NONFINITE
+    bad = False
+    for i in range(z.shape[0]):  # x - x: 0 for a finite x, NaN for inf or NaN; no exit per entry, so it vectorises
+        bad |= z[i] - z[i] != 0.0
+    if bad:
+        return DIV_NONFINITE
     if abs(z[X_OMEGA]) > ctrl[C_OMEGA_MAX]:
         return DIV_OMEGA
     if abs(z[X_PL]) > ctrl[C_P_BOUND] * plant_p[P_PS]:

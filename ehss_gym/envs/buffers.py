@@ -55,9 +55,10 @@ N_MEM = 2
 N_ACT = max(row.dims + row.observer_dim for row in ACTIONS)
 
 # Per-lane float64 buffer F (B, N_F): column blocks, so one kernel argument carries them all (numba's
-# dispatch costs ~0.1 us per array argument, a large share of a 15 us step).
-F_Z = 0  # loop state (N_LOOP)
-F_PLANT = F_Z + N_LOOP  # true plant parameters
+# dispatch costs ~0.1 us per array argument, a large share of a 15 us step). The loop state is not one of them: it is
+# an array of its own, Z (B, N_LOOP), whose lane rows are contiguous, so the loops over a lane's state (the divergence
+# check, the copies) vectorise; a column block's rows have a stride known only at run time (benchmarks/lane_stages.py).
+F_PLANT = 0  # true plant parameters
 F_MODEL = F_PLANT + N_PARAM  # controller's model parameters
 F_CTRL = F_MODEL + N_PARAM  # controller row (N_CTRL)
 F_REF = F_CTRL + N_CTRL  # reference spec (N_REF)

@@ -56,7 +56,6 @@ from .buffers import (
     F_RPHYS,
     F_STATS,
     F_URES,
-    F_Z,
     F_ZPREV,
     FLAG_LAST,
     FLAG_MEM,
@@ -158,7 +157,7 @@ def _write_obs(obs_row, peek_row, last_row, mem_row, lay):
 
 
 @jit_noalloc
-def _peek(F, BB, b, k, h, events, filt, work):
+def _peek(F, Z, BB, b, k, h, events, filt, work):
     """Fill lane b's F_PEEK block with what its controller sees at sample k, without advancing it.
 
     The filters are advanced on a copy of the loop state, kept in F_PEEKZ, and BB_PRE is set: the lane's
@@ -167,14 +166,14 @@ def _peek(F, BB, b, k, h, events, filt, work):
     """
     zt = F[b, F_PEEKZ:F_PEEKZ + N_LOOP]
     for i in range(N_LOOP):
-        zt[i] = F[b, F_Z + i]
+        zt[i] = Z[b, i]
     controller_update(zt, k, h, F[b, F_MODEL:F_MODEL + N_PARAM], F[b, F_CTRL:F_CTRL + N_CTRL],
                       F[b, F_REF:F_REF + N_REF], filt[b], F[b, F_URES], F[b, F_PEEK:F_PEEK + N_INFO], work)
     BB[b, BB_PRE] = True
 
 
 @jit_noalloc
-def peek_lanes(F, BB, IB, g, k, h, filt, c, work, cw):
+def peek_lanes(F, Z, BB, IB, g, k, h, filt, c, work, cw):
     """:func:`_peek` for every lane of group ``g`` (IB_GID) at sample k, in the controller's stages on the copies of
     the loop states in F_PEEKZ: the sensors and model over the lanes (:func:`ehss_gym.core.controller.sense_lanes`),
     then the rest of the controller per lane. The same arithmetic as :func:`_peek`."""
@@ -186,7 +185,7 @@ def peek_lanes(F, BB, IB, g, k, h, filt, c, work, cw):
         cw[CW_TODO, b] = 1.0 if member else 0.0
         if member:
             for i in range(N_LOOP):
-                F[b, F_PEEKZ + i] = F[b, F_Z + i]
+                F[b, F_PEEKZ + i] = Z[b, i]
     sense_lanes(zt, k, ctrl, c, cw)
     for b in range(B):
         if IB[b, IB_GID] != g:
@@ -198,7 +197,7 @@ def peek_lanes(F, BB, IB, g, k, h, filt, c, work, cw):
 
 
 @jit
-def observe(h, F, IB, BB, events, filt, work, obs, lay):
+def observe(h, F, Z, IB, BB, events, filt, work, obs, lay):
     """Observations of the lanes flagged in BB[:, BB_ACT] at their current step, without advancing them.
 
     Used at reset: the last-period block (applied current, residual) is zeroed, nothing was applied yet.
@@ -207,7 +206,7 @@ def observe(h, F, IB, BB, events, filt, work, obs, lay):
         if not BB[b, BB_ACT]:
             continue
         F[b, F_INFO_OK:F_INFO_OK + N_INFO] = 0.0
-        _peek(F, BB, b, IB[b, IB_K], h, events, filt, work)
+        _peek(F, Z, BB, b, IB[b, IB_K], h, events, filt, work)
         _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], F[b, F_INFO_OK:F_INFO_OK + N_INFO],
                    F[b, F_MEM:F_MEM + N_EXTRA], lay)
 
@@ -414,7 +413,7 @@ action_period = dispatch(
 
 
 @jit_noalloc
-def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
+def advance(n_per, h, substeps, F, Z, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
     """Advance ``n_per`` control periods for every running lane; the env's one compiled step.
 
     Lanes are grouped by their step index k (lanes reset at different times are out of phase) and each
@@ -426,7 +425,8 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
     Args:
         n_per: control periods per agent step.
         h, substeps: control period [s] and RK4 substeps.
-        F: per-lane float64 buffer (B, N_F), blocks F_* (state, rows, info, metrics, residual [mA], ...).
+        F: per-lane float64 buffer (B, N_F), blocks F_* (rows, info, metrics, residual [mA], ...).
+        Z: the loop states (B, N_LOOP), each lane's row contiguous.
         IB: per-lane int64 buffer (B, N_IB): step index, agent steps taken, scratch.
         BB: per-lane bool buffer (B, N_BB): run flag (cleared on divergence), scratch.
         events: friction events (B, E, 3); filt: filter blocks (B, 3, 4, 4).
@@ -436,7 +436,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
         wts: reward weights (N_WEIGHTS,).
     """
     B = F.shape[0]
-    z = F[:, F_Z:F_Z + N_LOOP]
+    z = Z
     plant = F[:, F_PLANT:F_PLANT + N_PARAM]
     model = F[:, F_MODEL:F_MODEL + N_PARAM]
     ctrl = F[:, F_CTRL:F_CTRL + N_CTRL]
@@ -522,7 +522,7 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
                 elog[b, j] = info_ok[b, I_E]
             IB[b, IB_NSTEP] = j + 1
         # the look-ahead: what each lane's controller sees at its next sample, then its observation
-        peek_lanes(F, BB, IB, g, kk + n_per, h, filt, c, work, lwork[6])
+        peek_lanes(F, Z, BB, IB, g, kk + n_per, h, filt, c, work, lwork[6])
         for b in range(B):
             if IB[b, IB_GID] == g:
                 _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
@@ -530,11 +530,12 @@ def advance(n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, o
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")
-def advance_chunks(chunk, n_per, h, substeps, F, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
+def advance_chunks(chunk, n_per, h, substeps, F, Z, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay,
+                   wts):
     """:func:`advance` on chunks of ``chunk`` lanes in parallel; per-chunk scratch c, X, U, work, lwork."""
     n_chunks = c.shape[0]
     for i in nb.prange(n_chunks):
         s = i * chunk
         e = s + chunk
-        advance(n_per, h, substeps, F[s:e], IB[s:e], BB[s:e], events[s:e], filt[s:e], c[i], X[i], U[i], work[i],
-                lwork[i], obs[s:e], elog[s:e], lay, wts)
+        advance(n_per, h, substeps, F[s:e], Z[s:e], IB[s:e], BB[s:e], events[s:e], filt[s:e], c[i], X[i], U[i],
+                work[i], lwork[i], obs[s:e], elog[s:e], lay, wts)

@@ -97,7 +97,6 @@ from .buffers import (
     F_RPHYS,
     F_STATS,
     F_URES,
-    F_Z,
     FLAG_LAST,
     FLAG_MEM,
     FLAG_SQUASH,
@@ -252,7 +251,7 @@ class Lanes:
         self.IB = np.zeros((B, N_IB), dtype=np.int64)
         self.BB = np.zeros((B, N_BB), dtype=np.bool_)
         # named views into the buffers (writes go to F, IB, BB)
-        self.z = self.F[:, F_Z:F_Z + N_LOOP]
+        self.z = self.Z = np.zeros((B, N_LOOP))  # the loop states: an array of their own (buffers.py says why)
         self.plant = self.F[:, F_PLANT:F_PLANT + N_PARAM]
         self.model = self.F[:, F_MODEL:F_MODEL + N_PARAM]
         self.ctrl = self.F[:, F_CTRL:F_CTRL + N_CTRL]
@@ -348,6 +347,7 @@ class Lanes:
             self.events = ev
             self._bind()
         self.F[b] = 0.0
+        self.Z[b] = 0.0
         self.plant[b] = sc.plant.as_array()
         self.model[b] = (sc.model or sc.plant).as_array()
         row = self.ctrl[b]
@@ -401,18 +401,18 @@ class Lanes:
         """Fill the observations of the given lanes from their current state (no time passes)."""
         self.BB[:, BB_ACT] = False
         self.BB[lanes, BB_ACT] = True
-        observe(self.cfg.control_period, self.F, self.IB, self.BB, self.events, self.filt, self.work[0], self.obs,
-                self.lay)
+        observe(self.cfg.control_period, self.F, self.Z, self.IB, self.BB, self.events, self.filt, self.work[0],
+                self.obs, self.lay)
 
     def _bind(self) -> None:
         # Pre-bound kernel arguments: a step then costs one call, not a dozen attribute look-ups.
         cfg = self.cfg
-        self._args = (cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.IB, self.BB, self.events,
-                      self.filt, self.c[0], self.X[0], self.U[0], self.work[0], self.lwork[0], self.obs, self.elog,
-                      self.lay, self.wts)
-        self._pargs = (self.chunk, cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.IB, self.BB,
-                       self.events, self.filt, self.c, self.X, self.U, self.work, self.lwork, self.obs, self.elog,
-                       self.lay, self.wts)
+        self._args = (cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.Z, self.IB, self.BB,
+                      self.events, self.filt, self.c[0], self.X[0], self.U[0], self.work[0], self.lwork[0], self.obs,
+                      self.elog, self.lay, self.wts)
+        self._pargs = (self.chunk, cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.Z, self.IB,
+                       self.BB, self.events, self.filt, self.c, self.X, self.U, self.work, self.lwork, self.obs,
+                       self.elog, self.lay, self.wts)
 
     def step(self) -> None:
         """One agent step of every running lane (``run``), each with its residual ``u_res`` [mA]: one compiled call
