@@ -23,7 +23,7 @@ import ehss_gym  # noqa: F401  (registers EHSSTracking-v0 with gymnasium)
 from ehss_gym.core.loop import MAX_LANES
 from ehss_gym.envs.kernels import advance
 
-from . import kernel_profile
+from . import kernel_profile, lane_stages
 from .common import Section, Table, Target, interleave, log, median, profile, repo_root, spread, top_own_time
 
 ENV_ID = "EHSSTracking-v0"
@@ -75,9 +75,10 @@ def make_gem():
     return _gem().make(GEM_ID)
 
 
-def make_vector(n: int):
-    """The native vector env with n sub-envs, through its registered vector entry point."""
-    return gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point")
+def make_vector(n: int, threads: int = 1):
+    """The native vector env with n sub-envs, through its registered vector entry point; ``threads``: its setting of
+    that name (parallel chunks of lanes; 1, the default, is one compiled call on one thread)."""
+    return gym.make_vec(ENV_ID, num_envs=n, vectorization_mode="vector_entry_point", threads=threads)
 
 
 def vector_status() -> str:
@@ -177,11 +178,17 @@ def run(quick: bool) -> Section:
     else:
         vtab, vec = vector_rates(quick, n_steps, reps if quick else 3)
         sec.tables.append(vtab)
-        sec.targets.append(Target(vector_target, vec["ratio"], VEC_TARGET))
+        sec.targets.append(Target(vector_target, vec["ratio"], VEC_TARGET, note="default settings (threads=1)"))
+        if vec["ratio_par"] is not None:
+            name = f"vector env ({VEC_TARGET_SIZE} sub-envs, threads={vec['threads']}) vs single env"
+            sec.targets.append(Target(name, vec["ratio_par"], VEC_TARGET, note="parallel chunks of lanes"))
         vec["compiled_ns"] = compiled_ns_per_period(quick)
         sec.targets.append(Target(f"compiled step per lane and control period, {VEC_TARGET_SIZE} sub-envs",
                                   vec["compiled_ns"], COMPILED_NS_TARGET, unit="ns", lower_is_better=True,
                                   note="one thread, the vector env's compiled call alone"))
+        log(f"env: the compiled step's stages at {VEC_TARGET_SIZE} sub-envs")
+        vec["stages"] = lane_stages.stage_costs(VEC_TARGET_SIZE, repeats=5 if quick else 40)
+        sec.tables.append(stage_table(vec["stages"]))
         if vec["ratio"] < VEC_TARGET:
             v_profile = vector_profile(vec["steps"])
     sec.context = report_context(n_steps, reps, (gem, described, profiles), kc, rates, v_status, vec, v_profile)
@@ -348,13 +355,15 @@ def pendulum_miss(kc: dict, ours: float, pend: float, rows: list) -> dict | None
 
 
 def vector_rates(quick: bool, n_steps: int, reps: int) -> tuple[Table, dict]:
-    """Sub-env steps/s of the native vector env at VEC_SIZES sub-envs on all numba threads and at VEC_TARGET_SIZE on
-    one, interleaved with the single env.
+    """Sub-env steps/s of the native vector env at VEC_SIZES sub-envs with its default settings (``threads=1``: one
+    compiled call on one thread) and at VEC_TARGET_SIZE with ``threads`` = numba's threads (parallel chunks of lanes;
+    where numba has more than one), interleaved with the single env.
 
     Returns:
         the table and the measurements: ``single`` (the single env's steps/s), ``rate`` (sub-env steps/s per
-        size), ``rate_1t`` (VEC_TARGET_SIZE sub-envs on one thread), ``ratio`` (VEC_TARGET_SIZE sub-envs vs the
-        single env), ``steps`` (vector steps per run, per size) and ``threads``.
+        size), ``rate_par`` (VEC_TARGET_SIZE sub-envs in ``threads`` parallel chunks; None with one thread),
+        ``ratio`` and ``ratio_par`` (VEC_TARGET_SIZE sub-envs vs the single env), ``steps`` (vector steps per run,
+        per size) and ``threads``.
     """
     threads = numba.get_num_threads()
     budget = 2048 if quick else 20_000  # sub-env steps per measurement
@@ -365,39 +374,37 @@ def vector_rates(quick: bool, n_steps: int, reps: int) -> tuple[Table, dict]:
     vsteps = {n: max(5 if quick else 20, min(budget // n, 2000)) for n in VEC_SIZES}
     single = Stepper(make_ours(), seed=2)
     single.run(min(50, n_steps))
-
-    def one_thread():
-        numba.set_num_threads(1)
-        try:
-            return vsteppers[VEC_TARGET_SIZE].run(vsteps[VEC_TARGET_SIZE])
-        finally:
-            numba.set_num_threads(threads)
-
     cases = {"single env (gym.make)": lambda: single.run(n_steps)}
     for n in VEC_SIZES:
         cases[n] = lambda n=n: vsteppers[n].run(vsteps[n])
-    cases[f"{VEC_TARGET_SIZE}, 1 thread"] = one_thread
-    log(f"env: vector env at {VEC_SIZES} sub-envs (+ {VEC_TARGET_SIZE} on 1 thread), {reps} interleaved repeats")
+    par = None
+    if threads > 1:
+        par = VecStepper(make_vector(VEC_TARGET_SIZE, threads))
+        par.run(3)
+        cases["parallel"] = lambda: par.run(vsteps[VEC_TARGET_SIZE])
+    log(f"env: vector env at {VEC_SIZES} sub-envs (+ {VEC_TARGET_SIZE} in {threads} parallel chunks), {reps} "
+        f"interleaved repeats")
     vt = interleave(cases, reps)
-    for s in vsteppers.values():
+    for s in [*vsteppers.values(), *([par] if par else [])]:
         s.env.close()
     return _vector_table(vt, vsteps, n_steps, threads)
 
 
 def _vector_table(vt: dict, vsteps: dict, n_steps: int, threads: int) -> tuple[Table, dict]:
     single_rate = n_steps / median(vt["single env (gym.make)"])
-    vtab = Table("vector_env", columns=["sub_envs", "numba_threads", "vector_steps_per_run", "median_s",
+    vtab = Table("vector_env", columns=["sub_envs", "env_threads", "vector_steps_per_run", "median_s",
                                         "sub_env_steps_per_s", "vs_single_env"])
-    vtab.add("single env (gym.make)", 1, n_steps, median(vt["single env (gym.make)"]), single_rate, 1.0)
+    vtab.add("single env (gym.make)", "-", n_steps, median(vt["single env (gym.make)"]), single_rate, 1.0)
     vrate = {}
     for n in VEC_SIZES:
         vrate[n] = n * vsteps[n] / median(vt[n])
-        vtab.add(n, threads, vsteps[n], median(vt[n]), vrate[n], vrate[n] / single_rate)
-    n, t_1t = VEC_TARGET_SIZE, median(vt[f"{VEC_TARGET_SIZE}, 1 thread"])
-    rate_1t = n * vsteps[n] / t_1t
-    vtab.add(n, 1, vsteps[n], t_1t, rate_1t, rate_1t / single_rate)
-    return vtab, {"single": single_rate, "rate": vrate, "rate_1t": rate_1t, "steps": vsteps, "threads": threads,
-                  "ratio": vrate[VEC_TARGET_SIZE] / single_rate}
+        vtab.add(n, 1, vsteps[n], median(vt[n]), vrate[n], vrate[n] / single_rate)
+    n, rate_par = VEC_TARGET_SIZE, None
+    if "parallel" in vt:
+        rate_par = n * vsteps[n] / median(vt["parallel"])
+        vtab.add(n, threads, vsteps[n], median(vt["parallel"]), rate_par, rate_par / single_rate)
+    return vtab, {"single": single_rate, "rate": vrate, "rate_par": rate_par, "steps": vsteps, "threads": threads,
+                  "ratio": vrate[n] / single_rate, "ratio_par": None if rate_par is None else rate_par / single_rate}
 
 
 def compiled_ns_per_period(quick: bool) -> float:
@@ -424,6 +431,15 @@ def compiled_ns_per_period(quick: bool) -> float:
     return best / calls / (VEC_TARGET_SIZE * v.config.agent_period) * 1e9
 
 
+def stage_table(st: dict) -> Table:
+    """The table of :func:`benchmarks.lane_stages.stage_costs`: each part's ns per lane and control period."""
+    tb = Table("lane_stages", columns=["part", "ns_per_lane_and_period", "kind"])
+    for kind in ("stages", "step", "layout"):
+        for name, ns in st[kind].items():
+            tb.add(name, ns, {"stages": "control period stage", "step": "env step", "layout": "layout"}[kind])
+    return tb
+
+
 def vector_profile(vsteps: dict) -> list:
     """cProfile of the VEC_TARGET_SIZE-sub-env vector step: the top functions by own time (share, name)."""
     v = make_vector(VEC_TARGET_SIZE)
@@ -434,13 +450,26 @@ def vector_profile(vsteps: dict) -> list:
 
 
 def vector_miss(kc: dict, vec: dict, rows: list) -> dict:
-    """The numbers that explain the vector env missing VEC_TARGET x the single env at VEC_TARGET_SIZE sub-envs."""
-    ap, threads, rate, rate_1t = kc["agent_period"], vec["threads"], vec["rate"][VEC_TARGET_SIZE], vec["rate_1t"]
+    """The numbers that explain the vector env missing VEC_TARGET x the single env at VEC_TARGET_SIZE sub-envs: the
+    measured rates, the stage table's sums (:func:`benchmarks.lane_stages.stage_costs`) and the budget per lane and
+    control period that VEC_TARGET leaves."""
+    ap, st = kc["agent_period"], vec["stages"]
+    stages, step, layout = st["stages"], st["step"], st["layout"]
+
+    def part(*words):
+        return sum(ns for name, ns in stages.items() if not name.startswith(" ") and any(w in name for w in words))
+
     t_single = 1e6 / vec["single"]
-    floor_v = ap * (kc["ctrl"] + kc["plantB"]) / threads
-    return {"kc": kc, "target": VEC_TARGET, "size": VEC_TARGET_SIZE, "threads": threads, "t_single": t_single,
-            "floor": floor_v, "ceiling": t_single / floor_v, "us": 1e6 / rate, "ratio": rate / vec["single"],
-            "compiled_share": sum(sh for sh, nm in rows if "advance" in nm), "rest_us": 1e6 / rate - floor_v,
-            "us_1t": 1e6 / rate_1t, "ratio_1t": rate_1t / vec["single"], "us_1t_per_period": 1e6 / rate_1t / ap,
-            "env_share_1t": max(0.0, 1 - kc["loopB"] * ap * rate_1t / 1e6), "needed_us": t_single / VEC_TARGET,
-            "needed_ns_per_period": t_single / VEC_TARGET * threads / ap * 1e3, "ctrl_ns": kc["ctrl"] * 1e3}
+    needed = t_single / VEC_TARGET / ap * 1e3
+    law = part("lane_law")
+    return {"kc": kc, "target": VEC_TARGET, "size": VEC_TARGET_SIZE, "threads": vec["threads"], "ap": ap,
+            "ratio": vec["ratio"], "ratio_par": vec["ratio_par"], "compiled_ns": vec["compiled_ns"],
+            "compiled_share": sum(sh for sh, nm in rows if "advance" in nm),
+            "ctrl_ns": part("sense_lanes", "lane_law", "controller_apply"), "sense_ns": part("sense_lanes"),
+            "law_ns": law, "ref_ns": next(ns for name, ns in stages.items() if "reference_value" in name),
+            "plant_ns": part("integrate_lanes"), "book_ns": part("friction", "divergence", "metrics", "copy"),
+            "obs_ns": next(ns for name, ns in step.items() if name.startswith("observation")),
+            "peek_ns": next(ns for name, ns in step.items() if name.startswith("look-ahead")),
+            "needed_ns": needed, "needed_par_ns": needed * vec["threads"], "law_share": law / needed,
+            "rows_contiguous": next(ns for name, ns in layout.items() if name.startswith("lanes_period, the env")),
+            "rows_strided": next(ns for name, ns in layout.items() if name.startswith("lanes_period, column"))}

@@ -17,7 +17,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 from ehss_gym import sine
 from ehss_gym.core.filters import butterworth_coefficients
-from ehss_gym.core.layout import I_SHIFT, I_URES, I_YD, MAX_DELAY, N_LOOP
+from ehss_gym.core.layout import I_SHIFT, I_URES, I_YD, MAX_DELAY
 from ehss_gym.core.settings import (
     C_DOB_GAIN,
     C_INV_HYSTERESIS,
@@ -27,13 +27,13 @@ from ehss_gym.core.settings import (
     C_SHIFT,
     C_SIGMA,
     C_SMOOTH,
-    N_CTRL,
 )
 from ehss_gym.core.unmodelled import Unmodelled
 from ehss_gym.envs import EHSSTrackingEnv, EHSSTrackingVectorEnv, EnvConfig
 from ehss_gym.envs import lanes as lanes_mod
 from ehss_gym.envs.actions import ACTION_NAMES, FILTER_TAU, RATE_TIME, SCHEDULE_RANGES, action_mode
-from ehss_gym.envs.buffers import F_ACT, F_CTRL, F_PEEK, F_PEEKZ, F_URES, N_ACT
+from ehss_gym.envs.buffers import F_ACT, F_URES, H_CTRL, H_PEEK, HOT_BLOCKS, N_ACT
+from ehss_gym.envs.lanes import hot_block
 
 MODES = [m for m in ACTION_NAMES if m != "current"]
 # the settings a mode needs beyond the env's defaults: the compensation mode scales the loop's compensators
@@ -166,15 +166,17 @@ def test_an_action_is_kept_in_its_own_slots(mode):
     k = _k(env)
     assert k <= N_ACT
     lanes = env._lanes
-    before = lanes.F.copy()
+    before, hot_before = lanes.F.copy(), lanes.H.copy()
     a = np.full((2, k), 0.5, dtype=np.float32)
     getattr(lanes_mod, action_mode(mode).write)(lanes, np.arange(2), a.astype(np.float64))
     moved = set(np.flatnonzero(np.any(lanes.F != before, axis=0)))
-    # what a mode may move: its action block, the residual, the law's settings (the controller row) and the look-ahead
-    # of the next sample made again with them (the peek blocks)
-    may = set(range(F_ACT, F_ACT + k)) | {F_URES} | set(range(F_CTRL, F_CTRL + N_CTRL)) | set(
-        range(F_PEEK, F_PEEKZ + N_LOOP))
+    hot_moved = {off for off, width in HOT_BLOCKS
+                 if not np.array_equal(hot_block(lanes.H, 2, off, width), hot_block(hot_before, 2, off, width))}
+    # what a mode may move: its action block, the residual, the law's settings (the controller rows) and the
+    # look-ahead of the next sample made again with them
+    may = set(range(F_ACT, F_ACT + k)) | {F_URES}
     assert moved <= may, sorted(moved - may)
+    assert hot_moved <= {H_CTRL, H_PEEK}, sorted(hot_moved - {H_CTRL, H_PEEK})
     assert np.array_equal(lanes.F[:, F_ACT:F_ACT + k], a)
 
 
@@ -269,11 +271,11 @@ def test_the_reference_shift_is_the_continuous_reference_models_response_to_the_
     cfg = env.config
     h, m, delta = cfg.control_period, cfg.order, 0.7 * cfg.action_bound
     env.reset(seed=0)
-    F = env.unwrapped._lanes.F
+    peek = env.unwrapped._lanes.peek
     got = []
     for _ in range(300):
         env.step(np.array([0.7], dtype=np.float32))
-        got.append(F[0, F_PEEK + I_SHIFT])  # the shift at the next sample
+        got.append(peek[0, I_SHIFT])  # the shift at the next sample
     c = butterworth_coefficients(m, cfg.template().ref_model_hz)
 
     def rhs(t, x):
@@ -297,10 +299,10 @@ def test_the_reference_action_compensates_a_sensor_delay():
     rms = {}
     for comp in (False, True):
         env.reset(options={"scenario": sc})
-        F = env.unwrapped._lanes.F
+        peek = env.unwrapped._lanes.peek
         done = False
         while not done:
-            yd1 = F[0, F_PEEK + I_YD + 1]  # y_d' at the next sample [rad/s]
+            yd1 = peek[0, I_YD + 1]  # y_d' at the next sample [rad/s]
             a = np.clip(-d * h * yd1 / D, -1, 1) if comp else 0.0
             _, _, term, trunc, info = env.step(np.array([a], dtype=np.float32))
             done = term or trunc

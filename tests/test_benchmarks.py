@@ -18,7 +18,15 @@ import pytest
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
-from benchmarks import bench_compile, bench_env, bench_memory, bench_sim, compile_child, report  # noqa: E402
+from benchmarks import (  # noqa: E402
+    bench_compile,
+    bench_env,
+    bench_memory,
+    bench_sim,
+    compile_child,
+    lane_stages,
+    report,
+)
 from benchmarks.common import Section, Table, Target, interleave  # noqa: E402
 
 pytestmark = pytest.mark.xdist_group("benchmarks")  # one worker computes the measured sections (a module fixture) once
@@ -92,7 +100,7 @@ def test_broken_section_template_keeps_the_page(tmp_path):
 SECTION_TABLES = {
     "sim.md.j2": ["setting_check", "sim_vs_solve_ivp", "substeps_per_second", "batch_scaling", "setup_blas_threads",
                   "sim_profile"],
-    "env.md.j2": ["env_steps", "env_profile", "vector_env"],
+    "env.md.j2": ["env_steps", "env_profile", "vector_env", "lane_stages"],
     "memory.md.j2": ["memory"],
     "compile.md.j2": ["compile_time"],
 }
@@ -100,7 +108,8 @@ SECTION_TABLES = {
 CONDITIONAL = {
     "sim.md.j2": ["--quick: the '1 s' case", "**Why the 1000x target is missed", "**Substeps/s/core.**",
                   "the filters' expm waits"],
-    "env.md.j2": ["**What one env step costs", "**Native vector env", "**Why EHSSTracking-v0 misses 1x",
+    "env.md.j2": ["**What one env step costs", "**Native vector env", "**Where the vector env's compiled step goes",
+                  "**Why EHSSTracking-v0 misses 1x",
                   "Profile of the 256-sub-env vector step", "**Why the vector env misses 20x", "(PyPI) runs in"],
     "memory.md.j2": ["MemAvailable", "--quick: 2 scenarios"],
     "compile.md.j2": ["JIT cost of the first", "Warm start-up breakdown", "Where `import ehss_gym`"],
@@ -120,8 +129,10 @@ def measured():
     _, *profile_results = bench_sim.where_time_goes(base.replace(t_end=size.t_short), 5, peer_us)
     sim = {"base": base, "size": size, "cases": cases, "rates": rates, "profile": tuple(profile_results),
            "peer_us": peer_us}
-    vt = {"single env (gym.make)": [0.01], **{n: [0.01 * n] for n in bench_env.VEC_SIZES}, "256, 1 thread": [3.0]}
+    vt = {"single env (gym.make)": [0.01], **{n: [0.01 * n] for n in bench_env.VEC_SIZES}, "parallel": [1.0]}
     _, vec = bench_env._vector_table(vt, {n: 10 for n in bench_env.VEC_SIZES}, 100, 2)
+    vec["compiled_ns"] = 300.0
+    vec["stages"] = lane_stages.stage_costs(4, periods=1, repeats=1)
     env = {"kc": bench_env.step_breakdown(True), "profiles": bench_env.step_profiles(20), "vec": vec}
     sim_child, env_child = compile_child.child("sim"), compile_child.child("env")
     compile_results = {"sim, cold cache": [sim_child], "sim, warm cache": [sim_child],
@@ -154,7 +165,8 @@ def _contexts(m: dict, every: bool, monkeypatch) -> dict[str, dict]:
     }
 
 
-OPTIONAL_TABLES = {"env_profile", "vector_env"}  # left out when the env's internals or the vector env are not there
+# left out when the env's internals or the vector env are not there
+OPTIONAL_TABLES = {"env_profile", "vector_env", "lane_stages"}
 
 
 def _tables(template: str, every: bool = True) -> list[Table]:

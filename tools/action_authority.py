@@ -33,7 +33,6 @@ from gymnasium.vector import AutoresetMode
 from ehss_gym.core.layout import I_YD, L_T, L_YD, QUIET_STARTUP
 from ehss_gym.core.sim import simulate_batch
 from ehss_gym.envs import EHSSTrackingVectorEnv, EnvConfig
-from ehss_gym.envs.buffers import F_PEEK
 from ehss_gym.evaluation.suites import EvalConfig, build_episodes
 
 AGENT_PERIOD = 20
@@ -95,7 +94,7 @@ def measure(task: str, episodes: int) -> dict:
     D = 10.0 * max(float(np.max(np.abs(s))) for s in shift)  # a bound the oracle never reaches
 
     def oracle(lanes, scs):
-        return np.clip(-delays * h * lanes.F[:n, F_PEEK + I_YD + 1] / D, -1.0, 1.0)
+        return np.clip(-delays * h * lanes.peek[:n, I_YD + 1] / D, -1.0, 1.0)
 
     base, _ = run(task, eps, "reference", lambda lanes, scs: np.zeros(n), bound=D)
     comp, _ = run(task, eps, "reference", oracle, bound=D)

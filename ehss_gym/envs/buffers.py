@@ -1,10 +1,12 @@
 """Every index into the envs' per-lane buffers (:class:`ehss_gym.envs.lanes.Lanes`), named once.
 
 The compiled step (:mod:`ehss_gym.envs.kernels`) reads these module-level integers as compile-time constants. The
-blocks of the float buffer hold the core's arrays (loop state, parameter rows, controller row, reference row, info,
-metrics accumulator), laid out by :mod:`ehss_gym.core.layout` and :mod:`ehss_gym.core.settings`.
+blocks of the hot float buffer H hold the core's arrays (loop state, parameter rows, controller row, reference row,
+info, metrics accumulator), laid out by :mod:`ehss_gym.core.layout` and :mod:`ehss_gym.core.settings`; the per-lane
+buffer F holds the agent step's (statistics, residual, reward, the rewards' constants, memory, action).
 """
 
+from ehss_gym.core.jit import jit_inline
 from ehss_gym.core.layout import N_INFO, N_LOOP, N_METRICS, N_PARAM, N_REF
 from ehss_gym.core.settings import N_CTRL
 
@@ -54,21 +56,38 @@ N_MEM = 2
 # observation reads both from there).
 N_ACT = max(row.dims + row.observer_dim for row in ACTIONS)
 
-# Per-lane float64 buffer F (B, N_F): column blocks, so one kernel argument carries them all (numba's
-# dispatch costs ~0.1 us per array argument, a large share of a 15 us step). The loop state is not one of them: it is
-# an array of its own, Z (B, N_LOOP), whose lane rows are contiguous, so the loops over a lane's state (the divergence
-# check, the copies) vectorise; a column block's rows have a stride known only at run time (benchmarks/lane_stages.py).
-F_PLANT = 0  # true plant parameters
-F_MODEL = F_PLANT + N_PARAM  # controller's model parameters
-F_CTRL = F_MODEL + N_PARAM  # controller row (N_CTRL)
-F_REF = F_CTRL + N_CTRL  # reference spec (N_REF)
-F_INFO = F_REF + N_REF  # control-step info (N_INFO), scratch alternating with F_INFO_OK
-F_INFO_OK = F_INFO + N_INFO  # last finite control-step info
-F_PEEK = F_INFO_OK + N_INFO  # the controller's view at the next sample
-F_PEEKZ = F_PEEK + N_INFO  # loop state after that sample's filter advance (N_LOOP; must follow F_PEEK)
-F_ACC = F_PEEKZ + N_LOOP  # metrics accumulator (N_METRICS)
-F_ZPREV = F_ACC + N_METRICS  # loop state at the last sample (scratch of lanes_period)
-F_STATS = F_ZPREV + N_LOOP  # per-agent-step statistics (N_STATS)
+# The hot blocks, read or written every control period, in the flat float64 buffer H: block after block, each holding
+# the rows of all B lanes, so a block is a (B, width) C-contiguous array (:func:`block`) whose lane rows numba knows
+# to be contiguous (the loops over a lane's row, such as the divergence check over its loop state, vectorise; a column
+# block of a (B, N) buffer has rows of a stride known only at run time: benchmarks/lane_stages.py measures both). One
+# kernel argument carries them all (numba's dispatch costs ~0.1 us per array argument, a large share of a single env's
+# step). The offsets count whole rows: block H_X starts at H[B * H_X] and spans its width times B doubles.
+H_Z = 0  # loop state (N_LOOP)
+H_PLANT = H_Z + N_LOOP  # true plant parameters
+H_MODEL = H_PLANT + N_PARAM  # controller's model parameters
+H_CTRL = H_MODEL + N_PARAM  # controller row (N_CTRL)
+H_REF = H_CTRL + N_CTRL  # reference spec (N_REF)
+H_INFO = H_REF + N_REF  # control-step info (N_INFO), scratch alternating with H_INFO_OK
+H_INFO_OK = H_INFO + N_INFO  # last finite control-step info
+# the controller's view at the next sample (N_INFO), then the loop state after that sample's filter advance (N_LOOP)
+H_PEEK = H_INFO_OK + N_INFO
+N_PEEK = N_INFO + N_LOOP
+H_ACC = H_PEEK + N_PEEK  # metrics accumulator (N_METRICS)
+H_ZPREV = H_ACC + N_METRICS  # loop state at the last sample (scratch of lanes_period)
+N_H = H_ZPREV + N_LOOP
+# (offset, width) of every hot block, in order
+HOT_BLOCKS = ((H_Z, N_LOOP), (H_PLANT, N_PARAM), (H_MODEL, N_PARAM), (H_CTRL, N_CTRL), (H_REF, N_REF),
+              (H_INFO, N_INFO), (H_INFO_OK, N_INFO), (H_PEEK, N_PEEK), (H_ACC, N_METRICS), (H_ZPREV, N_LOOP))
+
+
+@jit_inline
+def block(H, B, off, width):
+    """Block ``off`` (H_*) of the flat buffer ``H`` of ``B`` lanes, ``width`` doubles per lane: a (B, width) view."""
+    return H[B * off:B * (off + width)].reshape((B, width))
+
+
+# Per-lane float64 buffer F (B, N_F): the blocks read or written once an agent step, as column blocks.
+F_STATS = 0  # per-agent-step statistics (N_STATS)
 F_URES = F_STATS + N_STATS  # residual current [mA]
 F_REW = F_URES + 1  # reward of the last step
 F_APREV = F_REW + 1  # previous normalised action
@@ -81,7 +100,7 @@ N_F = F_RPHYS + N_RPHYS
 # Per-lane int64 buffer: step index k, agent steps taken, group id (scratch).
 IB_K, IB_NSTEP, IB_GID = 0, 1, 2
 N_IB = 3
-# Per-lane bool buffer: running (not diverged, not held), group member (scratch), F_PEEK/F_PEEKZ hold
+# Per-lane bool buffer: running (not diverged, not held), group member (scratch), H_PEEK holds
 # the controller's view at the lane's next period (set by the look-ahead, cleared when used or reloaded).
 BB_RUN, BB_ACT, BB_PRE = 0, 1, 2
 N_BB = 3

@@ -39,27 +39,27 @@ from .buffers import (
     BB_ACT,
     BB_PRE,
     BB_RUN,
-    F_ACC,
     F_ACT,
     F_APREV,
-    F_CTRL,
-    F_INFO,
-    F_INFO_OK,
     F_MEM,
-    F_MODEL,
-    F_PEEK,
-    F_PEEKZ,
-    F_PLANT,
     F_RCLS,
-    F_REF,
     F_REW,
     F_RPHYS,
     F_STATS,
     F_URES,
-    F_ZPREV,
     FLAG_LAST,
     FLAG_MEM,
     FLAG_SQUASH,
+    H_ACC,
+    H_CTRL,
+    H_INFO,
+    H_INFO_OK,
+    H_MODEL,
+    H_PEEK,
+    H_PLANT,
+    H_REF,
+    H_Z,
+    H_ZPREV,
     IB_GID,
     IB_K,
     IB_NSTEP,
@@ -71,6 +71,7 @@ from .buffers import (
     N_EXTRA,
     N_MEM,
     N_PARTS,
+    N_PEEK,
     N_RCLS,
     N_RPHYS,
     N_STATS,
@@ -127,6 +128,7 @@ from .buffers import (
     W_TRACK,
     W_TV,
     W_TVU,
+    block,
 )
 from .observation import OBS_BOUND
 
@@ -156,59 +158,74 @@ def _write_obs(obs_row, peek_row, last_row, mem_row, lay):
         obs_row[i] = v
 
 
-@jit_noalloc
-def _peek(F, Z, BB, b, k, h, events, filt, work):
-    """Fill lane b's F_PEEK block with what its controller sees at sample k, without advancing it.
+@jit_inline
+def hot_blocks(H, B, s, n):
+    """The hot blocks (buffers.H_*) of lanes s, ..., s + n - 1 of the flat buffer ``H`` of ``B`` lanes: the loop states,
+    plant rows, model rows, controller rows, reference rows, info, last finite info, look-ahead, metrics accumulators
+    and the loop states at the last sample, each a (n, width) view with contiguous lane rows."""
+    return (block(H, B, H_Z, N_LOOP)[s:s + n], block(H, B, H_PLANT, N_PARAM)[s:s + n],
+            block(H, B, H_MODEL, N_PARAM)[s:s + n], block(H, B, H_CTRL, N_CTRL)[s:s + n],
+            block(H, B, H_REF, N_REF)[s:s + n], block(H, B, H_INFO, N_INFO)[s:s + n],
+            block(H, B, H_INFO_OK, N_INFO)[s:s + n], block(H, B, H_PEEK, N_PEEK)[s:s + n],
+            block(H, B, H_ACC, N_METRICS)[s:s + n], block(H, B, H_ZPREV, N_LOOP)[s:s + n])
 
-    The filters are advanced on a copy of the loop state, kept in F_PEEKZ, and BB_PRE is set: the lane's
-    next control period (at this k, from this state) reuses all of it and only applies its residual
+
+@jit_noalloc
+def _peek(b, k, h, z, model, ctrl, ref, peek, u_res, BB, filt, work):
+    """Fill lane b's look-ahead block ``peek`` with what its controller sees at sample k, without advancing it.
+
+    The filters are advanced on a copy of the loop state, kept in the block's last N_LOOP entries, and BB_PRE is set:
+    the lane's next control period (at this k, from this state) reuses all of it and only applies its residual
     (see :func:`ehss_gym.core.loop.lanes_period`), so look-ahead and step share one controller evaluation.
     """
-    zt = F[b, F_PEEKZ:F_PEEKZ + N_LOOP]
+    zt = peek[b, N_INFO:]
     for i in range(N_LOOP):
-        zt[i] = Z[b, i]
-    controller_update(zt, k, h, F[b, F_MODEL:F_MODEL + N_PARAM], F[b, F_CTRL:F_CTRL + N_CTRL],
-                      F[b, F_REF:F_REF + N_REF], filt[b], F[b, F_URES], F[b, F_PEEK:F_PEEK + N_INFO], work)
+        zt[i] = z[b, i]
+    controller_update(zt, k, h, model[b], ctrl[b], ref[b], filt[b], u_res[b], peek[b, :N_INFO], work)
     BB[b, BB_PRE] = True
 
 
 @jit_noalloc
-def peek_lanes(F, Z, BB, IB, g, k, h, filt, c, work, cw):
+def peek_lanes(z, ctrl, ref, peek, u_res, BB, IB, g, k, h, filt, c, work, cw):
     """:func:`_peek` for every lane of group ``g`` (IB_GID) at sample k, in the controller's stages on the copies of
-    the loop states in F_PEEKZ: the sensors and model over the lanes (:func:`ehss_gym.core.controller.sense_lanes`),
-    then the rest of the controller per lane. The same arithmetic as :func:`_peek`."""
-    B = F.shape[0]
-    zt = F[:, F_PEEKZ:F_PEEKZ + N_LOOP]  # the copies, which the sensors' delay line moves on (the loop state stays)
-    ctrl = F[:, F_CTRL:F_CTRL + N_CTRL]
+    the loop states in the look-ahead blocks: the sensors and model over the lanes
+    (:func:`ehss_gym.core.controller.sense_lanes`), then the rest of the controller per lane. The same arithmetic as
+    :func:`_peek`."""
+    B = z.shape[0]
+    zt = peek[:, N_INFO:]  # the copies, which the sensors' delay line moves on (the loop state stays)
     for b in range(B):
         member = IB[b, IB_GID] == g
         cw[CW_TODO, b] = 1.0 if member else 0.0
         if member:
             for i in range(N_LOOP):
-                F[b, F_PEEKZ + i] = Z[b, i]
+                zt[b, i] = z[b, i]
     sense_lanes(zt, k, ctrl, c, cw)
     for b in range(B):
         if IB[b, IB_GID] != g:
             continue
-        pk = F[b, F_PEEK:F_PEEK + N_INFO]
-        u_base = lane_law(b, zt[b], k, h, ctrl[b], F[b, F_REF:F_REF + N_REF], filt[b], pk, work, cw)
-        controller_apply(zt[b], pk, ctrl[b], u_base, F[b, F_URES])
+        pk = peek[b, :N_INFO]
+        zb = peek[b, N_INFO:]
+        u_base = lane_law(b, zb, k, h, ctrl[b], ref[b], filt[b], pk, work, cw)
+        controller_apply(zb, pk, ctrl[b], u_base, u_res[b])
         BB[b, BB_PRE] = True
 
 
-@jit
-def observe(h, F, Z, IB, BB, events, filt, work, obs, lay):
+@jit_noalloc
+def observe(h, F, H, IB, BB, events, filt, work, obs, lay):
     """Observations of the lanes flagged in BB[:, BB_ACT] at their current step, without advancing them.
 
     Used at reset: the last-period block (applied current, residual) is zeroed, nothing was applied yet.
     """
-    for b in range(F.shape[0]):
+    B = F.shape[0]
+    z, _, model, ctrl, ref, _, info_ok, peek, _, _ = hot_blocks(H, B, 0, B)
+    u_res = F[:, F_URES]
+    for b in range(B):
         if not BB[b, BB_ACT]:
             continue
-        F[b, F_INFO_OK:F_INFO_OK + N_INFO] = 0.0
-        _peek(F, Z, BB, b, IB[b, IB_K], h, events, filt, work)
-        _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], F[b, F_INFO_OK:F_INFO_OK + N_INFO],
-                   F[b, F_MEM:F_MEM + N_EXTRA], lay)
+        for i in range(N_INFO):
+            info_ok[b, i] = 0.0
+        _peek(b, IB[b, IB_K], h, z, model, ctrl, ref, peek, u_res, BB, filt, work)
+        _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
 
 
 def reward_weights(weights: dict, error_scale: float, residual_scale: float, memory_tau: float | None = None,
@@ -413,20 +430,30 @@ action_period = dispatch(
 
 
 @jit_noalloc
-def advance(n_per, h, substeps, F, Z, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
-    """Advance ``n_per`` control periods for every running lane; the env's one compiled step.
+def advance(n_per, h, substeps, F, H, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts):
+    """Advance ``n_per`` control periods for every running lane; the env's one compiled step (:func:`advance_lanes` on
+    all lanes)."""
+    advance_lanes(0, F.shape[0], n_per, h, substeps, F, H, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay,
+                  wts)
+
+
+@jit_noalloc
+def advance_lanes(s, B_all, n_per, h, substeps, F, H, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay,
+                  wts):
+    """Advance ``n_per`` control periods for every running lane of lanes s, ..., s + B - 1 (B = F.shape[0]).
 
     Lanes are grouped by their step index k (lanes reset at different times are out of phase) and each
     group is stepped by :func:`ehss_gym.core.loop.lanes_period`, so a lane's arithmetic does not depend on
     the others. Per lane this then writes the observation (from the controller's view at the next
     sample, so the agent acts on the freshest measurement), the reward, the agent-rate error log, and
-    clears the run flag if the lane diverged (the F_INFO_OK block keeps the last finite sample).
+    clears the run flag if the lane diverged (the H_INFO_OK block keeps the last finite sample).
 
     Args:
         n_per: control periods per agent step.
         h, substeps: control period [s] and RK4 substeps.
-        F: per-lane float64 buffer (B, N_F), blocks F_* (rows, info, metrics, residual [mA], ...).
-        Z: the loop states (B, N_LOOP), each lane's row contiguous.
+        s, B_all: the first of the lanes and the number of lanes in ``H``.
+        F: per-lane float64 buffer (B, N_F), blocks F_* (statistics, residual [mA], reward, ...).
+        H: the hot blocks H_* of all B_all lanes (loop state, rows, info, metrics, ...; :func:`hot_blocks`).
         IB: per-lane int64 buffer (B, N_IB): step index, agent steps taken, scratch.
         BB: per-lane bool buffer (B, N_BB): run flag (cleared on divergence), scratch.
         events: friction events (B, E, 3); filt: filter blocks (B, 3, 4, 4).
@@ -436,20 +463,11 @@ def advance(n_per, h, substeps, F, Z, IB, BB, events, filt, c, X, U, work, lwork
         wts: reward weights (N_WEIGHTS,).
     """
     B = F.shape[0]
-    z = Z
-    plant = F[:, F_PLANT:F_PLANT + N_PARAM]
-    model = F[:, F_MODEL:F_MODEL + N_PARAM]
-    ctrl = F[:, F_CTRL:F_CTRL + N_CTRL]
-    ref = F[:, F_REF:F_REF + N_REF]
-    info = F[:, F_INFO:F_INFO + N_INFO]
-    info_ok = F[:, F_INFO_OK:F_INFO_OK + N_INFO]
-    acc = F[:, F_ACC:F_ACC + N_METRICS]
-    zprev = F[:, F_ZPREV:F_ZPREV + N_LOOP]
+    z, plant, model, ctrl, ref, info, info_ok, peek, acc, zprev = hot_blocks(H, B_all, s, B)
     u_res = F[:, F_URES]
     run = BB[:, BB_RUN]
     act = BB[:, BB_ACT]
     pre = BB[:, BB_PRE]
-    peek = F[:, F_PEEK:F_PEEK + N_INFO + N_LOOP]
     for b in range(B):
         IB[b, IB_GID] = -1
         for j in range(N_STATS):
@@ -471,7 +489,7 @@ def advance(n_per, h, substeps, F, Z, IB, BB, events, filt, c, X, U, work, lwork
                     if act[b]:
                         u_res[b] = action_period(int(wts[W_ACT_MODE]), u_res[b], F[b, F_ACT], wts[W_ACT_C1],
                                                  wts[W_ACT_C2])
-            # Periods alternate between the F_INFO and F_INFO_OK blocks, so the last finite period's info
+            # Periods alternate between the H_INFO and H_INFO_OK blocks, so the last finite period's info
             # survives a divergence in the next one without a per-period copy (lanes only ever stop).
             inf = info if j % 2 == 0 else info_ok
             n_act = lanes_period(z, kk + j, h, substeps, plant, model, ctrl, ref, events, filt, u_res, act, inf, acc,
@@ -494,7 +512,7 @@ def advance(n_per, h, substeps, F, Z, IB, BB, events, filt, c, X, U, work, lwork
         for b in range(B):
             if IB[b, IB_GID] != g:
                 continue
-            # S_N finite periods ran: the last one (index S_N - 1) wrote F_INFO if its index is even
+            # S_N finite periods ran: the last one (index S_N - 1) wrote H_INFO if its index is even
             n_ok = int(F[b, F_STATS + S_N])
             if n_ok > 0 and (n_ok - 1) % 2 == 0:
                 for i in range(N_INFO):
@@ -522,20 +540,21 @@ def advance(n_per, h, substeps, F, Z, IB, BB, events, filt, c, X, U, work, lwork
                 elog[b, j] = info_ok[b, I_E]
             IB[b, IB_NSTEP] = j + 1
         # the look-ahead: what each lane's controller sees at its next sample, then its observation
-        peek_lanes(F, Z, BB, IB, g, kk + n_per, h, filt, c, work, lwork[6])
+        peek_lanes(z, ctrl, ref, peek, u_res, BB, IB, g, kk + n_per, h, filt, c, work, lwork[6])
         for b in range(B):
             if IB[b, IB_GID] == g:
-                _write_obs(obs[b], F[b, F_PEEK:F_PEEK + N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
+                _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
         g += 1
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")
-def advance_chunks(chunk, n_per, h, substeps, F, Z, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay,
+def advance_chunks(chunk, n_per, h, substeps, F, H, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay,
                    wts):
     """:func:`advance` on chunks of ``chunk`` lanes in parallel; per-chunk scratch c, X, U, work, lwork."""
     n_chunks = c.shape[0]
+    B_all = F.shape[0]
     for i in nb.prange(n_chunks):
         s = i * chunk
         e = s + chunk
-        advance(n_per, h, substeps, F[s:e], Z[s:e], IB[s:e], BB[s:e], events[s:e], filt[s:e], c[i], X[i], U[i],
-                work[i], lwork[i], obs[s:e], elog[s:e], lay, wts)
+        advance_lanes(s, B_all, n_per, h, substeps, F[s:e], H, IB[s:e], BB[s:e], events[s:e], filt[s:e], c[i], X[i],
+                      U[i], work[i], lwork[i], obs[s:e], elog[s:e], lay, wts)

@@ -85,14 +85,8 @@ from .buffers import (
     BB_ACT,
     BB_PRE,
     BB_RUN,
-    F_ACC,
     F_ACT,
-    F_CTRL,
-    F_INFO_OK,
-    F_MODEL,
-    F_PLANT,
     F_RCLS,
-    F_REF,
     F_REW,
     F_RPHYS,
     F_STATS,
@@ -100,6 +94,15 @@ from .buffers import (
     FLAG_LAST,
     FLAG_MEM,
     FLAG_SQUASH,
+    H_ACC,
+    H_CTRL,
+    H_INFO_OK,
+    H_MODEL,
+    H_PEEK,
+    H_PLANT,
+    H_REF,
+    H_Z,
+    HOT_BLOCKS,
     IB_K,
     IB_NSTEP,
     LAY_FLAGS,
@@ -107,7 +110,9 @@ from .buffers import (
     LAY_SRC,
     N_BB,
     N_F,
+    N_H,
     N_IB,
+    N_PEEK,
     N_RCLS,
     N_RPHYS,
     N_STATS,
@@ -136,12 +141,14 @@ from .buffers import (
     W_ACT_C2,
     W_ACT_MODE,
     W_ACT_PERIOD,
+    block,
 )
 from .config import SCENARIOS, EnvConfig
 from .kernels import advance, advance_chunks, observe, reward_weights
 from .observation import observation_layout
 
 MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
+hot_block = block.py_func  # a hot block's (B, width) view, from Python (numpy's reshape of a slice is a view)
 # The class reward's parts: (slot R_*, accumulator sum M_*, its weight in the class's log figure, the class).
 # log q_trk = 1/4 log(sum e^2 ratio) + 1/2 log(IAE ratio) (the RMSE is a square root), log q_dst = 1/2 log(peak
 # ratio) + 1/2 log(IAE ratio), log q_eff = 1/2 log(TV ratio) + 1/4 log(sum u^2 ratio).
@@ -250,14 +257,16 @@ class Lanes:
         self.F = np.zeros((B, N_F))
         self.IB = np.zeros((B, N_IB), dtype=np.int64)
         self.BB = np.zeros((B, N_BB), dtype=np.bool_)
-        # named views into the buffers (writes go to F, IB, BB)
-        self.z = self.Z = np.zeros((B, N_LOOP))  # the loop states: an array of their own (buffers.py says why)
-        self.plant = self.F[:, F_PLANT:F_PLANT + N_PARAM]
-        self.model = self.F[:, F_MODEL:F_MODEL + N_PARAM]
-        self.ctrl = self.F[:, F_CTRL:F_CTRL + N_CTRL]
-        self.ref = self.F[:, F_REF:F_REF + N_REF]
-        self.info_ok = self.F[:, F_INFO_OK:F_INFO_OK + N_INFO]
-        self.acc = self.F[:, F_ACC:F_ACC + N_METRICS]
+        self.H = np.zeros(B * N_H)  # the hot blocks, block after block (buffers.py says why)
+        # named views into the buffers (writes go to H, F, IB, BB)
+        self.z = hot_block(self.H, B, H_Z, N_LOOP)
+        self.plant = hot_block(self.H, B, H_PLANT, N_PARAM)
+        self.model = hot_block(self.H, B, H_MODEL, N_PARAM)
+        self.ctrl = hot_block(self.H, B, H_CTRL, N_CTRL)
+        self.ref = hot_block(self.H, B, H_REF, N_REF)
+        self.info_ok = hot_block(self.H, B, H_INFO_OK, N_INFO)
+        self.acc = hot_block(self.H, B, H_ACC, N_METRICS)
+        self.peek = hot_block(self.H, B, H_PEEK, N_PEEK)  # the controller's view at the next sample, then its state
         self.stats = self.F[:, F_STATS:F_STATS + N_STATS]
         self.u_res = self.F[:, F_URES]
         self.rew = self.F[:, F_REW]
@@ -347,7 +356,8 @@ class Lanes:
             self.events = ev
             self._bind()
         self.F[b] = 0.0
-        self.Z[b] = 0.0
+        for off, width in HOT_BLOCKS:
+            hot_block(self.H, self.B, off, width)[b] = 0.0
         self.plant[b] = sc.plant.as_array()
         self.model[b] = (sc.model or sc.plant).as_array()
         row = self.ctrl[b]
@@ -401,16 +411,16 @@ class Lanes:
         """Fill the observations of the given lanes from their current state (no time passes)."""
         self.BB[:, BB_ACT] = False
         self.BB[lanes, BB_ACT] = True
-        observe(self.cfg.control_period, self.F, self.Z, self.IB, self.BB, self.events, self.filt, self.work[0],
+        observe(self.cfg.control_period, self.F, self.H, self.IB, self.BB, self.events, self.filt, self.work[0],
                 self.obs, self.lay)
 
     def _bind(self) -> None:
         # Pre-bound kernel arguments: a step then costs one call, not a dozen attribute look-ups.
         cfg = self.cfg
-        self._args = (cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.Z, self.IB, self.BB,
+        self._args = (cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.H, self.IB, self.BB,
                       self.events, self.filt, self.c[0], self.X[0], self.U[0], self.work[0], self.lwork[0], self.obs,
                       self.elog, self.lay, self.wts)
-        self._pargs = (self.chunk, cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.Z, self.IB,
+        self._pargs = (self.chunk, cfg.agent_period, cfg.control_period, cfg.substeps, self.F, self.H, self.IB,
                        self.BB, self.events, self.filt, self.c, self.X, self.U, self.work, self.lwork, self.obs,
                        self.elog, self.lay, self.wts)
 
