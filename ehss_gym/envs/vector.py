@@ -177,29 +177,25 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
                              "clipped)")
         clipped = ((a > 1.0) | (a < -1.0)).any(axis=1)
         a = np.clip(a, -1.0, 1.0)
-        resetting = np.nonzero(self._autoreset)[0]
-        infos = self._reset_lanes([int(b) for b in resetting], [None] * len(resetting), [None] * len(resetting), {})
+        # the lanes that do not step: those resetting (autoreset) and, with autoreset disabled, those that ended
+        skip = self._autoreset | self._ended
+        stepped = ~skip
+        resetting = np.flatnonzero(self._autoreset)
+        infos: dict = {}
         if len(resetting):
+            infos = self._reset_lanes([int(b) for b in resetting], [None] * len(resetting), [None] * len(resetting),
+                                      infos)
             lanes.observe(resetting)
-            clipped[resetting] = False
-        idle = np.flatnonzero(self._ended)  # DISABLED mode: ended lanes are not advanced
-        clipped[idle] = False
+        clipped &= stepped
         self._n_clipped += clipped
         if k == 1 and self.config.action == "current":  # today's action, as it always was
             lanes.u_res[:N] = a[:, 0] * self.config.residual_scale
             lanes.u_res[resetting] = 0.0
         else:  # the lanes that step (a lane just reset keeps its loaded state: zero action)
-            moving = np.ones(N, dtype=np.bool_)
-            moving[resetting] = False
-            moving[idle] = False
-            lanes.set_actions(np.flatnonzero(moving), a[moving])
-        lanes.run[resetting] = False  # not advanced on their reset step
-        lanes.run[idle] = False
-        lanes.step()
-        stepped = np.ones(N, dtype=np.bool_)
-        stepped[resetting] = False
-        stepped[idle] = False
+            lanes.set_actions(np.flatnonzero(stepped), a[stepped])
         run = lanes.run[:N]
+        run[skip] = False  # not advanced (a lane resetting is not advanced on its reset step)
+        lanes.step()
         diverged = stepped & ~run
         lost = lanes.acc[:N, M_LOST] > 0.0
         if self.config.terminate_on_lost_track:
@@ -209,11 +205,13 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         truncated = stepped & run & (self._steps >= lanes.T[:N])
         run[resetting] = True
         rewards = lanes.rew[:N].copy()
-        rewards[resetting] = 0.0
-        step = step_info(lanes.info_ok[:N].T, lanes.stats[:N].T, clipped, self._n_clipped, diverged, lost)
+        rewards[skip] = 0.0
+        # one copy of the lanes' last samples and step statistics, so the info's arrays outlive the next step
+        step = step_info(lanes.info_ok[:N].T.copy(), lanes.stats[:N].T.copy(), clipped, self._n_clipped.copy(),
+                         diverged, lost)
         mask = np.ones(N, dtype=np.bool_)
         for key, v in step.items():
-            infos[key] = np.array(v, copy=True)
+            infos[key] = v
             infos["_" + key] = mask
         ended = np.nonzero(terminated | truncated)[0]
         for b in ended:
@@ -226,7 +224,6 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
             self._ended |= terminated | truncated
         else:
             self._autoreset = terminated | truncated
-        rewards[idle] = 0.0
         return lanes.obs[:N].copy(), rewards, terminated, truncated, infos
 
     def close_extras(self, **kwargs):
