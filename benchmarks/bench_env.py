@@ -34,6 +34,7 @@ VEC_TARGET = 20.0  # sub-env steps/s of the vector env at VEC_TARGET_SIZE sub-en
 VEC_TARGET_SIZE = 256
 COMPILED_NS_TARGET = 150.0  # ns of the vector env's compiled call per lane and control period at VEC_TARGET_SIZE
 BLOCK = MAX_LANES  # lanes of the vectorised plant and core-loop blocks timed for the vector env
+PHASE_LANES = 64  # sub-envs of the out-of-phase measurement (lanes restarted at up to this many different steps)
 STRIP = ("site-packages/", repo_root() + "/")  # profile file names are shown relative to these
 
 
@@ -188,6 +189,8 @@ def run(quick: bool) -> Section:
                                   note="one thread, the vector env's compiled call alone"))
         log(f"env: the compiled step's stages at {VEC_TARGET_SIZE} sub-envs")
         vec["stages"] = lane_stages.stage_costs(VEC_TARGET_SIZE, repeats=5 if quick else 40)
+        log(f"env: the compiled step with {PHASE_LANES} sub-envs out of phase")
+        vec["stages"]["phases"] = lane_stages.phase_costs(PHASE_LANES, repeats=5 if quick else 30)
         sec.tables.append(stage_table(vec["stages"]))
         if vec["ratio"] < VEC_TARGET:
             v_profile = vector_profile(vec["steps"])
@@ -437,6 +440,8 @@ def stage_table(st: dict) -> Table:
     for kind in ("stages", "step", "layout"):
         for name, ns in st[kind].items():
             tb.add(name, ns, {"stages": "control period stage", "step": "env step", "layout": "layout"}[kind])
+    for n, ns in st.get("phases", {}).items():
+        tb.add(f"the whole compiled step, {PHASE_LANES} sub-envs in {n} phase(s)", ns, "lanes out of phase")
     return tb
 
 
@@ -472,4 +477,5 @@ def vector_miss(kc: dict, vec: dict, rows: list) -> dict:
             "peek_ns": next(ns for name, ns in step.items() if name.startswith("look-ahead")),
             "needed_ns": needed, "needed_par_ns": needed * vec["threads"], "law_share": law / needed,
             "rows_contiguous": next(ns for name, ns in layout.items() if name.startswith("lanes_period, the env")),
-            "rows_strided": next(ns for name, ns in layout.items() if name.startswith("lanes_period, column"))}
+            "rows_strided": next(ns for name, ns in layout.items() if name.startswith("lanes_period, column")),
+            "phases": st.get("phases", {}), "phase_lanes": PHASE_LANES}

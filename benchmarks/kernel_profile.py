@@ -45,8 +45,10 @@ from ehss_gym.core.sim import LoopArrays
 
 @nb.njit(cache=True, error_model="numpy")
 def _drive_plant(X, U, h, substeps, c, events, work, n_periods, ctrl, ref, filt, ynoise):
+    t0 = np.empty(X.shape[1])  # the lanes' start times [s]: all in phase
     for k in range(n_periods):
-        integrate_lanes(X, U, k * h, h, substeps, c, events, work, False, ctrl, ref, filt, ynoise)
+        t0[:] = k * h
+        integrate_lanes(X, U, t0, h, substeps, c, events, work, False, ctrl, ref, filt, ynoise)
     return X[1, 0]
 
 
@@ -259,13 +261,14 @@ def control_period_mix(lanes: int = 16) -> dict:
         opts.pop("cache", None)
         fresh[f.__name__] = nb.njit(**opts)(f.py_func)
     z, ctrl, info = L.z, L.ctrl, L.info_ok
-    fresh["sense_lanes"](z, k, ctrl, c, lwork[6])
+    kv = np.full(L.B, k)  # every lane at sample k
+    fresh["sense_lanes"](z, kv, ctrl, c, lwork[6])
     fresh["lane_rhs"](X, lwork[5, 0], U, c, lwork[0], X.shape[1])
     fresh["controller_law"](z[0].copy(), k, h, 0.0, 1.0, 0.0, ctrl[0], L.ref[0], filt[0], np.zeros(N_INFO),
                             work.copy())
     act = np.zeros(L.B, dtype=np.bool_)  # no lane active: compiled, nothing advanced
-    fresh["lanes_period"](z, k, h, substeps, L.plant, L.model, ctrl, L.ref, events, filt, L.u_res, act, info, L.acc,
-                          c, X, U, L.F[:, :z.shape[1]].copy(), work, lwork, act.copy(), L.F[:, :N_INFO + z.shape[1]])
+    fresh["lanes_period"](z, kv, h, substeps, L.plant, L.model, ctrl, L.ref, events, filt, L.u_res, act, info, L.acc,
+                          c, X, U, np.zeros_like(z), work, lwork, act.copy(), L.peek)
     fresh["advance"](*L._args)
     v.close()
     return {name: _mix(next(iter(f.inspect_asm().values()))) for name, f in fresh.items()}

@@ -47,20 +47,25 @@ PERIOD_BLOCKS = (0, 1, 2, 3, 4, 5, 8, 9, 7)
 
 @jit_noalloc
 def _periods(n, k0, h, substeps, z, plant, model, ctrl, ref, info, acc, zprev, peek, u_res, run, events, filt, c, X,
-             U, work, lwork, pre, active):
-    """``n`` control periods of lanes_period from sample k0, every lane sensed afresh (``pre``, ``active``: scratch)."""
+             U, work, lwork, pre, active, kv):
+    """``n`` control periods of lanes_period from sample k0, every lane sensed afresh (``pre``, ``active``, ``kv``:
+    scratch)."""
     for b in range(z.shape[0]):
         pre[b] = False
         active[b] = run[b]
     for j in range(n):
-        lanes_period(z, k0 + j, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X,
+        for b in range(kv.shape[0]):
+            kv[b] = k0 + j
+        lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X,
                      U, zprev, work, lwork, pre, peek)
 
 
 @jit_noalloc
-def _sense(n, k0, z, ctrl, c, cw):
+def _sense(n, k0, z, ctrl, c, cw, kv):
     for j in range(n):
-        sense_lanes(z, k0 + j, ctrl, c, cw)
+        for b in range(kv.shape[0]):
+            kv[b] = k0 + j
+        sense_lanes(z, kv, ctrl, c, cw)
 
 
 @jit_noalloc
@@ -96,9 +101,11 @@ def _friction(n, k0, h, z, events, plant, out):
 
 
 @jit_noalloc
-def _plant(n, k0, h, substeps, X, U, c, events, lwork, ctrl, ref, filt, ynoise):
+def _plant(n, k0, h, substeps, X, U, c, events, lwork, ctrl, ref, filt, ynoise, t0):
     for j in range(n):
-        integrate_lanes(X, U, (k0 + j) * h, h, substeps, c, events, lwork, False, ctrl, ref, filt, ynoise)
+        for b in range(t0.shape[0]):
+            t0[b] = (k0 + j) * h
+        integrate_lanes(X, U, t0, h, substeps, c, events, lwork, False, ctrl, ref, filt, ynoise)
 
 
 @jit_noalloc
@@ -126,9 +133,9 @@ def _copy(n, z, zprev):
 
 
 @jit_noalloc
-def _peek(n, k, h, z, ctrl, ref, peek, u_res, IB, BB, filt, c, work, cw):
+def _peek(n, kv, h, z, ctrl, ref, peek, u_res, gid, BB, filt, c, work, cw):
     for _ in range(n):
-        peek_lanes(z, ctrl, ref, peek, u_res, BB, IB, 0, k, h, filt, c, work, cw)
+        peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, 0, kv, h, filt, c, work, cw)
 
 
 @jit_noalloc
@@ -168,11 +175,12 @@ class StageTimer:
         self.columns = [self.G[:, a:b] for a, b in zip(edges[:-1], edges[1:])]
         cfg = L.cfg
         self.h, self.substeps, self.ap = cfg.control_period, cfg.substeps, cfg.agent_period
-        self.k0 = int(self.IB0[0, IB_K])
+        self.k0 = int(self.IB0[IB_K, 0])
         self.u_res = np.ascontiguousarray(self.F0[:, F_URES])
         self.run = self.BB0[:, BB_RUN].copy()
         self.pre = np.zeros(self.B, dtype=np.bool_)
         self.active = np.zeros(self.B, dtype=np.bool_)
+        self.kv = np.zeros(self.B, dtype=np.int64)
         L.lwork[0][6][CW_TODO, :] = 1.0
         self.X = L.X[0]
         self.X[:N_PLANT] = self.hot[0][:, :N_PLANT].T
@@ -208,7 +216,8 @@ class StageTimer:
         tf = np.zeros(self.B)
         none = np.zeros(self.B)
         return {
-            "sensors and model over the lanes (sense_lanes)": self.cost(lambda: _sense(n, k0, z, ctrl, c, cw)),
+            "sensors and model over the lanes (sense_lanes)": self.cost(lambda: _sense(n, k0, z, ctrl, c, cw,
+                                                                                       self.kv)),
             "rest of the controller per lane (lane_law)": self.cost(
                 lambda: _law(n, k0, h, z, ctrl, ref, L.filt, info, work, cw)),
             "  of it: the reference (reference_value)": self.cost(lambda: _reference(n, k0, h, ref)),
@@ -216,7 +225,8 @@ class StageTimer:
                 lambda: _apply(n, z, info, ctrl, self.u_res, U)),
             "friction torque at the sample": self.cost(lambda: _friction(n, k0, h, z, L.events, plant, tf)),
             "plant, RK4 over the lanes (integrate_lanes)": self.cost(
-                lambda: _plant(n, k0, h, self.substeps, self.X, U, c, L.events, lwork, ctrl, ref, L.filt, none)),
+                lambda: _plant(n, k0, h, self.substeps, self.X, U, c, L.events, lwork, ctrl, ref, L.filt, none,
+                               np.zeros(self.B))),
             f"divergence check ({N_LOOP} doubles of loop state)": self.cost(lambda: _check(n, z, ctrl, plant)),
             "metrics (accumulate)": self.cost(lambda: _metrics(n, k0, h, acc, info, L.events)),
             "state copy at t_k": self.cost(lambda: _copy(n, z, zprev)),
@@ -230,13 +240,13 @@ class StageTimer:
 
         def one_group():
             self.restore()
-            L.IB[:, IB_GID] = 0
+            L.IB[IB_GID] = 0
 
         return {
             "the whole compiled step (advance), per period": self.cost(lambda: advance(*L._args)) * per_step,
             f"look-ahead (peek_lanes), once per agent step of {self.ap} periods": self.cost(
-                lambda: _peek(1, self.k0, self.h, z, ctrl, ref, peek, L.F[:, F_URES], L.IB, L.BB, L.filt, L.c[0],
-                              L.work[0], lw[6]), one_group) * per_step,
+                lambda: _peek(1, np.full(self.B, self.k0), self.h, z, ctrl, ref, peek, L.F[:, F_URES], L.IB[IB_GID],
+                              L.BB, L.filt, L.c[0], L.work[0], lw[6]), one_group) * per_step,
             "observation, once per agent step": self.cost(
                 lambda: _observe(1, L.F, peek, info_ok, L.obs, L.lay)) * per_step,
         }
@@ -248,7 +258,7 @@ class StageTimer:
         def periods(blocks, u_res):
             return self.cost(lambda: _periods(n, self.k0, self.h, self.substeps, *(blocks[i] for i in PERIOD_BLOCKS),
                                               u_res, self.run, L.events, L.filt, L.c[0], self.X, L.U[0], L.work[0],
-                                              L.lwork[0], self.pre, self.active))
+                                              L.lwork[0], self.pre, self.active, self.kv))
 
         ctrl, plant = self.hot[3], self.hot[1]
         return {
@@ -278,4 +288,29 @@ def stage_costs(lanes: int = 256, periods: int = 5, repeats: int = 40) -> dict:
     return out | {"agent_period": L.cfg.agent_period, "n_loop": N_LOOP, "lanes": lanes}
 
 
-__all__ = ["stage_costs", "live_lanes", "StageTimer", "PERIOD_BLOCKS"]
+def phase_costs(lanes: int = 64, phases: tuple[int, ...] = (1, 4, 16, 64), repeats: int = 30) -> dict[int, float]:
+    """ns per lane and control period of the vector env's compiled step (one thread) with its ``lanes`` sub-envs in
+    each number of ``phases`` (lane b restarted b mod phases agent steps after the others, as autoreset leaves lanes
+    whose episodes ended early): the cost of lanes that are out of phase."""
+    threads = nb.get_num_threads()
+    nb.set_num_threads(1)
+    out = {}
+    try:
+        for g in phases:
+            v = EHSSTrackingVectorEnv(lanes, episode_seconds=5.0)
+            v.reset(seed=0)
+            late = np.arange(lanes) % g
+            for i in range(1, g):
+                v.step(np.zeros((lanes,) + v.single_action_space.shape, dtype=np.float32))
+                v.reset(seed=i, options={"reset_mask": late >= i})
+            L = v._lanes
+            t = StageTimer(L, L.cfg.agent_period, repeats)
+            out[len(set(L.k[:lanes].tolist()))] = t.cost(L.step)
+            t.restore()
+            v.close()
+    finally:
+        nb.set_num_threads(threads)
+    return out
+
+
+__all__ = ["stage_costs", "phase_costs", "live_lanes", "StageTimer", "PERIOD_BLOCKS"]

@@ -133,6 +133,7 @@ def measured():
     _, vec = bench_env._vector_table(vt, {n: 10 for n in bench_env.VEC_SIZES}, 100, 2)
     vec["compiled_ns"] = 300.0
     vec["stages"] = lane_stages.stage_costs(4, periods=1, repeats=1)
+    vec["stages"]["phases"] = lane_stages.phase_costs(4, phases=(1, 2), repeats=1)
     env = {"kc": bench_env.step_breakdown(True), "profiles": bench_env.step_profiles(20), "vec": vec}
     sim_child, env_child = compile_child.child("sim"), compile_child.child("env")
     compile_results = {"sim, cold cache": [sim_child], "sim, warm cache": [sim_child],

@@ -74,7 +74,7 @@ def test_forward_pass_is_the_simulators_integrator_bit_for_bit():
     arrays = plant_only_arrays(1)
     for s in range(n):
         u_s = u[s // spc] if s < 300 * spc else 0.3
-        integrate_lanes(x, np.array([u_s]), s * DT, DT, 1, c, ev, work, False, *arrays)
+        integrate_lanes(x, np.array([u_s]), np.array([s * DT]), DT, 1, c, ev, work, False, *arrays)
         assert np.array_equal(x[:, 0], X[s + 1]), f"step {s}"
     assert np.abs(X[:, 2]).max() == plant.P_s  # the relief valve acted
 

@@ -197,8 +197,8 @@ def _plain_loop(sc: Scenario, residuals: np.ndarray, agent_period: int) -> tuple
     for r in residuals:
         u_res[0] = r
         for _ in range(agent_period):
-            lanes_period(z, k, h, substeps, a.plant, a.model, a.ctrl, a.ref, a.events, a.filt, u_res, active, info,
-                         acc, c, X, U, zprev, work, lwork, pre, peek)
+            lanes_period(z, np.array([k]), h, substeps, a.plant, a.model, a.ctrl, a.ref, a.events, a.filt, u_res,
+                         active, info, acc, c, X, U, zprev, work, lwork, pre, peek)
             k += 1
     assert info[0, I_DHAT] != 0.0 and info[0, I_UDOB] != 0.0
     return z[0], acc[0]

@@ -29,7 +29,7 @@ def integrate_one(x, u, t0, h, substeps, events):
     c = np.zeros((N_LANE_CONST, 1))
     lane_constants(PA.reshape(1, -1), c)
     ev = np.asarray(events, dtype=float).reshape(1, -1, 3) if len(events) else np.zeros((1, 0, 3))
-    integrate_lanes(X, np.array([float(u)]), t0, h, substeps, c, ev, np.zeros((6, 4, 1)), False,
+    integrate_lanes(X, np.array([float(u)]), np.array([t0]), h, substeps, c, ev, np.zeros((6, 4, 1)), False,
                     *plant_only_arrays(1))
     x[:] = X[:, 0]
 
@@ -147,7 +147,8 @@ def test_lanes_integrated_together_equal_each_lane_alone():
     c = np.zeros((N_LANE_CONST, B))
     lane_constants(np.tile(PA, (B, 1)), c)
     for k in range(10):
-        integrate_lanes(X, U, k * 1e-4, 1e-4, 7, c, events, np.zeros((6, 4, B)), False, *plant_only_arrays(B))
+        integrate_lanes(X, U, np.full(B, k * 1e-4), 1e-4, 7, c, events, np.zeros((6, 4, B)), False,
+                        *plant_only_arrays(B))
         for b in range(B):
             integrate_one(x_alone[b], U[b], k * 1e-4, 1e-4, 7, events[b])
     assert np.array_equal(X.T, x_alone)

@@ -187,12 +187,13 @@ def output_derivatives(x1, x2, f2, h2, position, hd):
 
 
 @jit_noalloc
-def sense_lanes(z, k, ctrl, c, cw):
+def sense_lanes(z, kv, ctrl, c, cw):
     """Stages 1 and 2 of the controller for the lanes of a block flagged in ``cw[CW_TODO]``, each a loop over the lanes
     (the same arithmetic as :func:`controller_sense` does for one lane): the noise's uniform variates of every lane
     and channel (integer arithmetic, vectorised), the sensors (libm's log and cos where a noise std is > 0), then the
     model at every lane's measured state (vectorised; the model's rows of the lane constants ``c``,
-    :func:`model_constants`). Writes the rows CW_* of the scratch ``cw`` (N_LOOP, B)."""
+    :func:`model_constants`). Lane b is at its own sample ``kv[b]``. Writes the rows CW_* of the scratch ``cw``
+    (N_LOOP, B)."""
     B = z.shape[0]
     XM = cw[CW_XM:CW_XM + 4]
     MO = cw[CW_MO:CW_MO + 4]
@@ -201,13 +202,13 @@ def sense_lanes(z, k, ctrl, c, cw):
     todo = cw[CW_TODO]
     for i in range(N_PLANT):
         for b in range(B):
-            U1[i, b], U2[i, b] = noise_uniforms(int(ctrl[b, C_SEED]), k, i)
+            U1[i, b], U2[i, b] = noise_uniforms(int(ctrl[b, C_SEED]), kv[b], i)
     for b in range(B):
         if todo[b] != 0.0:
             for i in range(N_PLANT):
                 sd = ctrl[b, C_NOISE_THETA + i]
                 XM[i, b] = z[b, i] + (sd * normal_from(U1[i, b], U2[i, b]) if sd > 0.0 else 0.0)
-            sense_unmodelled(z[b], XM[:, b], k, ctrl[b])  # the encoder's grid and the sensor delay (off: nothing)
+            sense_unmodelled(z[b], XM[:, b], kv[b], ctrl[b])  # the encoder's grid and the sensor delay (off: nothing)
     for b in range(B):
         f2, h2, F, G = model_terms(XM[X_OMEGA, b], XM[X_PL, b], XM[X_AV, b], c[:, b], LC_MODEL, c[LC_PMAX, b])
         MO[0, b] = F

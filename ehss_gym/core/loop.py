@@ -156,15 +156,17 @@ def _diverge(acc, code, k, h):
 
 
 @jit_noalloc
-def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
+def lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
                  zprev, work, lwork, pre, peek):
-    """Advance every active lane by one control period; returns the number still active.
+    """Advance every active lane by one control period, lane b from its own sample kv[b]; returns the number still
+    active.
 
     In stages over the lanes of the block: the controller's sensors and its model at the measured states for every
     lane (:func:`ehss_gym.core.controller.sense_lanes`, reading the controller's rows of the lane constants ``c``);
     then per lane the rest of the controller (with residual ``u_res[b]`` [mA]) and the friction torque at the sample;
-    then the plants of all lanes integrated together; then the divergence checks and the metrics. ``lwork`` is
-    scratch (N_LWORK, N_LOOP, B). A lane that diverges is marked inactive, keeps its last finite
+    then the plants of all lanes integrated together; then the divergence checks and the metrics. The lanes need not
+    be at the same sample (lanes reset at different times are out of phase): each computes its own, as a block of one
+    would. ``lwork`` is scratch (N_LWORK, N_LOOP, B). A lane that diverges is marked inactive, keeps its last finite
     state, and gets its DIV_* code and time in ``acc``. ``zprev`` receives the
     state at t_k (what the logged sample shows).
 
@@ -183,6 +185,7 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
             analog = True
     nx = N_LOOP if analog else N_PLANT  # rows integrated: the plant, and with analog lanes the filters too
     ynoise = lwork[5, 1]
+    t0 = lwork[5, 3]  # each lane's time at its sample [s]
     cw = lwork[6]  # the controller's lane stages (rows CW_*)
     # stage: the state at t_k of every active lane (before the controller's sensors move the delay line in z), and
     # which lanes the controller senses afresh (active, not pre-sensed by the env's look-ahead)
@@ -196,7 +199,7 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
         n_todo += sense
     # stages 1-2 of the controller, each over the lanes: the sensors, the model at the measured states (vectorised)
     if n_todo > 0:
-        sense_lanes(z, k, ctrl, c, cw)
+        sense_lanes(z, kv, ctrl, c, cw)
     for b in range(B):
         if not active[b]:
             U[b] = 0.0
@@ -209,11 +212,12 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
                 z[b, i] = peek[b, N_INFO + i]
             u_base = peek[b, I_UBASE]
         else:  # stages 3 on of the controller, one lane at a time (the reference, estimator, law ...)
-            u_base = lane_law(b, z[b], k, h, ctrl[b], ref[b], filt[b], info[b], work, cw)
+            u_base = lane_law(b, z[b], kv[b], h, ctrl[b], ref[b], filt[b], info[b], work, cw)
         u = controller_apply(z[b], info[b], ctrl[b], u_base, u_res[b])
-        info[b, I_TF] = friction_torque(k * h, zprev[b, X_OMEGA], events[b], plant[b, P_DF])  # the plant's, at t_k
+        t0[b] = kv[b] * h
+        info[b, I_TF] = friction_torque(t0[b], zprev[b, X_OMEGA], events[b], plant[b, P_DF])  # the plant's, at t_k
         if not (math.isfinite(u) and math.isfinite(info[b, I_V]) and math.isfinite(info[b, I_S])):
-            _diverge(acc[b], DIV_CURRENT if not math.isfinite(u) else DIV_NONFINITE, k, h)
+            _diverge(acc[b], DIV_CURRENT if not math.isfinite(u) else DIV_NONFINITE, kv[b], h)
             active[b] = False
             for i in range(z.shape[1]):
                 z[b, i] = zprev[b, i]
@@ -228,7 +232,7 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
         n_active += 1
     if n_active == 0:
         return 0
-    integrate_lanes(X, U, k * h, h, substeps, c, events, lwork, analog, ctrl, ref, filt, ynoise)
+    integrate_lanes(X, U, t0, h, substeps, c, events, lwork, analog, ctrl, ref, filt, ynoise)
     for b in range(B):
         if not active[b]:
             continue
@@ -236,7 +240,7 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
             z[b, i] = X[i, b]
         code = check_state(z[b], ctrl[b], plant[b])
         if code != DIV_NONE:
-            _diverge(acc[b], code, k, h)
+            _diverge(acc[b], code, kv[b], h)
             active[b] = False
             for i in range(z.shape[1]):
                 z[b, i] = zprev[b, i]
@@ -244,7 +248,7 @@ def lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res
                 X[i, b] = z[b, i]
             n_active -= 1
             continue
-        accumulate(acc[b], info[b], h, k, events[b])
+        accumulate(acc[b], info[b], h, kv[b], events[b])
     return n_active
 
 
@@ -265,11 +269,13 @@ def run_lanes(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, event
     zprev = np.zeros_like(z)
     pre = np.zeros(B, dtype=np.bool_)  # no lane is pre-sensed in a plain simulation
     peek = np.zeros((B, N_INFO + N_LOOP))
+    kv = np.zeros(B, dtype=np.int64)  # the lanes' sample index: all in phase here
     for b in range(B):
         acc[b, M_T_DIVERGED] = -1.0
         n_log[b] = 0
     for k in range(n_steps):
-        if lanes_period(z, k, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
+        kv[:] = k
+        if lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_res, active, info, acc, c, X, U,
                         zprev, work, lwork, pre, peek) == 0:
             break
         log_now = k % log_every == 0

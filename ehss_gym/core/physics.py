@@ -252,8 +252,9 @@ def lie_derivatives(x, p, order, h):
 def analog_filter_rhs(X, ts, ctrl, ref, filt, ynoise, D, B):
     """D[4:, b] = the continuous reference model's and estimator's derivatives for the "analog" lanes.
 
-    The reference model is driven by r(ts), the estimator by the plant output in X plus the sensor noise
-    of the last sample (held: a sampled sensor). Other lanes get zeros (their filters are digital).
+    The reference model of lane b is driven by r(ts[b]) (``ts``: each lane's time [s]), the estimator by the plant
+    output in X plus the sensor noise of the last sample (held: a sampled sensor). Other lanes get zeros (their filters
+    are digital).
     """
     for b in range(B):
         for i in range(N_PLANT, D.shape[0]):
@@ -262,7 +263,7 @@ def analog_filter_rhs(X, ts, ctrl, ref, filt, ynoise, D, B):
             continue
         m = int(ctrl[b, C_ORDER])
         cr = filt[b, FB_VEC, FBV_C_REF]
-        acc = cr[0] * reference_value(ts, ref[b])
+        acc = cr[0] * reference_value(ts[b], ref[b])
         for i in range(m):
             acc -= cr[i] * X[Z_REF + i, b]
         for i in range(m - 1):
@@ -281,7 +282,8 @@ def analog_filter_rhs(X, ts, ctrl, ref, filt, ynoise, D, B):
 
 @jit_noalloc
 def integrate_lanes(X, U, t0, h, substeps, c, events, work, analog, ctrl, ref, filt, ynoise):
-    """Advance B loops over [t0, t0+h] with their currents held (ZOH): classic RK4, ``substeps`` equal steps.
+    """Advance B loops, lane b over [t0[b], t0[b] + h], with their currents held (ZOH): classic RK4, ``substeps``
+    equal steps. Each lane has its own start time (lanes reset at different times are out of phase).
 
     The plant rows X[:4] of every lane are integrated (:func:`lane_rhs`); with ``analog`` also the filter rows X[4:]
     of the lanes whose estimator is analog: the reference model (input r(t)) and the estimator (input y(t) + the
@@ -294,12 +296,12 @@ def integrate_lanes(X, U, t0, h, substeps, c, events, work, analog, ctrl, ref, f
         X: loop states (N_LOOP, B) (rows as the loop state z; only 4 rows are read without ``analog``),
             updated in place.
         U: held currents (B,) [mA].
-        t0: start time [s].
+        t0: each lane's start time (B,) [s].
         h: control period [s].
         substeps: RK4 steps per period.
         c: lane constants (N_LANE_CONST, B).
         events: friction events (B, E, 3).
-        work: scratch (6, N_LOOP, B).
+        work: scratch (6, N_LOOP, B) (rows work[5, 0] and work[5, 2] are this function's).
         analog: integrate the analog lanes' filters too (some lane's estimator is analog).
         ctrl: controller rows (B, N_CTRL); read with ``analog``.
         ref: reference spec rows (B, N_REF); read with ``analog``.
@@ -311,20 +313,24 @@ def integrate_lanes(X, U, t0, h, substeps, c, events, work, analog, ctrl, ref, f
     dt = h / substeps
     k1, k2, k3, k4, xt = work[0], work[1], work[2], work[3], work[4]  # the RK4 stages and the stage state
     amp = work[5, 0]  # the loop's LW_AMP row
+    ts = work[5, 2]  # each lane's stage time [s] (the analog filters' reference)
     for j in range(substeps):
-        ts = t0 + j * dt
         for b in range(B):
-            amp[b] = active_amplitude(t0 + (j + 0.5) * dt, events[b])
-        for xs, kk, tstage, half in ((X, k1, ts, 0.5), (xt, k2, ts + 0.5 * dt, 0.5), (xt, k3, ts + 0.5 * dt, 1.0)):
+            amp[b] = active_amplitude(t0[b] + (j + 0.5) * dt, events[b])
+        for stage, (xs, kk, half) in enumerate(((X, k1, 0.5), (xt, k2, 0.5), (xt, k3, 1.0))):
             lane_rhs(xs, amp, U, c, kk, B)
             if analog:
-                analog_filter_rhs(xs, tstage, ctrl, ref, filt, ynoise, kk, B)
+                for b in range(B):  # the stage's time: t0 + j dt, then + dt/2 (as t0 + j dt + 0.5 dt, in this order)
+                    ts[b] = t0[b] + j * dt if stage == 0 else (t0[b] + j * dt) + 0.5 * dt
+                analog_filter_rhs(xs, ts, ctrl, ref, filt, ynoise, kk, B)
             for i in range(n):
                 for b in range(B):
                     xt[i, b] = X[i, b] + half * dt * kk[i, b]
         lane_rhs(xt, amp, U, c, k4, B)
         if analog:
-            analog_filter_rhs(xt, ts + dt, ctrl, ref, filt, ynoise, k4, B)
+            for b in range(B):
+                ts[b] = (t0[b] + j * dt) + dt
+            analog_filter_rhs(xt, ts, ctrl, ref, filt, ynoise, k4, B)
         for i in range(n):
             for b in range(B):
                 X[i, b] += dt / 6.0 * (k1[i, b] + 2.0 * k2[i, b] + 2.0 * k3[i, b] + k4[i, b])

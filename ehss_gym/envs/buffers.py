@@ -97,9 +97,11 @@ F_ACT = F_MEM + N_MEM  # the last action of a mode but "current" (N_ACT)
 N_EXTRA = N_MEM + N_ACT  # the block of extras the observation reads (FLAG_MEM): memory features, then action
 F_RPHYS = F_ACT + N_ACT  # the physical reward's constants (N_RPHYS; 0 = off)
 N_F = F_RPHYS + N_RPHYS
-# Per-lane int64 buffer: step index k, agent steps taken, group id (scratch).
-IB_K, IB_NSTEP, IB_GID = 0, 1, 2
-N_IB = 3
+# The int64 buffer IB (N_IB, B), a row per quantity (each contiguous over the lanes): step index k, agent steps taken,
+# stepped in this call (0) or not (-1), the sample index of the control period under way (scratch: k plus the periods
+# run so far in the step).
+IB_K, IB_NSTEP, IB_GID, IB_KJ = 0, 1, 2, 3
+N_IB = 4
 # Per-lane bool buffer: running (not diverged, not held), group member (scratch), H_PEEK holds
 # the controller's view at the lane's next period (set by the look-ahead, cleared when used or reloaded).
 BB_RUN, BB_ACT, BB_PRE = 0, 1, 2

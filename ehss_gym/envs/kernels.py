@@ -62,6 +62,7 @@ from .buffers import (
     H_ZPREV,
     IB_GID,
     IB_K,
+    IB_KJ,
     IB_NSTEP,
     LAY_FLAGS,
     LAY_SCALE,
@@ -186,26 +187,26 @@ def _peek(b, k, h, z, model, ctrl, ref, peek, u_res, BB, filt, work):
 
 
 @jit_noalloc
-def peek_lanes(z, ctrl, ref, peek, u_res, BB, IB, g, k, h, filt, c, work, cw):
-    """:func:`_peek` for every lane of group ``g`` (IB_GID) at sample k, in the controller's stages on the copies of
-    the loop states in the look-ahead blocks: the sensors and model over the lanes
+def peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, g, kv, h, filt, c, work, cw):
+    """:func:`_peek` for every lane of group ``g`` (IB_GID), lane b at its sample kv[b], in the controller's stages on
+    the copies of the loop states in the look-ahead blocks: the sensors and model over the lanes
     (:func:`ehss_gym.core.controller.sense_lanes`), then the rest of the controller per lane. The same arithmetic as
     :func:`_peek`."""
     B = z.shape[0]
     zt = peek[:, N_INFO:]  # the copies, which the sensors' delay line moves on (the loop state stays)
     for b in range(B):
-        member = IB[b, IB_GID] == g
+        member = gid[b] == g
         cw[CW_TODO, b] = 1.0 if member else 0.0
         if member:
             for i in range(N_LOOP):
                 zt[b, i] = z[b, i]
-    sense_lanes(zt, k, ctrl, c, cw)
+    sense_lanes(zt, kv, ctrl, c, cw)
     for b in range(B):
-        if IB[b, IB_GID] != g:
+        if gid[b] != g:
             continue
         pk = peek[b, :N_INFO]
         zb = peek[b, N_INFO:]
-        u_base = lane_law(b, zb, k, h, ctrl[b], ref[b], filt[b], pk, work, cw)
+        u_base = lane_law(b, zb, kv[b], h, ctrl[b], ref[b], filt[b], pk, work, cw)
         controller_apply(zb, pk, ctrl[b], u_base, u_res[b])
         BB[b, BB_PRE] = True
 
@@ -224,7 +225,7 @@ def observe(h, F, H, IB, BB, events, filt, work, obs, lay):
             continue
         for i in range(N_INFO):
             info_ok[b, i] = 0.0
-        _peek(b, IB[b, IB_K], h, z, model, ctrl, ref, peek, u_res, BB, filt, work)
+        _peek(b, IB[IB_K, b], h, z, model, ctrl, ref, peek, u_res, BB, filt, work)
         _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
 
 
@@ -442,11 +443,11 @@ def advance_lanes(s, B_all, n_per, h, substeps, F, H, IB, BB, events, filt, c, X
                   wts):
     """Advance ``n_per`` control periods for every running lane of lanes s, ..., s + B - 1 (B = F.shape[0]).
 
-    Lanes are grouped by their step index k (lanes reset at different times are out of phase) and each
-    group is stepped by :func:`ehss_gym.core.loop.lanes_period`, so a lane's arithmetic does not depend on
-    the others. Per lane this then writes the observation (from the controller's view at the next
-    sample, so the agent acts on the freshest measurement), the reward, the agent-rate error log, and
-    clears the run flag if the lane diverged (the H_INFO_OK block keeps the last finite sample).
+    The running lanes are stepped together by :func:`ehss_gym.core.loop.lanes_period`, each from its own step
+    index k (lanes reset at different times are out of phase); a lane's arithmetic does not depend on the others.
+    Per lane this then writes the observation (from the controller's view at the next sample, so the agent acts on
+    the freshest measurement), the reward, the agent-rate error log, and clears the run flag if the lane diverged
+    (the H_INFO_OK block keeps the last finite sample).
 
     Args:
         n_per: control periods per agent step.
@@ -454,7 +455,7 @@ def advance_lanes(s, B_all, n_per, h, substeps, F, H, IB, BB, events, filt, c, X
         s, B_all: the first of the lanes and the number of lanes in ``H``.
         F: per-lane float64 buffer (B, N_F), blocks F_* (statistics, residual [mA], reward, ...).
         H: the hot blocks H_* of all B_all lanes (loop state, rows, info, metrics, ...; :func:`hot_blocks`).
-        IB: per-lane int64 buffer (B, N_IB): step index, agent steps taken, scratch.
+        IB: int64 buffer (N_IB, B_all), a row per quantity (IB_*): step index, agent steps taken, scratch.
         BB: per-lane bool buffer (B, N_BB): run flag (cleared on divergence), scratch.
         events: friction events (B, E, 3); filt: filter blocks (B, 3, 4, 4).
         c, X, U, work, lwork: lane scratch (made by :class:`ehss_gym.envs.lanes.Lanes`).
@@ -468,83 +469,85 @@ def advance_lanes(s, B_all, n_per, h, substeps, F, H, IB, BB, events, filt, c, X
     run = BB[:, BB_RUN]
     act = BB[:, BB_ACT]
     pre = BB[:, BB_PRE]
+    # the lanes' rows of the int buffer (one row per quantity, so each is contiguous over the lanes)
+    ks, nstep, gid, kv = IB[IB_K, s:s + B], IB[IB_NSTEP, s:s + B], IB[IB_GID, s:s + B], IB[IB_KJ, s:s + B]
+    n_run = 0
     for b in range(B):
-        IB[b, IB_GID] = -1
         for j in range(N_STATS):
             F[b, F_STATS + j] = 0.0
-    g = 0
-    for b0 in range(B):
-        if not run[b0] or IB[b0, IB_GID] >= 0:
-            continue
-        kk = IB[b0, IB_K]
-        for b in range(B):
-            member = run[b] and IB[b, IB_GID] < 0 and IB[b, IB_K] == kk
-            act[b] = member
-            if member:
-                IB[b, IB_GID] = g
-                snapshot_classes(F[b, F_STATS:F_STATS + N_STATS], acc[b])
-        for j in range(n_per):
-            if wts[W_ACT_PERIOD] > 0.0:  # a residual that moves every control period (the rate and filtered modes)
-                for b in range(B):
-                    if act[b]:
-                        u_res[b] = action_period(int(wts[W_ACT_MODE]), u_res[b], F[b, F_ACT], wts[W_ACT_C1],
-                                                 wts[W_ACT_C2])
-            # Periods alternate between the H_INFO and H_INFO_OK blocks, so the last finite period's info
-            # survives a divergence in the next one without a per-period copy (lanes only ever stop).
-            inf = info if j % 2 == 0 else info_ok
-            n_act = lanes_period(z, kk + j, h, substeps, plant, model, ctrl, ref, events, filt, u_res, act, inf, acc,
-                                 c, X, U, zprev, work, lwork, pre, peek)
+        act[b] = run[b]
+        gid[b] = 0 if run[b] else -1
+        if run[b]:
+            snapshot_classes(F[b, F_STATS:F_STATS + N_STATS], acc[b])
+            n_run += 1
+    if n_run == 0:
+        return
+    # Every running lane steps in the same calls, each from its own step index (lanes reset at different times are
+    # out of phase): a lane's arithmetic does not depend on the others', so the cost does not grow with the number
+    # of phases.
+    for j in range(n_per):
+        if wts[W_ACT_PERIOD] > 0.0:  # a residual that moves every control period (the rate and filtered modes)
             for b in range(B):
                 if act[b]:
-                    e = inf[b, I_E]
-                    F[b, F_STATS + S_SUM_E2] += e * e
-                    F[b, F_STATS + S_N] += 1.0
-                    F[b, F_STATS + S_SAT] += inf[b, I_SAT]
-                    u = inf[b, I_UAPP]
-                    if j == 0 or u < F[b, F_STATS + S_UMIN]:
-                        F[b, F_STATS + S_UMIN] = u
-                    if j == 0 or u > F[b, F_STATS + S_UMAX]:
-                        F[b, F_STATS + S_UMAX] = u
-                    if wts[W_PHYS] > 0.0 and abs(inf[b, I_E_TRUE]) > F[b, F_STATS + S_EMAX]:
-                        F[b, F_STATS + S_EMAX] = abs(inf[b, I_E_TRUE])
-            if n_act == 0:
-                break
+                    u_res[b] = action_period(int(wts[W_ACT_MODE]), u_res[b], F[b, F_ACT], wts[W_ACT_C1],
+                                             wts[W_ACT_C2])
         for b in range(B):
-            if IB[b, IB_GID] != g:
-                continue
-            # S_N finite periods ran: the last one (index S_N - 1) wrote H_INFO if its index is even
-            n_ok = int(F[b, F_STATS + S_N])
-            if n_ok > 0 and (n_ok - 1) % 2 == 0:
-                for i in range(N_INFO):
-                    info_ok[b, i] = info[b, i]
-            n_run = F[b, F_STATS + S_N]
-            F[b, F_STATS + S_SATF] = F[b, F_STATS + S_SAT] / n_run if n_run > 0.0 else 0.0
-            diverged = not act[b]
-            run[b] = act[b]
-            IB[b, IB_K] = kk + n_per
-            # the step's action [-]: the residual over its scale, or the first entry of another mode's action
-            a = u_res[b] * wts[W_INV_SCALE] if wts[W_ACT_MODE] == 0.0 else F[b, F_ACT]
-            F[b, F_REW] = agent_reward(a, F[b, F_APREV], F[b, F_STATS + S_N], F[b, F_STATS + S_SUM_E2],
-                                       acc[b, M_TV_U] - F[b, F_STATS + S_TV0], diverged, wts)
-            if wts[W_CLASS] > 0.0 or wts[W_SAT] > 0.0:
-                F[b, F_REW] += class_reward(F[b, F_STATS:F_STATS + N_STATS], acc[b], F[b, F_RCLS:F_RCLS + N_RCLS],
-                                            IB[b, IB_NSTEP], diverged, wts)
-            if wts[W_PHYS] > 0.0:
-                F[b, F_REW] += physical_reward(F[b, F_STATS:F_STATS + N_STATS], acc[b],
-                                               F[b, F_RPHYS:F_RPHYS + N_RPHYS], F[b, F_STATS + S_N], h, diverged, wts)
-            if wts[W_MEM_GAIN] > 0.0:
-                memory_update(F[b, F_MEM:F_MEM + N_MEM], info_ok[b, I_E], F[b, F_APREV], wts)
-            F[b, F_APREV] = a
-            j = IB[b, IB_NSTEP]
-            if j < elog.shape[1]:
-                elog[b, j] = info_ok[b, I_E]
-            IB[b, IB_NSTEP] = j + 1
-        # the look-ahead: what each lane's controller sees at its next sample, then its observation
-        peek_lanes(z, ctrl, ref, peek, u_res, BB, IB, g, kk + n_per, h, filt, c, work, lwork[6])
+            kv[b] = ks[b] + j
+        # Periods alternate between the H_INFO and H_INFO_OK blocks, so the last finite period's info
+        # survives a divergence in the next one without a per-period copy (lanes only ever stop).
+        inf = info if j % 2 == 0 else info_ok
+        n_act = lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_res, act, inf, acc, c, X,
+                             U, zprev, work, lwork, pre, peek)
         for b in range(B):
-            if IB[b, IB_GID] == g:
-                _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
-        g += 1
+            if act[b]:
+                e = inf[b, I_E]
+                F[b, F_STATS + S_SUM_E2] += e * e
+                F[b, F_STATS + S_N] += 1.0
+                F[b, F_STATS + S_SAT] += inf[b, I_SAT]
+                u = inf[b, I_UAPP]
+                if j == 0 or u < F[b, F_STATS + S_UMIN]:
+                    F[b, F_STATS + S_UMIN] = u
+                if j == 0 or u > F[b, F_STATS + S_UMAX]:
+                    F[b, F_STATS + S_UMAX] = u
+                if wts[W_PHYS] > 0.0 and abs(inf[b, I_E_TRUE]) > F[b, F_STATS + S_EMAX]:
+                    F[b, F_STATS + S_EMAX] = abs(inf[b, I_E_TRUE])
+        if n_act == 0:
+            break
+    for b in range(B):
+        if gid[b] != 0:
+            continue
+        # S_N finite periods ran: the last one (index S_N - 1) wrote H_INFO if its index is even
+        n_ok = int(F[b, F_STATS + S_N])
+        if n_ok > 0 and (n_ok - 1) % 2 == 0:
+            for i in range(N_INFO):
+                info_ok[b, i] = info[b, i]
+        n_ran = F[b, F_STATS + S_N]
+        F[b, F_STATS + S_SATF] = F[b, F_STATS + S_SAT] / n_ran if n_ran > 0.0 else 0.0
+        diverged = not act[b]
+        run[b] = act[b]
+        ks[b] += n_per
+        # the step's action [-]: the residual over its scale, or the first entry of another mode's action
+        a = u_res[b] * wts[W_INV_SCALE] if wts[W_ACT_MODE] == 0.0 else F[b, F_ACT]
+        F[b, F_REW] = agent_reward(a, F[b, F_APREV], F[b, F_STATS + S_N], F[b, F_STATS + S_SUM_E2],
+                                   acc[b, M_TV_U] - F[b, F_STATS + S_TV0], diverged, wts)
+        if wts[W_CLASS] > 0.0 or wts[W_SAT] > 0.0:
+            F[b, F_REW] += class_reward(F[b, F_STATS:F_STATS + N_STATS], acc[b], F[b, F_RCLS:F_RCLS + N_RCLS],
+                                        nstep[b], diverged, wts)
+        if wts[W_PHYS] > 0.0:
+            F[b, F_REW] += physical_reward(F[b, F_STATS:F_STATS + N_STATS], acc[b], F[b, F_RPHYS:F_RPHYS + N_RPHYS],
+                                           F[b, F_STATS + S_N], h, diverged, wts)
+        if wts[W_MEM_GAIN] > 0.0:
+            memory_update(F[b, F_MEM:F_MEM + N_MEM], info_ok[b, I_E], F[b, F_APREV], wts)
+        F[b, F_APREV] = a
+        j = nstep[b]
+        if j < elog.shape[1]:
+            elog[b, j] = info_ok[b, I_E]
+        nstep[b] = j + 1
+    # the look-ahead: what each lane's controller sees at its next sample, then its observation
+    peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, 0, ks, h, filt, c, work, lwork[6])
+    for b in range(B):
+        if gid[b] == 0:
+            _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")
@@ -556,5 +559,5 @@ def advance_chunks(chunk, n_per, h, substeps, F, H, IB, BB, events, filt, c, X, 
     for i in nb.prange(n_chunks):
         s = i * chunk
         e = s + chunk
-        advance_lanes(s, B_all, n_per, h, substeps, F[s:e], H, IB[s:e], BB[s:e], events[s:e], filt[s:e], c[i], X[i],
+        advance_lanes(s, B_all, n_per, h, substeps, F[s:e], H, IB, BB[s:e], events[s:e], filt[s:e], c[i], X[i],
                       U[i], work[i], lwork[i], obs[s:e], elog[s:e], lay, wts)

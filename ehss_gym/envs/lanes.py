@@ -255,7 +255,7 @@ class Lanes:
         self.ctrl_base = base
         nominal = cfg.plant.plant.as_array()  # the rows before a lane's first episode: the rig's
         self.F = np.zeros((B, N_F))
-        self.IB = np.zeros((B, N_IB), dtype=np.int64)
+        self.IB = np.zeros((N_IB, B), dtype=np.int64)  # a row per quantity (buffers.IB_*)
         self.BB = np.zeros((B, N_BB), dtype=np.bool_)
         self.H = np.zeros(B * N_H)  # the hot blocks, block after block (buffers.py says why)
         # named views into the buffers (writes go to H, F, IB, BB)
@@ -274,8 +274,8 @@ class Lanes:
         self.info_ok0 = self.info_ok[0]
         self.acc0 = self.acc[0]
         self.tail0 = self.F[0, F_STATS:F_REW + 1]
-        self.k = self.IB[:, IB_K]
-        self.nstep = self.IB[:, IB_NSTEP]
+        self.k = self.IB[IB_K]
+        self.nstep = self.IB[IB_NSTEP]
         self.run = self.BB[:, BB_RUN]
         self.plant[:] = nominal
         self.model[:] = cfg.plant.controller_model.as_array()
@@ -385,7 +385,7 @@ class Lanes:
             if rw.get("physical", 0.0) > 0.0:
                 self.F[b, F_RPHYS:F_RPHYS + N_RPHYS] = physical_coefficients(
                     sc, cfg.agent_period, base, valve_floors(cfg.plant.rated_current, cfg.plant.plant.tau))
-        self.IB[b] = 0
+        self.IB[:, b] = 0
         self.BB[b, BB_PRE] = False  # the look-ahead of the previous episode is stale
         self.run[b] = True
         T = sc.n_steps // cfg.agent_period
@@ -437,7 +437,7 @@ class Lanes:
     def metrics(self, b: int) -> dict:
         """The core metrics summary of lane b's episode so far (with recovery times from the agent-rate log)."""
         sc = self.scenarios[b]
-        n = int(min(self.IB[b, IB_NSTEP], self.elog.shape[1]))
+        n = int(min(self.IB[IB_NSTEP, b], self.elog.shape[1]))
         per = self.cfg.agent_period
         t = ((np.arange(n) + 1) * per - 1) * self.cfg.control_period
         return summarize_acc(self.acc[b], sc, t, self.elog[b, :n].astype(np.float64))
