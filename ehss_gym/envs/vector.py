@@ -6,8 +6,8 @@ vectorization_mode="vector_entry_point", **kwargs)``) takes the same keyword arg
 in one compiled call, so sub-env i gives exactly what a single env gives with the same seed. Sub-envs that restarted
 at different steps (autoreset after an early end) step in the same call, each from its own step index, at no extra
 cost. With ``threads > 1`` the lanes are split into chunks advanced in parallel numba threads (worth it on idle cores
-only: on 2 quiet cores 256 sub-envs ran 1.8x faster with ``threads=2`` (reports/perf), while on a 2-core machine at
-load ~10, OpenMP barriers made 2 threads 9x slower than 1).
+only: on a 2-core machine at load 1.2-1.6, 256 sub-envs ran 1.4-1.8x faster with ``threads=2`` (reports/perf's
+runs), while at load ~10 OpenMP barriers made 2 threads 9x slower than 1).
 
 Conventions (Gymnasium 1.x):
 
