@@ -135,7 +135,7 @@ def _copy(n, z, zprev):
 @jit_noalloc
 def _peek(n, kv, h, z, ctrl, ref, peek, u_res, gid, BB, filt, c, work, cw):
     for _ in range(n):
-        peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, 0, kv, h, filt, c, work, cw)
+        peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, kv, h, filt, c, work, cw)
 
 
 @jit_noalloc

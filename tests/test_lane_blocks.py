@@ -4,17 +4,24 @@ other lanes, on their laws and estimators, or on the block's size."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
-from ehss_gym.core.layout import N_LOG, N_METRICS
-from ehss_gym.core.loop import run_lanes
+from ehss_gym.core.layout import DIV_NONE, DIV_NONFINITE, N_LOG, N_LOOP, N_METRICS, N_PARAM
+from ehss_gym.core.loop import check_state, run_lanes
 from ehss_gym.core.metrics import init_accumulator
+from ehss_gym.core.params import P_PS
 from ehss_gym.core.registry import ESTIMATORS, LAWS, names
 from ehss_gym.core.scenarios import sample_scenario
+from ehss_gym.core.settings import C_OMEGA_MAX, C_P_BOUND, N_CTRL
 from ehss_gym.core.sim import LoopArrays
 from ehss_gym.core.unmodelled import Unmodelled
 from ehss_gym.envs import EnvConfig
+from ehss_gym.envs.buffers import HOT_BLOCKS, N_H
+from ehss_gym.envs.kernels import hot_blocks
+from ehss_gym.envs.lanes import hot_block
 from ehss_gym.envs.vector import EHSSTrackingVectorEnv
 
 BLOCK = 256
@@ -86,3 +93,32 @@ def test_the_vector_env_in_parallel_chunks_equals_one_call_bitwise():
         env.close()
         runs.append(out)
     assert runs[0] == runs[1]
+
+
+def test_the_kernels_hot_blocks_are_the_buffers_table_in_order():
+    """The compiled step's views of the hot blocks (kernels.hot_blocks, written out for numba) are the blocks the
+    buffer's table lists (buffers.HOT_BLOCKS, which the lanes' Python views and the reset use), in the same order."""
+    B = 3
+    H = np.arange(B * N_H, dtype=np.float64)
+    views = hot_blocks(H, B, 0, B)
+    assert len(views) == len(HOT_BLOCKS)
+    for v, (off, width) in zip(views, HOT_BLOCKS):
+        assert np.array_equal(v, hot_block(H, B, off, width))
+    # a chunk's rows: lanes 1..2 of the same blocks
+    for v, (off, width) in zip(hot_blocks(H, B, 1, 2), HOT_BLOCKS):
+        assert np.array_equal(v, hot_block(H, B, off, width)[1:3])
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("where", [0, 5, N_LOOP - 1])
+def test_the_divergence_check_names_any_non_finite_entry(bad, where):
+    """check_state (written without an exit per entry) against math.isfinite: any NaN or infinite entry of the loop
+    state is DIV_NONFINITE, wherever it is; a finite state within the bounds is DIV_NONE, one with a huge finite entry
+    outside the checked states too."""
+    ctrl, plant = np.zeros(N_CTRL), np.zeros(N_PARAM)
+    ctrl[C_OMEGA_MAX], ctrl[C_P_BOUND], plant[P_PS] = 1e3, 1.0, 1e7
+    z = np.zeros(N_LOOP)
+    z[N_LOOP - 1] = 1e300  # finite however large: x - x is 0
+    assert not math.isfinite(bad) and check_state(z, ctrl, plant) == DIV_NONE
+    z[where] = bad
+    assert check_state(z, ctrl, plant) == DIV_NONFINITE

@@ -187,22 +187,22 @@ def _peek(b, k, h, z, model, ctrl, ref, peek, u_res, BB, filt, work):
 
 
 @jit_noalloc
-def peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, g, kv, h, filt, c, work, cw):
-    """:func:`_peek` for every lane of group ``g`` (IB_GID), lane b at its sample kv[b], in the controller's stages on
-    the copies of the loop states in the look-ahead blocks: the sensors and model over the lanes
+def peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, kv, h, filt, c, work, cw):
+    """:func:`_peek` for every lane that stepped in this call (``gid`` 0, IB_GID), lane b at its sample kv[b], in the
+    controller's stages on the copies of the loop states in the look-ahead blocks: the sensors and model over the lanes
     (:func:`ehss_gym.core.controller.sense_lanes`), then the rest of the controller per lane. The same arithmetic as
     :func:`_peek`."""
     B = z.shape[0]
     zt = peek[:, N_INFO:]  # the copies, which the sensors' delay line moves on (the loop state stays)
     for b in range(B):
-        member = gid[b] == g
+        member = gid[b] == 0
         cw[CW_TODO, b] = 1.0 if member else 0.0
         if member:
             for i in range(N_LOOP):
                 zt[b, i] = z[b, i]
     sense_lanes(zt, kv, ctrl, c, cw)
     for b in range(B):
-        if gid[b] != g:
+        if gid[b] != 0:
             continue
         pk = peek[b, :N_INFO]
         zb = peek[b, N_INFO:]
@@ -544,7 +544,7 @@ def advance_lanes(s, B_all, n_per, h, substeps, F, H, IB, BB, events, filt, c, X
             elog[b, j] = info_ok[b, I_E]
         nstep[b] = j + 1
     # the look-ahead: what each lane's controller sees at its next sample, then its observation
-    peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, 0, ks, h, filt, c, work, lwork[6])
+    peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, ks, h, filt, c, work, lwork[6])
     for b in range(B):
         if gid[b] == 0:
             _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
