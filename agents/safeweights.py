@@ -201,20 +201,27 @@ def expected_tensors(cfg: dict) -> dict[str, tuple[tuple[int, ...], str]]:
     return out
 
 
-def _torch_forward(layers, act_name: str, head, x: np.ndarray, features: bool = False):
-    """[Linear -> activation] x L -> Linear in torch's float32 kernels, SB3's arithmetic bit for bit (with
-    ``features``: and the last hidden features)."""
+def _torch_forward(layers, act_name: str, head):
+    """The forward pass [Linear -> activation] x L -> Linear in torch's float32 kernels, SB3's arithmetic bit for bit:
+    a function of a batch x (B, obs_dim) (with ``features``: also the last hidden features), made once per policy with
+    the weights as torch tensors sharing the arrays' memory."""
     import torch  # the forward pass only (see the module docstring): loading a policy stays torch-free
 
     F = torch.nn.functional
     act = {"tanh": torch.tanh, "relu": torch.relu, "elu": F.elu, "leaky_relu": F.leaky_relu, "silu": F.silu,
            "gelu": F.gelu, "identity": lambda v: v}[act_name]
-    with torch.no_grad():
-        h = torch.as_tensor(x).float()
-        for w, b in layers:
-            h = act(F.linear(h, torch.from_numpy(w), torch.from_numpy(b)))
-        out = F.linear(h, torch.from_numpy(head[0]), torch.from_numpy(head[1])).numpy()
-        return (out, h.numpy()) if features else out
+    tl = [(torch.from_numpy(w), torch.from_numpy(b)) for w, b in layers]
+    th = tuple(map(torch.from_numpy, head))
+
+    def forward(x: np.ndarray, features: bool = False):
+        with torch.no_grad():
+            h = torch.as_tensor(x).float()
+            for w, b in tl:
+                h = act(F.linear(h, w, b))
+            out = F.linear(h, *th).numpy()
+            return (out, h.numpy()) if features else out
+
+    return forward
 
 
 @dataclass
@@ -252,6 +259,7 @@ class SafePolicy:
         n_hidden = sum(1 for k in self.tensors if k.startswith("pi.") and k.endswith(".weight"))
         self._layers = [(self.tensors[f"pi.{i}.weight"], self.tensors[f"pi.{i}.bias"]) for i in range(n_hidden)]
         self._head = (self.tensors["action.weight"], self.tensors["action.bias"])
+        self._torch_fn = None  # the forward pass in torch, made at the first call (loading stays torch-free)
         self._rng = np.random.default_rng(self.seed)
         if self.obs_normalization is not None:
             self._mean = self.tensors["obs_mean"]
@@ -262,6 +270,15 @@ class SafePolicy:
         if self.head == "squashed":
             self._log_std_layer = (self.tensors["log_std.weight"], self.tensors["log_std.bias"])
 
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_torch_fn": None}  # the forward pass is made again where the policy is unpickled
+
+    def _forward(self, obs_norm: np.ndarray, features: bool = False):
+        """:func:`_torch_forward` of this policy's weights (made at the first call)."""
+        if self._torch_fn is None:
+            self._torch_fn = _torch_forward(self._layers, self.activation, self._head)
+        return self._torch_fn(obs_norm, features)
+
     def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
         """VecNormalize's observation normalisation (float64 arithmetic, float32 result), or the identity."""
         if self.obs_normalization is None:
@@ -271,7 +288,7 @@ class SafePolicy:
     def mean_action(self, obs_norm: np.ndarray) -> np.ndarray:
         """The Gaussian mean for a batch of normalised observations (B, obs_dim): in action units before clipping, or
         (squashed head) before the tanh and the rescale."""
-        return _torch_forward(self._layers, self.activation, self._head, obs_norm)
+        return self._forward(obs_norm)
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """SB3-style prediction: (action, state). Accepts one observation or a batch (B, obs_dim).
@@ -298,7 +315,7 @@ class SafePolicy:
         elif deterministic:
             act = self.mean_action(self.normalize_obs(obs))
         elif self.tensors["log_std"].ndim == 2:  # gSDE: the features times a Gaussian matrix of the stored scales
-            act, phi = _torch_forward(self._layers, self.activation, self._head, self.normalize_obs(obs), True)
+            act, phi = self._forward(self.normalize_obs(obs), True)
             eps = np.exp(self.tensors["log_std"]) * self._rng.standard_normal(self.tensors["log_std"].shape)
             act = (act + phi @ eps).astype(np.float32)
         else:
@@ -315,7 +332,7 @@ class SafePolicy:
         [-1, 1] to the bounds as SB3's ``unscale_action`` (float32 arithmetic for a float32 Box)."""
         import torch  # as _torch_forward: torch's tanh is SB3's, bit for bit
 
-        mean, phi = _torch_forward(self._layers, self.activation, self._head, obs_norm, True)
+        mean, phi = self._forward(obs_norm, True)
         if not deterministic:
             w, b = self._log_std_layer
             std = np.exp(np.clip(phi @ w.T + b, *LOG_STD_RANGE))

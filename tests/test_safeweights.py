@@ -267,3 +267,17 @@ def test_loaded_policy_pickles_without_torch_objects(trained):
     assert all(isinstance(v, np.ndarray) for v in pol.tensors.values())
     obs = _obs(20)
     assert np.array_equal(pol.predict(obs)[0], model.predict(venv.normalize_obs(obs), deterministic=True)[0])
+
+
+def test_a_policy_that_has_predicted_pickles_and_predicts_the_same(trained):
+    """The forward pass is made once, at the first predict, and kept (no torch tensors rebuilt each call); a policy
+    that has predicted still pickles (the pass is not pickled, but made again) and predicts the same, bit for bit."""
+    model, venv, stem = trained
+    pol = load_policy(stem)
+    obs = _obs(20)
+    first = pol.predict(obs)[0]
+    forward = pol._torch_fn
+    assert forward is not None and np.array_equal(pol.predict(obs)[0], first) and pol._torch_fn is forward
+    back = pickle.loads(pickle.dumps(pol))
+    assert back._torch_fn is None and np.array_equal(back.predict(obs)[0], first)
+    assert np.array_equal(first, model.predict(venv.normalize_obs(obs), deterministic=True)[0])

@@ -45,6 +45,11 @@ class ScriptedPolicy:
         """Actions (n, 1) for observations (n, D); returns (actions, state)."""
         raise NotImplementedError
 
+    def fixed_action(self, n: int) -> np.ndarray | None:
+        """The actions (n, 1) this policy takes in n envs whatever they observe, or None if they depend on what it
+        observes (:func:`ehss_gym.envs.rollouts.rollout` then holds them over many steps per compiled call)."""
+        return None
+
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """SB3 interface: actions with the observation's batch shape, and the next state."""
         obs = np.asarray(observation, dtype=np.float32)

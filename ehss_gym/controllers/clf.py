@@ -159,6 +159,11 @@ def parse_scripted(name: str, task: str | None = None, law_table=None) -> dict |
 class CLFPolicy(ScriptedPolicy):
     """The CLF law of the env it acts in: zero residual, or the law's current in direct mode."""
 
+    def fixed_action(self, n: int) -> np.ndarray | None:
+        """A zero residual in residual mode (the law acts alone); None in direct mode (the action is the law's
+        current, read from the observation)."""
+        return np.zeros((n, 1), dtype=np.float32) if self.config.mode == "residual" else None
+
     def act(self, obs, state, episode_start):
         if self.config.mode == "residual":
             return np.zeros((obs.shape[0], 1)), state

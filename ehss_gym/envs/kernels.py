@@ -20,6 +20,7 @@ from ehss_gym.core.layout import (
     M_DST_MAX,
     M_DST_STEPS,
     M_DST_SUM_ABS,
+    M_LOST,
     M_SUM_U2,
     M_TRK_STEPS,
     M_TRK_SUM_ABS,
@@ -548,6 +549,44 @@ def advance_lanes(s, B_all, n_per, h, substeps, F, H, IB, BB, events, filt, c, X
     for b in range(B):
         if gid[b] == 0:
             _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
+
+
+@jit_noalloc
+def held_record(k, stop_lost, rec, rsum, F, H, IB, BB):
+    """The bookkeeping after agent step ``k`` of a held action (:func:`advance_held`): each lane that stepped adds its
+    reward to ``rsum`` and, if ``rec`` has a row k, copies its last finite sample (H_INFO_OK) into ``rec[k, b]``.
+
+    Returns:
+        True if a lane ended in the step: it diverged, or it has lost track and ``stop_lost`` (the env ends an
+        episode that loses track).
+    """
+    B = F.shape[0]
+    info_ok = block(H, B, H_INFO_OK, N_INFO)
+    acc = block(H, B, H_ACC, N_METRICS)
+    record = k < rec.shape[0]
+    stop = False
+    for b in range(B):
+        if IB[IB_GID, b] != 0:  # did not step
+            continue
+        rsum[b] += F[b, F_REW]
+        if record and b < rec.shape[1]:
+            for i in range(N_INFO):
+                rec[k, b, i] = info_ok[b, i]
+        if not BB[b, BB_RUN] or (stop_lost and acc[b, M_LOST] > 0.0):
+            stop = True
+    return stop
+
+
+@jit_noalloc
+def advance_held(n_max, stop_lost, rec, rsum, n_per, h, substeps, F, H, IB, BB, events, filt, c, X, U, work, lwork,
+                 obs, elog, lay, wts):
+    """Up to ``n_max`` agent steps of :func:`advance` with the actions held, in one call, stopping after the first step
+    in which a lane ends (:func:`held_record`, which keeps the rewards and samples). Returns the steps taken."""
+    for k in range(n_max):
+        advance(n_per, h, substeps, F, H, IB, BB, events, filt, c, X, U, work, lwork, obs, elog, lay, wts)
+        if held_record(k, stop_lost, rec, rsum, F, H, IB, BB):
+            return k + 1
+    return n_max
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")

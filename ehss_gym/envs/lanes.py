@@ -144,7 +144,7 @@ from .buffers import (
     block,
 )
 from .config import SCENARIOS, EnvConfig
-from .kernels import advance, advance_chunks, observe, reward_weights
+from .kernels import advance, advance_chunks, advance_held, held_record, observe, reward_weights
 from .observation import observation_layout
 
 MAX_EVENTS = 4  # friction-event slots per lane (grown on demand)
@@ -433,6 +433,20 @@ class Lanes:
             advance(*self._args)
         else:
             advance_chunks(*self._pargs)
+
+    def step_held(self, n_max: int, stop_lost: bool, rec: np.ndarray, rsum: np.ndarray) -> int:
+        """Up to ``n_max`` agent steps of :meth:`step` with the lanes' actions held, stopping after the first in which
+        a lane ends (diverges, or loses track where ``stop_lost``); one compiled call for one chunk
+        (:func:`ehss_gym.envs.kernels.advance_held`). Each step adds the rewards of the lanes that stepped to ``rsum``
+        (B,) and, where ``rec`` (K, n, N_INFO) has its row, copies their last finite samples into it. Returns the
+        steps taken."""
+        if self.n_chunks == 1:
+            return advance_held(n_max, stop_lost, rec, rsum, *self._args)
+        for k in range(n_max):
+            advance_chunks(*self._pargs)
+            if held_record(k, stop_lost, rec, rsum, self.F, self.H, self.IB, self.BB):
+                return k + 1
+        return n_max
 
     def metrics(self, b: int) -> dict:
         """The core metrics summary of lane b's episode so far (with recovery times from the agent-rate log)."""

@@ -9,6 +9,7 @@ advances all of them, and the policy gets one batched ``predict`` per agent step
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -38,6 +39,38 @@ class EpisodeResult:
     ret: float = 0.0
 
 
+class SideBySide:
+    """Several policies on consecutive lanes of one vector env: policy j acts for its ``n_j`` lanes, with its own
+    recurrent state, and gets exactly those lanes' observations (the batch it would get alone).
+
+    Args:
+        parts: (policy, n) pairs, in lane order; each policy has SB3's ``predict``.
+    """
+
+    def __init__(self, parts):
+        self.parts = [(policy, int(n)) for policy, n in parts]
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        """SB3's ``predict`` over all lanes: the parts' actions stacked in lane order; ``state`` a list of theirs."""
+        states = [None] * len(self.parts) if state is None else state
+        actions, new, s = [], [], 0
+        for (policy, n), st in zip(self.parts, states):
+            start = None if episode_start is None else episode_start[s:s + n]
+            a, st = policy.predict(observation[s:s + n], state=st, episode_start=start, deterministic=deterministic)
+            actions.append(np.asarray(a, dtype=np.float32).reshape(n, -1))
+            new.append(st)
+            s += n
+        return np.concatenate(actions), new
+
+    def fixed_action(self, n: int) -> np.ndarray | None:
+        """The parts' fixed actions stacked, if every part has them (see :func:`rollout`); else None."""
+        fixed = [getattr(policy, "fixed_action", None) for policy, _ in self.parts]
+        if any(f is None for f in fixed):
+            return None
+        out = [f(m) for f, (_, m) in zip(fixed, self.parts)]
+        return None if any(a is None for a in out) else np.concatenate(out)
+
+
 def _lane_dict(stacked: dict, i: int) -> dict:
     """Sub-env i's entry of a dict that the vector env stacked per key (Gymnasium's info convention)."""
     out = {}
@@ -49,28 +82,42 @@ def _lane_dict(stacked: dict, i: int) -> dict:
     return out
 
 
-def _vector_env(env_kwargs: dict, count: int, venv: EHSSTrackingVectorEnv | None) -> EHSSTrackingVectorEnv:
+# the reward terms whose constants come from the base law's run of each episode (a second simulation per episode)
+BASE_RUN_REWARDS = ("class", "physical")
+
+
+def _vector_env(env_kwargs: dict, count: int, venv: EHSSTrackingVectorEnv | None,
+                returns: bool) -> EHSSTrackingVectorEnv:
     if venv is not None:
         if venv.num_envs != count or venv.metadata["autoreset_mode"] != AutoresetMode.DISABLED:
             raise ValueError(f"venv must be an EHSSTrackingVectorEnv of {count} sub-envs with autoreset disabled")
         return venv
+    if not returns:  # the rewards are not wanted: skip the base law's runs that only their constants need
+        rw = {**(env_kwargs.get("reward_weights") or {}), **{k: 0.0 for k in BASE_RUN_REWARDS}}
+        env_kwargs = {**env_kwargs, "reward_weights": rw}
     return EHSSTrackingVectorEnv(count, autoreset_mode=AutoresetMode.DISABLED, **env_kwargs)
 
 
 def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = False, name: str = "policy",
-            venv: EHSSTrackingVectorEnv | None = None) -> list[EpisodeResult]:
+            venv: EHSSTrackingVectorEnv | None = None, returns: bool = True) -> list[EpisodeResult]:
     """Run ``policy`` deterministically on pinned episodes, one lane each; results in the order given.
 
     Args:
         policy: an object with SB3's ``predict(obs, state=None, episode_start=None, deterministic=True)``
             taking a batch (N, D) of observations. Its recurrent ``state`` (a PID's integrator) is passed along
-            for the whole batch, and every episode gets ``episode_start=True`` on its first step.
+            for the whole batch, and every episode gets ``episode_start=True`` on its first step. A policy with a
+            ``fixed_action(n)`` method that returns actions (n, dims) acts with them whatever it observes (a scripted
+            law's zero residual): the env then runs up to :data:`HOLD_STEPS` agent steps per compiled call
+            (:meth:`~ehss_gym.envs.vector.EHSSTrackingVectorEnv.step_held`), with the same results as step by step.
         env_kwargs: keyword arguments of the env the policy acts in (``EHSSTrackingEnv``'s).
         scenarios: one pinned episode per lane: a :class:`~ehss_gym.core.settings.Scenario` with the env's
             controller settings, or a dict of its physical fields.
         trace: record the agent-rate trace of every episode.
         name: the policy's name in error messages.
         venv: a vector env to reuse (``len(scenarios)`` sub-envs, autoreset disabled); default a new one.
+        returns: sum the env's rewards into each result's ``ret``. False leaves ``ret`` NaN and builds the env
+            without the reward terms that need the base law's run of every episode (:data:`BASE_RUN_REWARDS`, a
+            second simulation of it): the loop, and so the metrics and traces, are the same bit for bit.
 
     Raises:
         RuntimeError: the policy gave an invalid (NaN or misshapen) action.
@@ -78,29 +125,38 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
     N = len(scenarios)
     if N == 0:
         return []
-    env = _vector_env(env_kwargs, N, venv)
+    env = _vector_env(env_kwargs, N, venv, returns)
     obs, _ = env.reset(options={"scenario": list(scenarios)})
     done = np.zeros(N, dtype=bool)
     results: list = [None] * N
     traces = [{k: [] for k in TRACE_KEYS} for _ in range(N)] if trace else None
     info_ok = env._lanes.info_ok  # the lanes' last finite sample of the step (what the step's info shows)
+    # a policy that acts the same whatever it observes runs HOLD_STEPS agent steps per compiled call
+    fixed = getattr(policy, "fixed_action", None)
+    held = None if fixed is None else fixed(N)
+    record = np.zeros((HOLD_STEPS, N, layout.N_INFO)) if trace and held is not None else None
     episode_start = np.ones(N, dtype=bool)
-    returns = np.zeros(N)
+    total = np.zeros(N)
     state = None
     steps = 0
     while not done.all():
-        action, state = policy.predict(obs, state=state, episode_start=episode_start, deterministic=True)
-        episode_start[:] = False
-        steps += 1
+        if held is None:
+            action, state = policy.predict(obs, state=state, episode_start=episode_start, deterministic=True)
+            episode_start[:] = False
         try:
-            obs, reward, term, trunc, info = env.step(np.asarray(action, dtype=np.float32).reshape(N, -1))
+            if held is None:
+                obs, reward, term, trunc, info = env.step(np.asarray(action, dtype=np.float32).reshape(N, -1))
+                n = 1
+            else:
+                obs, reward, term, trunc, info, n = env.step_held(held, HOLD_STEPS, record=record)
         except ValueError as exc:
             raise RuntimeError(f"policy {name!r} gave an invalid action ({exc})") from None
+        steps += n
         live = np.flatnonzero(~done)
-        returns[live] += reward[live]
+        total[live] += reward[live]
         if trace:
             for i in live:
-                _record(traces[i], info_ok[i])
+                _record(traces[i], info_ok[i:i + 1] if record is None else record[:n, i])
         for i in live[(term | trunc)[live]]:
             done[i] = True
             m = _lane_dict(info["metrics"], i)
@@ -110,19 +166,20 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
     out = []
     for i in range(N):
         tr = {k: np.asarray(v, dtype=np.float64) for k, v in traces[i].items()} if trace else None
-        out.append(EpisodeResult(results[i], tr, float(returns[i])))
+        out.append(EpisodeResult(results[i], tr, float(total[i]) if returns else math.nan))
     return out
 
 
+HOLD_STEPS = 4096  # agent steps per call for a fixed policy (its trace's record: 4096 x N_INFO doubles per lane)
 TRACE_KEYS = ("t", "e", "y_ref", "y", "r", "u", "friction")
 
 
-def _record(tr: dict, i: np.ndarray) -> None:
-    """Append one agent step's sample (a lane's info row, layout I_*) to a trace."""
-    tr["t"].append(float(i[layout.I_T]))
-    tr["e"].append(float(i[layout.I_E]))
-    tr["y_ref"].append(float(i[layout.I_YD]))
-    tr["y"].append(float(i[layout.I_YD] + i[layout.I_E_TRUE]))  # the true output: y_d + (y - y_d)
-    tr["r"].append(float(i[layout.I_R]))
-    tr["u"].append(float(i[layout.I_UAPP]))
-    tr["friction"].append(float(i[layout.I_TF]))
+def _record(tr: dict, rows: np.ndarray) -> None:
+    """Append agent steps' samples (a lane's info rows (n, N_INFO), layout I_*) to a trace."""
+    tr["t"].extend(rows[:, layout.I_T].tolist())
+    tr["e"].extend(rows[:, layout.I_E].tolist())
+    tr["y_ref"].extend(rows[:, layout.I_YD].tolist())
+    tr["y"].extend((rows[:, layout.I_YD] + rows[:, layout.I_E_TRUE]).tolist())  # the true output: y_d + (y - y_d)
+    tr["r"].extend(rows[:, layout.I_R].tolist())
+    tr["u"].extend(rows[:, layout.I_UAPP].tolist())
+    tr["friction"].extend(rows[:, layout.I_TF].tolist())

@@ -36,13 +36,14 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ehss_gym.core.layout import M_LOST
+from ehss_gym.core.layout import M_LOST, N_INFO
 
 from .config import EnvConfig, warn_untuned
 from .lanes import Lanes, step_info
 from .observation import OBS_BOUND
 
 MAX_CHUNK = 128  # lanes integrated in lock-step by one thread
+_NO_RECORD = np.zeros((0, 0, N_INFO))  # step_held without a record (the kernel's array argument)
 SB3_HINT = ("a Gymnasium vector env, which stable-baselines3 does not take; SB3's VecEnv over it is "
             "ehss_gym.train.vec_env.NativeVecEnv(num_envs, env_kwargs), see docs/RL.md")
 
@@ -166,6 +167,36 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         return self._lanes.obs[:N].copy(), infos
 
     def step(self, actions):
+        return self._step(actions, 1, None)[:5]
+
+    def step_held(self, actions, max_steps: int, *, record: np.ndarray | None = None):
+        """:meth:`step` with the same ``actions`` up to ``max_steps`` times, stopping after the first step in which a
+        sub-env ends: the steps after the first run in one compiled call, for a policy whose action does not depend on
+        what it observes (a scripted law's zero residual). Each sub-env's state afterwards is what that many calls of
+        :meth:`step` leave, bit for bit.
+
+        Args:
+            actions: (num_envs, action dims) in [-1, 1], as :meth:`step`'s.
+            max_steps: at most this many steps (>= 1). Fewer run when a sub-env ends, or after a step in which a
+                sub-env was reset (autoreset).
+            record: optional float64 array (max_steps, num_envs, N_INFO) that receives, per step taken and sub-env
+                that stepped, its last finite control sample (layout :mod:`ehss_gym.core.layout`, I_*).
+
+        Returns:
+            (observations, rewards, terminated, truncated, infos, steps): as :meth:`step`'s after the last step taken,
+            except ``rewards``, each sub-env's rewards summed over the steps (in step order), and ``steps``, how many
+            were taken.
+        """
+        if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+            raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
+        shape = (int(max_steps), self.num_envs, N_INFO)
+        if record is not None and not (isinstance(record, np.ndarray) and record.dtype == np.float64
+                                       and record.shape == shape):
+            raise ValueError(f"record must be None or a float64 numpy array of shape {shape}, got "
+                             f"{getattr(record, 'dtype', type(record).__name__)} {np.shape(record)}")
+        return self._step(actions, int(max_steps), record)
+
+    def _step(self, actions, max_steps: int, record: np.ndarray | None):
         if not self._ready:
             raise RuntimeError("call reset() before step()")
         N = self.num_envs
@@ -198,16 +229,21 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         run = lanes.run[:N]
         run[skip] = False  # not advanced (a lane resetting is not advanced on its reset step)
         lanes.step()
+        rewards = lanes.rew[:N].copy()
+        rewards[skip] = 0.0
+        n = 1
+        if record is not None:
+            record[0, stepped] = lanes.info_ok[:N][stepped]
+        if max_steps > 1 and not len(resetting):
+            n += self._hold(stepped, clipped, max_steps - 1, record, rewards)
         diverged = stepped & ~run
         lost = lanes.acc[:N, M_LOST] > 0.0
         if self.config.terminate_on_lost_track:
             run &= ~(stepped & lost)  # the lane stops here, as a diverged one does
         terminated = stepped & ~run
-        self._steps[stepped] += 1
+        self._steps[stepped] += n
         truncated = stepped & run & (self._steps >= lanes.T[:N])
         run[resetting] = True
-        rewards = lanes.rew[:N].copy()
-        rewards[skip] = 0.0
         # one copy of the lanes' last samples and step statistics, so the info's arrays outlive the next step
         step = step_info(lanes.info_ok[:N].T.copy(), lanes.stats[:N].T.copy(), clipped, self._n_clipped.copy(),
                          diverged, lost)
@@ -226,7 +262,30 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
             self._ended |= terminated | truncated
         else:
             self._autoreset = terminated | truncated
-        return lanes.obs[:N].copy(), rewards, terminated, truncated, infos
+        return lanes.obs[:N].copy(), rewards, terminated, truncated, infos, n
+
+    def _hold(self, stepped, clipped, most: int, record, rewards) -> int:
+        """After a step that reset no sub-env: up to ``most`` more steps with the actions held (:meth:`step_held`),
+        none if a sub-env ended in it; their rewards added to ``rewards``, their samples to ``record[1:]``. Returns
+        the steps taken."""
+        lanes = self._lanes
+        N = self.num_envs
+        run = lanes.run[:N]
+        ended = stepped & ~run
+        if self.config.terminate_on_lost_track:
+            ended |= stepped & (lanes.acc[:N, M_LOST] > 0.0)
+        # the steps left before the first truncation (this step counts once the call returns)
+        left = (lanes.T[:N] - self._steps - 1)[stepped]
+        most = min(most, int(left.min()) if len(left) else 0)
+        if ended.any() or most <= 0:
+            return 0
+        rsum = np.zeros(lanes.B)
+        rsum[:N] = rewards
+        rec = _NO_RECORD if record is None else record[1:]
+        n = lanes.step_held(most, bool(self.config.terminate_on_lost_track), rec, rsum)
+        rewards[:] = rsum[:N]
+        self._n_clipped += clipped * n
+        return n
 
     def close_extras(self, **kwargs):
         self._ready = False

@@ -37,6 +37,7 @@ import numpy as np
 from ehss_gym.controllers import dob_rows
 from ehss_gym.core.response import step_metrics
 from ehss_gym.core.rig import as_rig
+from ehss_gym.envs.rollouts import SideBySide
 from ehss_gym.envs.rollouts import rollout as run_rollout
 from ehss_gym.infra.execution import Backend, Executor, Job, canonical, pin_blas, usable_cores
 
@@ -128,23 +129,36 @@ def item_digest(item: tuple) -> str:
     return hashlib.sha256(json.dumps([how, canonical(what)]).encode()).hexdigest()
 
 
-def _eval_job(config: dict, seed: int, items: dict) -> dict:
-    """An executor job (:mod:`ehss_gym.infra.execution`): one :class:`EpisodeBatch` with its policy, made once per
-    process from its item in ``items``; plain data back (per-episode metrics, traces or None)."""
-    batch: EpisodeBatch = config["batch"]
-    # one object per item *and* (policy, run, task) and env settings: a scripted law's item is the same for both
-    # tasks and every suite, its object is built for one task and loop
-    made = (config["item"], batch.key, json.dumps(canonical(batch.env_kwargs)))
-    if made not in _MADE:
-        _MADE[made] = restore(items[batch.key], batch.task, batch.env_kwargs)
-    res, traces = rollout(_MADE[made], batch.env_kwargs, batch.episodes, batch.trace, batch.policy)
-    if traces is not None:
-        for ep, m, tr in zip(batch.episodes, res, traces):
-            if ep.suite == "step":
-                m.update(step_response(tr, ep))
-        if batch.episodes[0].suite != "paper":
-            traces = None
-    return {"metrics": res, "traces": traces}
+def _eval_job(config: dict, seed: int, items: dict) -> list[dict]:
+    """An executor job (:mod:`ehss_gym.infra.execution`): :class:`EpisodeBatch` es that differ only in their run
+    (:func:`make_jobs`), side by side in one rollout, each run's policy made once per process from its item in
+    ``items``; plain data back per batch (per-episode metrics, traces or None)."""
+    batches: list[EpisodeBatch] = config["batches"]
+    parts = []
+    for batch, digest in zip(batches, config["items"]):
+        # one object per item *and* (policy, run, task) and env settings: a scripted law's item is the same for both
+        # tasks and every suite, its object is built for one task and loop
+        made = (digest, batch.key, json.dumps(canonical(batch.env_kwargs)))
+        if made not in _MADE:
+            _MADE[made] = restore(items[batch.key], batch.task, batch.env_kwargs)
+        parts.append((_MADE[made], len(batch.episodes)))
+    first = batches[0]
+    policy = parts[0][0] if len(parts) == 1 else SideBySide(parts)
+    res, traces = rollout(policy, first.env_kwargs, [ep for b in batches for ep in b.episodes], first.trace,
+                          first.policy)
+    out, s = [], 0
+    for batch in batches:
+        n = len(batch.episodes)
+        tr = None if traces is None else traces[s:s + n]
+        if tr is not None:
+            for ep, m, trace in zip(batch.episodes, res[s:s + n], tr):
+                if ep.suite == "step":
+                    m.update(step_response(trace, ep))
+            if batch.episodes[0].suite != "paper":
+                tr = None
+        out.append({"metrics": res[s:s + n], "traces": tr})
+        s += n
+    return out
 
 
 def step_response(trace: dict, ep: Episode) -> dict:
@@ -171,7 +185,8 @@ def rollout(policy, env_kwargs: dict, episodes: Sequence[Episode], trace: bool =
         list of trace dicts or None). A trace holds, per agent step, t [s], y_ref and y [output unit],
         e [output unit], u [mA] (applied) and friction [N*m].
     """
-    res = run_rollout(policy, env_kwargs, [ep.physical for ep in episodes], trace=trace, name=name)
+    # the rows keep no return: the env skips the base law's run of each episode that the reward's constants need
+    res = run_rollout(policy, env_kwargs, [ep.physical for ep in episodes], trace=trace, name=name, returns=False)
     return [r.metrics for r in res], ([r.trace for r in res] if trace else None)
 
 
@@ -200,8 +215,22 @@ def default_workers() -> int:
     return usable_cores()
 
 
+def make_jobs(batches: Sequence[EpisodeBatch]) -> list[list[EpisodeBatch]]:
+    """The batches grouped into jobs: those that differ only in their run (a learned policy's training seeds on the
+    same episodes and env settings) run side by side in one vector env, each run's policy predicting for its own
+    lanes (:class:`~ehss_gym.envs.rollouts.SideBySide`), so one agent step of Python serves every run. A run's
+    policy still gets the batch of observations it would get alone, so its float32 forward pass rounds the same."""
+    groups: dict = {}
+    for b in batches:
+        key = (b.policy, b.task, b.trace, json.dumps(canonical(b.env_kwargs)),
+               tuple((ep.suite, ep.episode_id) for ep in b.episodes))
+        groups.setdefault(key, []).append(b)
+    return list(groups.values())
+
+
 def run_batches(batches: Sequence[EpisodeBatch], items: dict, executor: Executor, in_process: bool = False) -> dict:
-    """Run the batches as jobs on ``executor``'s backend (:mod:`ehss_gym.infra.execution`), longest first.
+    """Run the batches as jobs (:func:`make_jobs`) on ``executor``'s backend (:mod:`ehss_gym.infra.execution`),
+    longest first.
 
     Args:
         batches: the batches.
@@ -211,12 +240,12 @@ def run_batches(batches: Sequence[EpisodeBatch], items: dict, executor: Executor
         in_process: run them in this process whatever the backend (policies that cannot travel).
 
     Returns:
-        job_id -> (per-episode metrics, traces or None).
+        job_id -> (per-episode metrics, traces or None), per batch.
     """
-    order = sorted(batches, key=lambda b: -b.cost)  # longest first keeps the workers busy to the end
+    groups = sorted(make_jobs(batches), key=lambda g: -sum(b.cost for b in g))  # longest first: busy to the end
     digests = {k: item_digest(item) if item[0] != "object" else f"object-{id(item[1])}" for k, item in items.items()}
-    jobs = [Job(_eval_job, {"batch": b, "item": digests[b.key]}, seed=0, label=f"{b.policy}/{b.task}#{b.job_id}")
-            for b in order]
+    jobs = [Job(_eval_job, {"batches": g, "items": [digests[b.key] for b in g]}, seed=0,
+                label=f"{g[0].policy}/{g[0].task}#{g[0].job_id}") for g in groups]
     store = executor.store
     if any(item[0] == "object" for item in items.values()):  # a Python object has no content address
         executor.store = None
@@ -224,7 +253,7 @@ def run_batches(batches: Sequence[EpisodeBatch], items: dict, executor: Executor
         results = executor.map(jobs, context=items, desc="ehss evaluate", in_process=True if in_process else None)
     finally:
         executor.store = store
-    return {b.job_id: (r["metrics"], r["traces"]) for b, r in zip(order, results)}
+    return {b.job_id: (r["metrics"], r["traces"]) for g, rs in zip(groups, results) for b, r in zip(g, rs)}
 
 
 def _complete_specs(specs: list, cfg: EvalConfig, notes: list) -> list:
@@ -421,6 +450,6 @@ def evaluate(specs: Sequence[PolicySpec] | None = None, cfg: EvalConfig | None =
 # import harness as ev``); each is defined in the module named in the package docstring
 __all__ = ["EvalConfig", "PolicySpec", "PolicyError", "Episode", "EpisodeBatch", "Results", "evaluate", "parse_policy",
            "scripted_spec", "scripted_specs", "learned_spec", "object_spec", "shipped_specs", "default_specs",
-           "build_episodes", "rollout", "check_fit", "make_batches", "run_batches", "default_workers",
+           "build_episodes", "rollout", "check_fit", "make_batches", "make_jobs", "run_batches", "default_workers",
            "REFERENCE_POLICY", "SCRIPTED_DEFAULT", "METRICS", "METRIC_KEYS", "TASKS", "SUITES", "UNITS",
            "SWEEP_WINDOW"]
