@@ -1,4 +1,4 @@
-"""Wall time of the full default ``ehss evaluate`` run (target: <= 180 s on 2 cores).
+"""Wall time of the full default ``ehss evaluate`` run (targets on 2 cores: <= 180 s in all, <= 60 s of episodes).
 
 Runs the real command end to end in a fresh process (imports, worker start-up, numba
 cache loading, every episode of every shipped policy on every suite, statistics, figures

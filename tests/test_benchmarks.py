@@ -214,7 +214,13 @@ def test_command_timing_lines(monkeypatch):
     assert report.command_timing("evaluate", res, quick=False) == (
         "ehss evaluate (full default run): 88 episodes, 2 workers; wall 200.0 s (phases: load 1.2 s, episodes "
         "98.8 s), CPU 321.5 s (CPU/2 = 160.7 s) on 2 CPU(s); 1-min load average 0.50 before, 1.23 after\n"
-        "target <= 180 s wall on 2 cores: MISSED (machine shared: other load was running)\n")
+        "target <= 180 s wall on 2 cores: MISSED (machine shared: other load was running)\n"
+        "target <= 60 s of episodes on 2 quiet cores: 98.8 s, MISSED (machine shared: other load was running)\n")
+    quiet = {**res, "wall_s": 70.0, "load_before": 0.1, "phases": {"load": 1.0, "episodes": 59.96}}
+    assert report.command_timing("evaluate", quiet, quick=False).endswith(
+        "target <= 180 s wall on 2 cores: met\ntarget <= 60 s of episodes on 2 quiet cores: 60.0 s, met\n")
+    no_phase = report.command_timing("evaluate", {**res, "phases": {}}, quick=False)
+    assert "of episodes" not in no_phase and no_phase.endswith("other load was running)\n")
     assert report.command_timing("reproduce", {**res, "wall_s": 100.0, "load_before": 0.1}, quick=False) == (
         "ehss reproduce (full default run): wall 100.0 s, CPU 321.5 s on 2 CPU(s); 1-min load average 0.10 before, "
         "1.23 after\ntarget <= 120 s wall on 2 cores: met\n")
