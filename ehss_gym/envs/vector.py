@@ -22,6 +22,9 @@ Conventions (Gymnasium 1.x):
 - ``infos`` is a dict of arrays (with ``_key`` masks): t, e, s, V, u_base, u_residual, u_applied,
   saturated, sat_fraction, friction_torque, clipped, n_clipped, diverged, lost_track every step; ``metrics``
   (and ``divergence_reason``) for sub-envs whose episode ended this step.
+- ``step_held(actions, max_steps)``: the same actions for up to ``max_steps`` steps, the steps after the first in
+  one compiled call, stopping after any sub-env's end (rewards summed); for a policy whose action does not depend on
+  what it observes, such as a scripted law's zero residual (:func:`ehss_gym.envs.rollouts.rollout` uses it).
 - Rendering is not supported (``render_mode`` must be None); render a single env instead.
 - stable-baselines3 takes its own ``VecEnv``, not a Gymnasium vector env: give it
   :class:`ehss_gym.train.vec_env.NativeVecEnv` (this env behind SB3's interface; the class's repr, which SB3's
