@@ -106,11 +106,11 @@ def run(quick: bool) -> Section:
     return sec
 
 
-def recipe_run(native: bool, steps: int) -> float:
-    """Train the residual-PPO recipe (8 envs, its hyperparameters) for ``steps`` agent steps on the native vector
-    env adapter (``native``) or SB3's DummyVecEnv; returns the learn() wall time [s] (construction excluded)."""
+def recipe_run(native: bool, steps: int, n_envs: int) -> float:
+    """Train the residual-PPO recipe (its hyperparameters, ``n_envs`` envs) for ``steps`` agent steps on the native
+    vector env adapter (``native``) or SB3's DummyVecEnv; returns the learn() wall time [s] (construction excluded)."""
     spec = get_spec("residual-ppo")
-    venv = make_env(env_kwargs_for(spec, "velocity", 2), spec.n_envs, spec.gamma, spec.norm_reward, native=native)
+    venv = make_env(env_kwargs_for(spec, "velocity", 2), n_envs, spec.gamma, spec.norm_reward, native=native)
     model = make_agent(spec, venv, seed=0)
     t0 = time.perf_counter()
     model.learn(total_timesteps=steps)
@@ -119,57 +119,68 @@ def recipe_run(native: bool, steps: int) -> float:
     return dt
 
 
-def step_run(native: bool, steps: int) -> float:
-    """Step the recipe's VecNormalize-wrapped training env (8 envs) with zero actions for ``steps`` agent steps,
-    no policy; returns the wall time [s] (construction and the first reset excluded)."""
+def step_run(native: bool, steps: int, n_envs: int) -> float:
+    """Step the recipe's VecNormalize-wrapped training env (``n_envs`` envs) with zero actions for ``steps`` agent
+    steps, no policy; returns the wall time [s] (construction and the first reset excluded)."""
     spec = get_spec("residual-ppo")
-    venv = make_env(env_kwargs_for(spec, "velocity", 2), spec.n_envs, spec.gamma, spec.norm_reward, native=native)
+    venv = make_env(env_kwargs_for(spec, "velocity", 2), n_envs, spec.gamma, spec.norm_reward, native=native)
     venv.seed(0)
     venv.reset()
-    actions = np.zeros((spec.n_envs, *venv.action_space.shape), dtype=np.float32)
+    actions = np.zeros((n_envs, *venv.action_space.shape), dtype=np.float32)
     t0 = time.perf_counter()
-    for _ in range(steps // spec.n_envs):
+    for _ in range(steps // n_envs):
         venv.step(actions)
     dt = time.perf_counter() - t0
     venv.close()
     return dt
 
 
+VEC_ENV_SIZES = (8, 32, 64)  # envs per run: the recipe's 8, and the 32-64 a larger recipe would use
+
+
 def vec_env_throughput(sec: Section, quick: bool) -> None:
-    """PPO training throughput of the residual-PPO recipe on the native vector env (one compiled call for all 8
+    """PPO training throughput of the residual-PPO recipe on the native vector env (one compiled call for all its
     envs, through ``ehss_gym.train.vec_env.NativeVecEnv``) against SB3's DummyVecEnv of single envs (stepped in
-    turn): the same seed gives the same weights on both, so only the time differs."""
+    turn), at 8, 32 and 64 envs (--quick: 8): the same seed gives the same weights on both, so only the time
+    differs. Every run takes as many agent steps (whole rollouts of the largest size)."""
     spec = get_spec("residual-ppo")
-    steps = spec.n_envs * spec.n_steps * (1 if quick else 8)
+    sizes = VEC_ENV_SIZES[:1] if quick else VEC_ENV_SIZES
+    steps = max(sizes) * spec.n_steps * (1 if quick else 2)
     reps = 1 if quick else 3
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
+    cases = {"native vector env (NativeVecEnv)": True, "DummyVecEnv of single envs": False}
+    times, env_times = {}, {}
     try:
-        recipe_run(True, spec.n_envs * spec.n_steps)  # warm the compiled kernels and torch
-        log(f"train: residual-ppo recipe {steps} steps x {reps} repeats, native vector env vs DummyVecEnv, "
-            "interleaved")
-        cases = {"native vector env (NativeVecEnv)": True, "DummyVecEnv of single envs": False}
-        times = interleave({k: (lambda v=v: recipe_run(v, steps)) for k, v in cases.items()}, reps)
-        env_times = interleave({k: (lambda v=v: step_run(v, steps)) for k, v in cases.items()}, reps)
+        recipe_run(True, spec.n_envs * spec.n_steps, spec.n_envs)  # warm the compiled kernels and torch
+        for n in sizes:
+            log(f"train: residual-ppo recipe at {n} envs, {steps} steps x {reps} repeats, native vector env vs "
+                "DummyVecEnv, interleaved")
+            times[n] = interleave({k: (lambda v=v, n=n: recipe_run(v, steps, n)) for k, v in cases.items()}, reps)
+            env_times[n] = interleave({k: (lambda v=v, n=n: step_run(v, steps, n)) for k, v in cases.items()}, reps)
     finally:
         torch.set_num_threads(threads)
-    tb = Table("ppo_vec_env", "PPO training throughput of the residual-PPO recipe by vector env (median of "
-               "interleaved repeats)", ["vector env", "median_learn_s", "min..max_s", "steps_per_s", "vs_DummyVecEnv",
-                                        "env_only_steps_per_s", "env_only_vs_DummyVecEnv"])
-    rate = {k: steps / median(ts) for k, ts in times.items()}
-    env_rate = {k: steps / median(ts) for k, ts in env_times.items()}
-    dummy = "DummyVecEnv of single envs"
-    for k, ts in times.items():
-        tb.add(k, median(ts), spread(ts), rate[k], rate[k] / rate[dummy], env_rate[k], env_rate[k] / env_rate[dummy])
+    tb = Table("ppo_vec_env", "PPO training throughput of the residual-PPO recipe by vector env and number of envs "
+               "(median of interleaved repeats)", ["n_envs", "vector env", "median_learn_s", "min..max_s",
+                                                   "steps_per_s", "vs_DummyVecEnv", "env_only_steps_per_s",
+                                                   "env_only_vs_DummyVecEnv"])
+    dummy, native = "DummyVecEnv of single envs", "native vector env (NativeVecEnv)"
+    gains = {}
+    for n in sizes:
+        rate = {k: steps / median(ts) for k, ts in times[n].items()}
+        env_rate = {k: steps / median(ts) for k, ts in env_times[n].items()}
+        for k, ts in times[n].items():
+            tb.add(n, k, median(ts), spread(ts), rate[k], rate[k] / rate[dummy], env_rate[k],
+                   env_rate[k] / env_rate[dummy])
+        gains[n] = (rate[native] / rate[dummy], env_rate[native] / env_rate[dummy], rate[native] / env_rate[native])
     sec.tables.append(tb)
-    native = "native vector env (NativeVecEnv)"
-    sec.note(f"Residual-PPO recipe ({spec.n_envs} envs x {spec.n_steps} steps per rollout, {spec.n_epochs} epochs, "
-             f"velocity n = 2, seed 0), {steps} agent steps per run, 1 torch thread: training on the native vector "
-             f"env runs at {rate[native] / rate[dummy]:.2f}x the steps per second of SB3's DummyVecEnv; both give "
-             "identical weights for the same seed (tests/test_train.py). Stepping the env alone (zero actions, no "
-             f"policy, VecNormalize included) is {env_rate[native] / env_rate[dummy]:.2f}x as fast: the env is a "
-             f"small part of training ({rate[native] / env_rate[native]:.0%} of the time with the native env), the "
-             "rest is the policy's forward passes and the PPO updates.")
+    per_size = "; ".join(f"{n} envs: {g:.2f}x (env alone {e:.2f}x; the env {share:.0%} of training's time)"
+                         for n, (g, e, share) in gains.items())
+    sec.note(f"Residual-PPO recipe ({spec.n_steps} steps per env and rollout, {spec.n_epochs} epochs, velocity n = 2, "
+             f"seed 0), {steps} agent steps per run, 1 torch thread. Training on the native vector env against SB3's "
+             f"DummyVecEnv, in steps per second: {per_size}. Both give identical weights for the same seed "
+             "(tests/test_train.py). Stepping the env alone (zero actions, no policy, VecNormalize included) gains "
+             "more than training does: the rest of training is the policy's forward passes and the PPO updates.")
 
 
 def recipe_cost(sec: Section, quick: bool, pend_rate: float) -> None:
