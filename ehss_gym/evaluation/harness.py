@@ -67,7 +67,8 @@ TRACED_SUITES = ("paper", "step")  # suites whose episodes are traced at the age
 
 @dataclass
 class EpisodeBatch:
-    """One policy run on a list of episodes of one suite and task (what one executor job does).
+    """One policy run on a list of episodes of one suite and task (an executor job runs one, or several that differ
+    only in their run: :func:`make_jobs`).
 
     Attributes:
         job_id: index in the job list.
