@@ -20,6 +20,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 from stable_baselines3 import PPO
+from stable_baselines3.common.logger import Logger
 
 from ehss_gym.agents.factory import make_agent
 from ehss_gym.agents.specs import env_kwargs_for, get_spec
@@ -61,6 +62,7 @@ def ppo_run(make_env, total_steps: int, record: list) -> float:
     """Train PPO for total_steps; returns the learn() wall time [s] and appends (learn s, env s) to record."""
     env = EnvTimer(make_env())
     model = PPO("MlpPolicy", env, **PPO_KW)
+    model.set_logger(Logger(None, []))  # no SB3-<time> folder in the system's temporary folder per learn()
     t0 = time.perf_counter()
     model.learn(total_timesteps=total_steps)
     dt = time.perf_counter() - t0
@@ -112,6 +114,7 @@ def recipe_run(native: bool, steps: int, n_envs: int) -> float:
     spec = get_spec("residual-ppo")
     venv = make_env(env_kwargs_for(spec, "velocity", 2), n_envs, spec.gamma, spec.norm_reward, native=native)
     model = make_agent(spec, venv, seed=0)
+    model.set_logger(Logger(None, []))
     t0 = time.perf_counter()
     model.learn(total_timesteps=steps)
     dt = time.perf_counter() - t0
