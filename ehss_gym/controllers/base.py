@@ -45,10 +45,16 @@ class ScriptedPolicy:
         """Actions (n, 1) for observations (n, D); returns (actions, state)."""
         raise NotImplementedError
 
+    # False for a policy whose actions do not depend on what it observes (it then has a fixed action)
+    observes = True
+
     def fixed_action(self, n: int) -> np.ndarray | None:
-        """The actions (n, 1) this policy takes in n envs whatever they observe, or None if they depend on what it
-        observes (:func:`ehss_gym.envs.rollouts.rollout` then holds them over many steps per compiled call)."""
-        return None
+        """The actions (n, 1) this policy takes in n envs whatever they observe (:meth:`predict` on any observations;
+        :func:`ehss_gym.envs.rollouts.rollout` then holds them over many steps per compiled call), or None if they
+        depend on what it observes."""
+        if self.observes:
+            return None
+        return self.predict(np.zeros((n, len(self.layout)), dtype=np.float32))[0]
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """SB3 interface: actions with the observation's batch shape, and the next state."""

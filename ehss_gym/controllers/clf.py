@@ -159,10 +159,11 @@ def parse_scripted(name: str, task: str | None = None, law_table=None) -> dict |
 class CLFPolicy(ScriptedPolicy):
     """The CLF law of the env it acts in: zero residual, or the law's current in direct mode."""
 
-    def fixed_action(self, n: int) -> np.ndarray | None:
-        """A zero residual in residual mode (the law acts alone); None in direct mode (the action is the law's
-        current, read from the observation)."""
-        return np.zeros((n, 1), dtype=np.float32) if self.config.mode == "residual" else None
+    @property
+    def observes(self) -> bool:
+        """In residual mode the action is the zero residual (the law acts alone); in direct mode it is the law's
+        current, read from the observation."""
+        return self.config.mode != "residual"
 
     def act(self, obs, state, episode_start):
         if self.config.mode == "residual":

@@ -112,12 +112,7 @@ class ConstantResidualPolicy(ScriptedPolicy):
                              f"got {currents!r}")
         self.currents = c
 
-    def fixed_action(self, n: int) -> np.ndarray:
-        """The constant actions (n, 1): what :meth:`predict` gives for any observations of n envs."""
-        if n != self.currents.size:
-            raise ValueError(f"currents gives {self.currents.size} envs, the batch has {n}")
-        return np.clip(np.asarray(self.currents / self.config.residual_scale, dtype=np.float32).reshape(n, 1), -1.0,
-                       1.0)
+    observes = False  # the same currents whatever the envs show
 
     def act(self, obs, state, episode_start):
         if obs.shape[0] != self.currents.size:
