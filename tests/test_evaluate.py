@@ -548,3 +548,29 @@ def test_the_default_chunk_gives_one_job_per_policy_run_task_and_suite():
     assert len(batches) == len(groups) and sorted((b.task, b.episodes[0].suite) for b in batches) == sorted(groups)
     assert max(len(b.episodes) for b in batches) <= cfg.chunk
     assert len(harness.make_batches(specs, eps, 24)) > len(groups)
+
+
+def test_a_policys_confidence_intervals_do_not_depend_on_the_policies_beside_it():
+    """The bootstrap seeds are the policy's own (a hash of its name), not its place in the list: adding a policy to an
+    evaluation, or reordering it, leaves every other policy's CIs as they were (committed episodes, held-out
+    velocity)."""
+
+    def value(v: str):
+        if v in ("True", "False"):
+            return v == "True"
+        try:
+            return float(v)
+        except ValueError:
+            return v
+
+    keep = ("clf-n2", "dob-n2", "vinv-n2", "eso-n2")
+    root = pathlib.Path(__file__).resolve().parents[1]
+    rows = [{k: value(v) for k, v in r.items()} for r in comparison.read_episodes(str(root / "reports" / "comparison"))
+            if r["suite"] == "heldout" and r["task"] == "velocity" and r["policy"] in keep]
+    cfg = ev.EvalConfig(n_boot=200)
+    wide, _ = scoring.summarize(rows, [ev.scripted_spec(n) for n in keep], cfg)
+    narrow, _ = scoring.summarize(rows, [ev.scripted_spec(n) for n in ("eso-n2", "clf-n2")], cfg)
+    a, b = (next(d for d in s if d["policy"] == "eso-n2") for s in (wide, narrow))
+    keys = [k for k in a if k.endswith(("_lo", "_hi")) or k.startswith("poi")]
+    assert keys and all(a[k] == b[k] or (a[k] != a[k] and b[k] != b[k]) for k in keys)
+    assert math.isfinite(a["figure_lo"]) and a["figure_lo"] < a["figure"] < a["figure_hi"]

@@ -43,7 +43,7 @@ def test_factor_table_quick(tmp_path):
 
 def test_the_rankings_rank_on_each_task_the_policies_that_act_on_it(monkeypatch):
     """Both tasks at once (the held-out suite alone, to be quick): a scripted compensator is ranked only on the task
-    it acts on (``vinv-n2`` velocity, ``dcomp-n2`` position), every other scripted policy on both."""
+    it acts on (``vinv-n2`` and ``eso-n2`` velocity, ``dcomp-n2`` position), every other scripted policy on both."""
     monkeypatch.setattr(factors, "RANK_SUITES", ("heldout",))
     blocks = factors.rankings(("velocity", "position"), 2, quick=True)
     assert [(b["suite"], b["task"]) for b in blocks] == [("heldout", "velocity"), ("heldout", "position")]
@@ -51,4 +51,5 @@ def test_the_rankings_rank_on_each_task_the_policies_that_act_on_it(monkeypatch)
         ranked = {n for n, _ in b["orders"]["physical"]["overall"]}
         velocity = b["task"] == "velocity"
         assert ("vinv-n2" in ranked) == velocity and ("dcomp-n2" in ranked) == (not velocity)
+        assert ("eso-n2" in ranked) == velocity
         assert {"clf-n2", "clf-n4", "clf-n6", "dob-n2", "pid"} <= ranked

@@ -141,8 +141,9 @@ def test_quick_headroom_report(tmp_path):
     assert sum(1 for ln in lines if "| heldout | dob-n2 | 5, 20 | the same to the last bit |" in ln) == 2
     assert sum(1 for ln in lines if "| heldout | dcomp-n2 | 5, 20 | the same to the last bit |" in ln) == 2
     assert sum(1 for ln in lines if "| heldout | vinv-n2 | 5, 20 | the same to the last bit |" in ln) == 2
+    assert sum(1 for ln in lines if "| heldout | eso-n2 | 5, 20 | the same to the last bit |" in ln) == 2
     # a scripted compensator on a task where its rule chose none (COMPENSATOR_ROWS) is the base law, to the last bit
-    for name, task in (("dcomp-n2", "velocity"), ("vinv-n2", "position")):
+    for name, task in (("dcomp-n2", "velocity"), ("vinv-n2", "position"), ("eso-n2", "position")):
         for suite in {s for t, s in blocks if t == task}:
             row = next(r for r in rows if r["task"] == task and r["suite"] == suite and r["variant"] == name)
             ref = next(r for r in rows if r["task"] == task and r["suite"] == suite and r["policy"] == "clf-n2")

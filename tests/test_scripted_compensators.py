@@ -1,6 +1,7 @@
-"""The scripted compensators ``dcomp-n<k>`` and ``vinv-n<k>``: their per-task rows (Table I's built in, a plant's in its
-law table), the specs the evaluation runs, and the sweep's rule that chose the rows (:mod:`ehss_gym.study.compensators`,
-the last stage of ``ehss baselines``), on synthetic results and, marked slow, by rerunning the sweep itself."""
+"""The scripted compensators ``dcomp-n<k>``, ``vinv-n<k>`` and ``eso-n<k>``: their per-task rows (Table I's built in,
+a plant's in its law table), the specs the evaluation runs, and the sweep's rule that chose the rows
+(:mod:`ehss_gym.study.compensators`, the last stage of ``ehss baselines``), on synthetic results and, marked slow, by
+rerunning the sweep itself."""
 
 from __future__ import annotations
 
@@ -9,7 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from ehss_gym.controllers import COMPENSATOR_ROWS, compensated_tasks, compensator_rows, parse_scripted
+from ehss_gym.controllers import (
+    COMPENSATOR_ROWS,
+    compensated_tasks,
+    compensator_rows,
+    compensator_settings,
+    parse_scripted,
+)
 from ehss_gym.envs.config import EnvConfig
 from ehss_gym.envs.law_table import LawSettingsError, load_law_table, table_from_dict
 from ehss_gym.evaluation import EvalConfig, PolicyError
@@ -20,19 +27,33 @@ from ehss_gym.study import compensators as sweep
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ("velocity", "position")
 
-KEYS = {"dcomp": ("reference_delay",), "vinv": ("inverse_threshold", "inverse_hysteresis")}
+KEYS = {"dcomp": ("reference_delay",), "vinv": ("inverse_threshold", "inverse_hysteresis"), "eso": ("observer_hz",)}
+KINDS = tuple(KEYS)
 
 
-@pytest.mark.parametrize("kind", ["dcomp", "vinv"])
+@pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("task", ["velocity", "position"])
 def test_a_compensator_name_takes_its_tasks_row_and_the_env_accepts_it(kind, task):
     kw = parse_scripted(f"{kind}-n2", task)
-    assert kw == {"n": 2, "mode": "residual", **COMPENSATOR_ROWS[kind][task]}
+    loop = compensator_settings(kind, COMPENSATOR_ROWS[kind][task])
+    assert kw == {"n": 2, "mode": "residual", **loop}
     assert set(COMPENSATOR_ROWS[kind][task]) == set(KEYS[kind])
     cfg = EnvConfig.from_kwargs({**kw, "task": task})
-    assert all(getattr(cfg, k) == v for k, v in COMPENSATOR_ROWS[kind][task].items())
+    assert all(getattr(cfg, k) == v for k, v in loop.items())
     # without a task: the env's default task's row (the env's default task is velocity)
-    assert parse_scripted(f"{kind}-n4") == {"n": 4, "mode": "residual", **COMPENSATOR_ROWS[kind]["velocity"]}
+    velocity = compensator_settings(kind, COMPENSATOR_ROWS[kind]["velocity"])
+    assert parse_scripted(f"{kind}-n4") == {"n": 4, "mode": "residual", **velocity}
+
+
+def test_the_observers_row_is_the_estimator_at_its_bandwidth_and_zero_is_the_default_estimator():
+    assert compensator_settings("eso", {"observer_hz": 200.0}) == {"estimator": "eso", "observer_hz": 200.0}
+    assert compensator_settings("eso", {"observer_hz": 0.0}) == {}
+    assert compensator_settings("vinv", {"inverse_threshold": 0.25, "inverse_hysteresis": 1.5}) == {
+        "inverse_threshold": 0.25, "inverse_hysteresis": 1.5}
+    # the env takes it: the velocity task's default estimator is the state-variable filter, the row switches it
+    cfg = EnvConfig.from_kwargs({"task": "velocity", **compensator_settings("eso", {"observer_hz": 100.0})})
+    assert cfg.estimator == "eso" and cfg.observer_hz == 100.0
+    assert EnvConfig.from_kwargs({"task": "velocity"}).estimator != "eso"
 
 
 def test_a_compensator_row_of_an_unknown_task_names_the_accepted_tasks():
@@ -41,14 +62,14 @@ def test_a_compensator_row_of_an_unknown_task_names_the_accepted_tasks():
     assert parse_scripted("vinv-foh-n2") is None and parse_scripted("dcomp-n") is None
 
 
-@pytest.mark.parametrize("kind", ["dcomp", "vinv"])
+@pytest.mark.parametrize("kind", KINDS)
 def test_the_evaluation_runs_a_compensator_where_it_compensates_with_that_tasks_row(kind):
     spec = scripted_spec(f"{kind}-n2")
     rows = compensator_rows(kind, ("velocity", "position"))
     on = tuple(t for t in ("velocity", "position") if any(rows[t].values()))
     assert spec.tasks == on == compensated_tasks(kind, ("velocity", "position")) and on
     for t in on:
-        assert spec.env_kwargs_for(t) == {**spec.env_kwargs, **rows[t], "task": t}
+        assert spec.env_kwargs_for(t) == {**spec.env_kwargs, **compensator_settings(kind, rows[t]), "task": t}
         assert f"({t})" in spec.source
     # a caller's own size replaces the rows: then it runs on both tasks at that size
     own = scripted_spec(f"{kind}-n2", label="mine", env_overrides={KEYS[kind][0]: 0.5})
@@ -72,6 +93,18 @@ def test_the_sweeps_rule_per_task_failure_first_then_the_lowest_then_the_smalles
     ties = [_result(0.9 if c["inverse_threshold"] + c["inverse_hysteresis"] >= 3.0 else 1.0) for c in inv]
     # the smallest threshold + hysteresis among the tied, then the smallest threshold
     assert sweep.choose(ties, inv) == {"inverse_threshold": 0.0, "inverse_hysteresis": 3.0}
+
+
+def test_the_observers_tie_goes_to_the_default_estimator_then_to_the_highest_bandwidth():
+    eso = sweep.candidates()["eso"]
+    assert eso[0] == {"observer_hz": 0.0} and all(c["observer_hz"] > 0.0 for c in eso[1:])
+    assert all(sweep.kind_of(c) == "eso" for c in eso) and sweep.kind_of({"reference_delay": 1.0}) == "dcomp"
+    hz = [c["observer_hz"] for c in eso]
+    # every observer within 1 % of "off": off
+    assert sweep.choose([_result(1.0)] + [_result(0.995)] * (len(eso) - 1), eso) == eso[0]
+    # the observers tied, "off" far behind: the highest bandwidth among the tied
+    res = [_result(1.0)] + [_result(0.20 if f <= 200.0 else 0.30) for f in hz[1:]]
+    assert sweep.choose(res, eso) == {"observer_hz": 200.0}
 
 
 @pytest.mark.slow
@@ -99,15 +132,18 @@ def _table(rows: dict | None) -> dict:
 
 
 PLANT_ROWS = {"velocity": {"dcomp-n2": {"reference_delay": 1.5},
-                           "vinv-n2": {"inverse_threshold": 0.0, "inverse_hysteresis": 0.0}},
+                           "vinv-n2": {"inverse_threshold": 0.0, "inverse_hysteresis": 0.0},
+                           "eso-n2": {"observer_hz": 100.0}},
               "position": {"dcomp-n2": {"reference_delay": 2.0},
-                           "vinv-n2": {"inverse_threshold": 0.25, "inverse_hysteresis": 1.5}}}
+                           "vinv-n2": {"inverse_threshold": 0.25, "inverse_hysteresis": 1.5},
+                           "eso-n2": {"observer_hz": 0.0}}}
 
 
 def test_a_law_table_carries_the_compensators_rows_and_names_a_bad_value():
     table = table_from_dict(_table(PLANT_ROWS))
     assert table.tasks["position"].compensators == {"dcomp": {"reference_delay": 2.0},
-                                                     "vinv": {"inverse_threshold": 0.25, "inverse_hysteresis": 1.5}}
+                                                     "vinv": {"inverse_threshold": 0.25, "inverse_hysteresis": 1.5},
+                                                     "eso": {"observer_hz": 0.0}}
     assert table_from_dict(table.as_dict()) == table  # the file's content round-trips
     assert json.loads(json.dumps(table.as_dict()))["velocity"]["dcomp-n2"] == {"reference_delay": 1.5}
     bad = _table({"velocity": {"dcomp-n2": {"reference_delay": -1.0}}})
@@ -128,6 +164,11 @@ def test_a_plants_law_table_sets_a_compensators_rows_and_tasks():
     vinv = scripted_spec("vinv-n2", laws=table)  # the plant's rule chose none in velocity
     assert vinv.tasks == ("position",) and vinv.env_kwargs_for("position")["inverse_threshold"] == 0.25
     assert [s.name for s in scripted_specs(("clf-n2", "vinv-n2"), ("velocity",), table)] == ["clf-n2"]
+    eso = scripted_spec("eso-n2", laws=table)  # the observer chosen in velocity only
+    assert eso.tasks == ("velocity",) and "100 Hz" in eso.source
+    assert eso.env_kwargs_for("velocity")["estimator"] == "eso" and eso.env_kwargs_for("velocity")["observer_hz"] == 100
+    with pytest.raises(LawSettingsError, match=r"position\.eso-n2\.observer_hz \[Hz\] must be"):
+        table_from_dict(_table({"position": {"eso-n2": {"observer_hz": -5.0}}}))
     # the evaluation applies its law table to a spec named without it (--policies dcomp-n2 --law-settings FILE)
     cfg = EvalConfig(law_settings=table)
     done = _complete_specs([scripted_spec("clf-n2"), scripted_spec("dcomp-n2", label="mine")], cfg, [])
@@ -150,3 +191,22 @@ def test_a_law_table_without_compensator_rows_runs_none_and_says_why():
     assert any("dcomp-n2 acts on no task" in n for n in notes)
     with pytest.raises(PolicyError, match="acts on no task.*rerun ehss baselines"):
         _check_tasks(specs, cfg, {"dcomp-n2"}, [])
+
+
+def test_a_residual_on_a_scripted_baselines_loop_is_in_todays_loop_and_another_estimator_is_not():
+    """A learned policy on top of ``eso-n2`` (the velocity law with the observer at its row's bandwidth) is ranked
+    with today's laws, as one on top of a compensator is; the observer at another bandwidth, or the paper's filter at
+    another cutoff, is a loop of its own (an earlier one): not ranked."""
+    from ehss_gym.evaluation.scoring import is_earlier_loop
+    from ehss_gym.evaluation.specs import PolicySpec
+
+    def learned(**kw):
+        return PolicySpec(name="r", kind="object", runs=[object()], env_kwargs={"n": 2, "mode": "residual", **kw})
+
+    row = compensator_settings("eso", COMPENSATOR_ROWS["eso"]["velocity"])
+    assert row  # Table I's rule chose the observer in velocity
+    assert not is_earlier_loop(learned(), "velocity")
+    assert not is_earlier_loop(learned(**row), "velocity")
+    assert not is_earlier_loop(learned(reference_delay=1.0), "position")  # an add-on: today's loop
+    assert is_earlier_loop(learned(estimator="eso", observer_hz=2 * row["observer_hz"]), "velocity")
+    assert is_earlier_loop(learned(estimator_hz=500.0), "velocity")

@@ -512,9 +512,9 @@ def add_factors(p) -> None:
     p.add_argument("--task", type=task_list, default=tuple(TASKS),
                    help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
     p.add_argument("--learned", action="store_true",
-                   help="instead of the default law's table: the scripted laws clf-n2, dob-n2, dcomp-n2, vinv-n2 and "
-                        "the shipped n = 2 learned groups on the held-out and unmodelled suites, each cause removed in "
-                        "turn and the error split by time window; writes LEARNED.md and learned.csv")
+                   help="instead of the default law's table: the scripted laws clf-n2, dob-n2, dcomp-n2, vinv-n2, "
+                        "eso-n2 and the shipped n = 2 learned groups on the held-out and unmodelled suites, each cause "
+                        "removed in turn and the error split by time window; writes LEARNED.md and learned.csv")
     add_workers(p)
     add_out(p, "output folder", os.path.join("reports", "factors"))
     add_quick(p, "6 held-out episodes per task, a 2 s paper run and one level per robustness sweep in the rankings")
@@ -532,10 +532,10 @@ def add_headroom(p) -> None:
                    help="bootstrap replicates (default 2000; --quick 500)")
     p.add_argument("--causes", nargs="?", const="all", default=None, metavar="CAUSES",
                    help="instead of the headroom table: the unmodelled suite's variants (the base law, dob-n2, "
-                        "dcomp-n2, vinv-n2 and the oracles that know the unmodelled effects or search the width) with "
-                        "each cause removed in turn, judged by the rule of ehss factors --learned; writes CAUSES.md "
-                        "and causes.csv. CAUSES: a comma-separated subset of friction,mismatch,noise,valve,delay,"
-                        "quantisation (default: all of them)")
+                        "dcomp-n2, vinv-n2, eso-n2 and the oracles that know the unmodelled effects or search the "
+                        "width) with each cause removed in turn, judged by the rule of ehss factors --learned; writes "
+                        "CAUSES.md and causes.csv. CAUSES: a comma-separated subset of friction,mismatch,noise,"
+                        "valve,delay,quantisation (default: all of them)")
     add_workers(p)
     add_out(p, "output folder", os.path.join("reports", "headroom"))
     add_quick(p, "2 episodes per suite, short suites, agent periods 5 and 20, small searches (CI smoke run; numbers "
@@ -560,8 +560,9 @@ def add_baselines(p) -> None:
                    help="held-out episodes of the check of the tuned n = 2 law after the search (saturation, limit "
                         "cycles through the friction events; default 48; 0: no check)")
     p.add_argument("--compensator-episodes", type=int_at_least("--compensator-episodes", 0), default=None,
-                   help="training scenarios with the unmodelled effects on which the compensators (dcomp-n2, vinv-n2) "
-                        "are sized, seeds 0..N-1 (default 48, --quick too: fewer let noise pick a size; 0: not sized)")
+                   help="training scenarios with the unmodelled effects on which the compensators (dcomp-n2, "
+                        "vinv-n2, eso-n2) are sized, seeds 0..N-1 (default 48, --quick too: fewer let noise pick a "
+                        "size; 0: not sized)")
     add_out(p, "output folder", os.path.join("reports", "baselines"))
     add_quick(p, "12 training episodes of 2 s and 32 evaluations per baseline: a few minutes on two cores, "
                  "coarser than the full run")
@@ -684,9 +685,9 @@ COMMANDS = (
             "One deterministic coordinate search on log grids (then halving refinement), the same budget for every "
             "baseline, on training scenarios only; the objective is the ruler's overall figure against the env's "
             "default law before tuning, with the failure gate. Applies the written defaults rule (which n is each "
-            "task's default), then sizes the compensators of the unmodelled valve and sensors (dcomp-n2, vinv-n2) "
-            "on the tuned n = 2 law over their whole grid. Writes tuned.json, law_settings.json, BASELINES.md and "
-            "convergence figures.", add_baselines,
+            "task's default), then sizes the compensators of the unmodelled valve and sensors (dcomp-n2, "
+            "vinv-n2, eso-n2) on the tuned n = 2 law over their whole grid. Writes tuned.json, law_settings.json, "
+            "BASELINES.md and convergence figures.", add_baselines,
             "baselines"),
     Command("headroom", "the headroom table: what a residual on the n=2 law could gain, and what it must observe",
             "For each task, suite of ehss evaluate and metric class: the base law, the disturbance-observer residual "

@@ -8,7 +8,8 @@ Every policy here has ``predict(observation, state=None, episode_start=None, det
 - :class:`CLFPolicy`: the CLF law of the env it acts in (its ``law`` and ``estimator``; names such as ``clf-n2``,
   ``lin-sontag-n4`` or ``sontag-foh-n2`` map to env settings by :func:`parse_scripted`; ``dob-n2`` adds the
   disturbance observer, ``dob_hz``; ``dcomp-n2`` delays the law's reference, ``reference_delay``; ``vinv-n2``
-  inverts the valve's dead band and hysteresis, ``inverse_threshold`` and ``inverse_hysteresis``) for the env's n.
+  inverts the valve's dead band and hysteresis, ``inverse_threshold`` and ``inverse_hysteresis``; ``eso-n2``
+  estimates with the extended-state observer, ``estimator`` "eso" at ``observer_hz``) for the env's n.
   Residual mode: a zero residual (the base law alone). Direct mode: the law's current the env reports in the
   observation (``u_base``), over ``residual_scale``, held for the agent period.
 - :class:`PIDPolicy`: a PID on the tracking error, u = -(kp e + ki int e dt + kd e') [mA], with the
@@ -53,6 +54,7 @@ from .clf import (
     compensated_tasks,
     compensator_kind,
     compensator_rows,
+    compensator_settings,
     dob_rows,
     parse_scripted,
 )
@@ -61,7 +63,7 @@ from .pid import PID_GAINS, PID_RELAY, PID_RELAY_GAINS, RULES, PIDPolicy, defaul
 
 __all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "DOB_HZ", "DOB_ROWS", "dob_rows",
            "COMPENSATOR_ROWS", "COMPENSATOR_TEXT", "compensated_tasks", "compensator_kind",
-           "compensator_rows",
+           "compensator_rows", "compensator_settings",
            "PIDPolicy",
            "FrictionFeedforwardPolicy", "ConstantResidualPolicy", "tune_pid", "relay_experiment", "PID_GAINS",
            "PID_RELAY_GAINS", "PID_RELAY", "RULES", "default_pid_gains"]

@@ -18,6 +18,10 @@ Scripted CLF policies are named (:func:`parse_scripted`):
 - ``vinv-n<k>``: ``clf-n<k>`` with the valve's dead band and hysteresis inverted on the law's current at the task's
   row of :data:`COMPENSATOR_ROWS` (``inverse_threshold``, ``inverse_hysteresis`` [% of rated current]), with a zero
   residual: the scripted valve compensation of a valve whose sizes are known only from their distribution.
+- ``eso-n<k>``: ``clf-n<k>`` with the extended-state observer as its estimator (``estimator`` "eso", no output
+  differentiated: it reads the measured velocity and the model, so the sensors' quantisation steps are not
+  differentiated into the current) at the task's row of :data:`COMPENSATOR_ROWS` (``observer_hz`` [Hz]), with a zero
+  residual: the scripted estimator for quantised sensors, its bandwidth chosen on the distribution of the effects.
 
 The start-up settings (bumpless start, reference shaper, the model's pressure domain) are the env's defaults in every
 case; pass them as env overrides to change them.
@@ -36,8 +40,9 @@ from .base import ScriptedPolicy
 _NAME_RE = re.compile(r"^(clf|" + "|".join(map(re.escape, names(LAWS))) + r")(?:-("
                       + "|".join(map(re.escape, names(ESTIMATORS))) + r"))?-n(\d+)$")
 _DOB_RE = re.compile(r"^dob-n(\d+)$")
-_COMPENSATOR_RE = re.compile(r"^(dcomp|vinv)-n(\d+)$")
-SCRIPTED_FORMS = ("clf-n<k>", "<law>-n<k>", "<law>-<estimator>-n<k>", "dob-n<k>", "dcomp-n<k>", "vinv-n<k>")
+_COMPENSATOR_RE = re.compile(r"^(dcomp|vinv|eso)-n(\d+)$")
+SCRIPTED_FORMS = ("clf-n<k>", "<law>-n<k>", "<law>-<estimator>-n<k>", "dob-n<k>", "dcomp-n<k>", "vinv-n<k>",
+                  "eso-n<k>")
 # ``dob-n2``'s settings per task on Table I: the observer's cutoff f_d [Hz] with the law's smoothing width [unit of s]
 # and boundary-layer gain [-] (on clf-n2's sigma and f_r), tuned by ``ehss baselines`` with every other baseline
 # (reports/baselines/tuned.json; tests/test_baselines.py checks them). ``ehss evaluate`` and ``ehss headroom`` run
@@ -61,30 +66,47 @@ def dob_rows(tasks, law_table=None) -> dict[str, dict[str, float]]:
     if law_table is None:
         return {t: dict(DOB_ROWS[t]) for t in tasks}
     return {t: dict(law_table.tasks[t].dob) for t in tasks if t in law_table.tasks and law_table.tasks[t].dob}
-# The compensators' settings of ``dcomp-n<k>`` (the reference delay [control samples]) and ``vinv-n<k>`` (the valve
-# inverse's threshold and hysteresis [% of rated current]) per task on Table I: the choice of ``ehss baselines``'s
-# compensator sweep (:mod:`ehss_gym.study.compensators`; reports/baselines/law_settings.json, which
-# tests/test_scripted_compensators.py checks them against) on 48 training scenarios per task drawn with the unmodelled
-# effects (the env's ``unmodelled_effects=True``: delay 1 or 2 samples, threshold 0.25-0.5 %, hysteresis 1.5-3 %) by
-# its rule, written before it ran (per task: no failure, then the lowest overall figure of the ruler against clf-n2 on
-# the same episodes, a tie within 1 % to the smaller compensation). Its figures: the delay in velocity 0.993 at best
-# (1.5 samples), a tie with none, so none; in position 0.701 at 1 sample (0.711 at 2, 0.713 at 1.5); the valve inverse
-# in velocity 0.857 at best (0.5 %, 2.25 %), the smallest within 1 % being the distribution's mean (0.375 %, 2.25 %) at
-# 0.864; in position no inverse helps (1.008 at the smallest, its effort up), so none. ``dcomp-n2`` acts in position
-# only and ``vinv-n2`` in velocity only: on the other task each is clf-n2. Another plant's rows are in its law table.
+# The compensators' settings of ``dcomp-n<k>`` (the reference delay [control samples]), ``vinv-n<k>`` (the valve
+# inverse's threshold and hysteresis [% of rated current]) and ``eso-n<k>`` (the observer's bandwidth [Hz]) per task on
+# Table I: the choice of ``ehss baselines``'s compensator sweep (:mod:`ehss_gym.study.compensators`;
+# reports/baselines/law_settings.json, which tests/test_scripted_compensators.py checks them against) on 48 training
+# scenarios per task drawn with the unmodelled effects (the env's ``unmodelled_effects=True``: delay 1 or 2 samples,
+# threshold 0.25-0.5 %, hysteresis 1.5-3 %) by its rule, written before it ran (per task: no failure, then the lowest
+# overall figure of the ruler against clf-n2 on the same episodes, a tie within 1 % to the smaller compensation). Its
+# figures: the delay in velocity 0.993 at best (1.5 samples), a tie with none, so none; in position 0.701 at 1 sample
+# (0.711 at 2, 0.713 at 1.5); the valve inverse in velocity 0.857 at best (0.5 %, 2.25 %), the smallest within 1 %
+# being the distribution's mean (0.375 %, 2.25 %) at 0.864; in position no inverse helps (1.008 at the smallest, its
+# effort up), so none. The extended-state observer (``eso-n2``, its own rule in the same stage) in velocity 0.171 at
+# 100 Hz (50 Hz 0.171, 200 Hz 0.173, 1 kHz 0.198: the paper's state-variable filter differentiates the quantisation
+# steps into the current); in position, whose default estimator is already the observer at 1 kHz, 0.995 at best (400
+# Hz), a tie with none, so none. ``dcomp-n2`` acts in position only, ``vinv-n2`` and ``eso-n2`` in velocity only: on
+# the other task each is clf-n2. Another plant's rows are in its law table.
 COMPENSATOR_ROWS: dict[str, dict[str, dict[str, float]]] = {
     "dcomp": {"velocity": {"reference_delay": 0.0}, "position": {"reference_delay": 1.0}},
     "vinv": {"velocity": {"inverse_threshold": 0.375, "inverse_hysteresis": 2.25},
              "position": {"inverse_threshold": 0.0, "inverse_hysteresis": 0.0}},
+    "eso": {"velocity": {"observer_hz": 100.0}, "position": {"observer_hz": 0.0}},
 }
 COMPENSATOR_TEXT = {"dcomp": "its reference delayed by {reference_delay:g} control sample(s)",
                     "vinv": "the valve's dead band and hysteresis inverted at {inverse_threshold:g} % and "
-                            "{inverse_hysteresis:g} % of rated current"}  # a row's words (str.format)
+                            "{inverse_hysteresis:g} % of rated current",
+                    "eso": "the extended-state observer at {observer_hz:g} Hz as its estimator"}  # (str.format)
+
+
+def compensator_settings(kind: str, row: dict) -> dict:
+    """The loop settings a compensator's row stands for: the row itself for ``dcomp`` and ``vinv``; for ``eso`` the
+    estimator "eso" at the row's ``observer_hz`` [Hz], or none where it is 0 (the task's default estimator)."""
+    if kind == "eso":
+        return {"estimator": "eso", "observer_hz": row["observer_hz"]} if row.get("observer_hz", 0.0) > 0.0 else {}
+    return dict(row)
+
+
 DEFAULT_TASK = "velocity"  # the env's default task: the row a compensator name takes where no task is given
 
 
 def compensator_kind(name: str) -> str | None:
-    """``"dcomp"`` or ``"vinv"`` for a scripted compensator's name (``dcomp-n<k>``, ``vinv-n<k>``), else None."""
+    """``"dcomp"``, ``"vinv"`` or ``"eso"`` for a scripted compensator's name (``dcomp-n<k>``, ``vinv-n<k>``,
+    ``eso-n<k>``), else None."""
     m = _COMPENSATOR_RE.match(name)
     return m.group(1) if m else None
 
@@ -117,14 +139,16 @@ def parse_scripted(name: str, task: str | None = None, law_table=None) -> dict |
     Args:
         name: the policy name (:data:`SCRIPTED_FORMS`).
         task: the task the policy acts on, for the names whose settings depend on it (``dcomp-n<k>``,
-            ``vinv-n<k>``: the task's row of :data:`COMPENSATOR_ROWS`); default the env's default task.
+            ``vinv-n<k>``, ``eso-n<k>``: the task's row of :data:`COMPENSATOR_ROWS`); default the env's default
+            task.
         law_table: the law table whose compensator rows replace :data:`COMPENSATOR_ROWS` (None: Table I's).
 
     Returns:
         {"n": k, "mode": "residual"} plus "law" and "estimator" where the name gives them (``clf`` gives neither: the
         env's defaults), or "dob_hz" (:data:`DOB_HZ` [Hz]) for ``dob-n<k>``, or the compensator's settings for
-        ``dcomp-n<k>`` ("reference_delay" [control samples]) and ``vinv-n<k>`` ("inverse_threshold",
-        "inverse_hysteresis" [% of rated current]). n is validated by the env (an even integer >= 2).
+        ``dcomp-n<k>`` ("reference_delay" [control samples]), ``vinv-n<k>`` ("inverse_threshold",
+        "inverse_hysteresis" [% of rated current]) and ``eso-n<k>`` ("estimator" "eso" and "observer_hz" [Hz]; none
+        where the task's row is 0: :func:`compensator_settings`). n is validated by the env (an even integer >= 2).
 
     Raises:
         ValueError: ``clf-<estimator>-n<k>`` (the default law has no estimator variant by that name: use the law's), or
@@ -140,7 +164,7 @@ def parse_scripted(name: str, task: str | None = None, law_table=None) -> dict |
         if task not in rows:
             raise ValueError(f"scripted policy {name!r}: {law_table.describe()} have no {m.group(1)}-n2 row for "
                              f"task {task!r}; ehss baselines writes it")
-        return {"n": int(m.group(2)), "mode": "residual", **rows[task]}
+        return {"n": int(m.group(2)), "mode": "residual", **compensator_settings(m.group(1), rows[task])}
     m = _NAME_RE.match(name)
     if not m:
         return None

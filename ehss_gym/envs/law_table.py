@@ -6,7 +6,8 @@ f_r, smoothing width and boundary-layer gain for each n (``clf-n<k>``), the defa
 observer's bandwidth with its smoothing and layer (``dob-n2``, on the n = 2 law's sigma and f_r), the PID's gains
 (``pid``, direct mode) and the two compensators' sizes chosen on the plant's unmodelled effects (``dcomp-n2``: the
 law's reference delay; ``vinv-n2``: the valve inverse's threshold and hysteresis; :mod:`ehss_gym.study.compensators`),
-with the plant they were tuned on (its label and the hash of its values):
+and the estimator for quantised sensors (``eso-n2``: the extended-state observer's bandwidth, 0 = the task's default
+estimator), with the plant they were tuned on (its label and the hash of its values):
 
 .. code-block:: json
 
@@ -17,7 +18,8 @@ with the plant they were tuned on (its label and the hash of its values):
                   "dob-n2": {"dob_hz": 20.0, "smoothing": 64.9, "layer_gain": 11.8},
                   "pid": {"kp": 0.1, "ki": 1.0, "kd": 0.01},
                   "dcomp-n2": {"reference_delay": 0.0},
-                  "vinv-n2": {"inverse_threshold": 0.375, "inverse_hysteresis": 2.25}},
+                  "vinv-n2": {"inverse_threshold": 0.375, "inverse_hysteresis": 2.25},
+                  "eso-n2": {"observer_hz": 200.0}},
      "position": {...}}
 
 An env made with it takes the row of its n (an n without a row: the file's default n's row) for every law setting
@@ -38,11 +40,13 @@ LAW_FIELDS = {"sigma": ("unit of s", 0.0, True), "fr": ("Hz", 0.0, True), "smoot
               "layer_gain": ("-", 0.0, False)}
 DOB_FIELDS = {"dob_hz": ("Hz", 0.0, True), "smoothing": ("unit of s", 0.0, False), "layer_gain": ("-", 0.0, False)}
 PID_FIELDS = {"kp": ("mA/U", 0.0, False), "ki": ("mA/(U s)", 0.0, False), "kd": ("mA s/U", 0.0, False)}
-# The compensators' rows (the row key is "<kind>-n2"): the reference delay [control samples] and the valve inverse's
-# threshold and hysteresis [% of rated current], each >= 0 (0: that compensation off).
+# The compensators' rows (the row key is "<kind>-n2"): the reference delay [control samples], the valve inverse's
+# threshold and hysteresis [% of rated current] and the extended-state observer's bandwidth [Hz], each >= 0 (0: that
+# compensation off; for the observer, the task's default estimator).
 COMPENSATOR_FIELDS = {"dcomp": {"reference_delay": ("control samples", 0.0, False)},
                       "vinv": {"inverse_threshold": ("% of rated current", 0.0, False),
-                               "inverse_hysteresis": ("% of rated current", 0.0, False)}}
+                               "inverse_hysteresis": ("% of rated current", 0.0, False)},
+                      "eso": {"observer_hz": ("Hz", 0.0, False)}}
 
 
 class LawSettingsError(ValueError):
@@ -59,8 +63,8 @@ class TaskLaws:
         dob: the disturbance-observer residual's {dob_hz [Hz], smoothing, layer_gain} (None: not tuned).
         pid: the PID's gains (kp [mA/U], ki [mA/(U s)], kd [mA s/U]), direct mode (None: not tuned).
         compensators: the compensators' rows chosen for the task: ``"dcomp"`` -> {reference_delay [control
-            samples]}, ``"vinv"`` -> {inverse_threshold, inverse_hysteresis [% of rated current]} (a kind left out:
-            not chosen; a file of an earlier release has none).
+            samples]}, ``"vinv"`` -> {inverse_threshold, inverse_hysteresis [% of rated current]}, ``"eso"`` ->
+            {observer_hz [Hz]} (a kind left out: not chosen; a file of an earlier release has none).
     """
 
     default_n: int

@@ -49,11 +49,13 @@ own table).
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from ehss_gym.controllers import COMPENSATOR_ROWS, compensator_rows, compensator_settings
 from ehss_gym.core.layout import QUIET_STARTUP
 from ehss_gym.core.resolution import (
     CURRENT_FLOOR,
@@ -67,7 +69,7 @@ from ehss_gym.core.resolution import (
     floor_sources,
     valve_floors,
 )
-from ehss_gym.envs.config import ADDON_KEYS, DEFAULTS
+from ehss_gym.envs.config import ADDON_KEYS, DEFAULTS, law_table_of
 
 from . import stats
 from .specs import CLF_RE, REFERENCE_POLICY, PolicySpec, controller_settings
@@ -398,9 +400,17 @@ def _log_ci(stat_logs, cfg: EvalConfig, seed: int, over: str) -> tuple[float, fl
     return math.exp(lo), math.exp(hi)
 
 
-def figure_statistics(blk: Block, name: str, k: int, cfg: EvalConfig) -> dict:
+def policy_stream(name: str) -> int:
+    """The bootstrap stream of policy ``name``: a stable hash of its name (CRC-32), so a policy's CIs do not depend on
+    which other policies are evaluated beside it, nor on their order."""
+    return zlib.crc32(name.encode("utf-8"))
+
+
+def figure_statistics(blk: Block, name: str, cfg: EvalConfig) -> dict:
     """A policy's class and overall figures with bootstrap CIs (over episodes; with several runs also over seeds and
-    both), and the IQM of its per-episode overall ratios; ``k`` = its place in the block (the seeds differ)."""
+    both), and the IQM of its per-episode overall ratios; the bootstrap seeds are the policy's own
+    (:func:`policy_stream`)."""
+    k = policy_stream(name)
     g, gc = blk.figure(name)
     ov = blk.overall[name]
     d = {"n_runs": ov.shape[0], "n_episodes": len(blk.episodes), "n_used": ov.shape[1], "figure": g}
@@ -440,13 +450,21 @@ def _poi(blk: Block, a: str, b: str, cfg: EvalConfig, seed: int) -> tuple[float,
 def is_earlier_loop(spec: PolicySpec, task: str) -> bool:
     """True for a learned policy whose controller settings differ from today's env defaults on ``task`` for its n
     (the law's settings are tuned per n), the law's add-ons aside (:data:`~ehss_gym.envs.config.ADDON_KEYS`: a
-    residual on top of the observer or a compensator acts in today's loop, as dob-n2 and dcomp-n2 do): it was
-    recorded in an earlier loop and is not ranked against today's laws."""
+    residual on top of the observer or a compensator acts in today's loop, as dob-n2 and dcomp-n2 do), and unless
+    they are those of a scripted baseline of today's on that task (``eso-n2``'s estimator: a residual on top of it acts
+    in today's loop too): it was recorded in an earlier loop and is not ranked against today's laws."""
     if not spec.learned:
         return False
+    n = policy_n(spec, task)
     ours = controller_settings(spec.env_kwargs, task)
-    today = controller_settings({"n": policy_n(spec, task)}, task)
-    return any(ours[k] != today[k] for k in ours if k not in ADDON_KEYS)
+    laws = law_table_of(spec.env_kwargs.get("law_settings"))
+    bases = [{}] + [compensator_settings(kind, row) for kind in COMPENSATOR_ROWS
+                    for row in compensator_rows(kind, (task,), laws).values()]
+    for base in bases:
+        today = controller_settings({"n": n, **base}, task)
+        if all(ours[k] == today[k] for k in ours if k not in ADDON_KEYS):
+            return False
+    return True
 
 
 def policy_n(spec: PolicySpec, task: str) -> int:
@@ -459,13 +477,13 @@ def _block_summary(rows: list, blk: Block, specs: Sequence[PolicySpec], suite: s
     """The summary rows of one (suite, task) block: today's laws ranked, earlier-loop policies after them
     unranked."""
     block = []
-    for k, spec in enumerate(specs):
+    for spec in specs:
         n = spec.name
         sel = [r for r in rows if r["policy"] == n and r["suite"] == suite and r["task"] == task]
         failed, n_failed = failure(sel)
         d = {"suite": suite, "task": task, "policy": n, "rank": 0, "failed": failed, "n_failed": n_failed,
              "earlier_loop": is_earlier_loop(spec, task)}
-        d.update(figure_statistics(blk, n, k, cfg))
+        d.update(figure_statistics(blk, n, cfg))
         d.update(_mean_metrics(sel))
         d.update(absolute_levels(sel))
         block.append(d)
@@ -474,10 +492,11 @@ def _block_summary(rows: list, blk: Block, specs: Sequence[PolicySpec], suite: s
     for rank, d in enumerate(ranked, 1):
         d["rank"] = rank
     best = next((d["policy"] for d in ranked if CLF_RE.match(d["policy"])), None)
-    for k, d in enumerate(block):
+    for d in block:
         d["best_clf"] = best or ""
         if best is not None and d["policy"] != best:
-            d["poi_vs_best_clf"], d["poi_lo"], d["poi_hi"] = _poi(blk, d["policy"], best, cfg, cfg.seed + 7 + k)
+            d["poi_vs_best_clf"], d["poi_lo"], d["poi_hi"] = _poi(blk, d["policy"], best, cfg,
+                                                                  cfg.seed + 7 + 101 * policy_stream(d["policy"]))
         else:
             d["poi_vs_best_clf"] = d["poi_lo"] = d["poi_hi"] = math.nan
     earlier = [d for d in block if d["earlier_loop"]]
@@ -569,5 +588,5 @@ __all__ = ["CLASSES", "CLASS_METRICS", "IAE_WINDOW", "Floors", "FLOORS", "PHYSIC
            "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE", "ABSOLUTE_LEVELS", "absolute_levels", "METRICS",
            "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios", "failure",
            "figure_of", "rank_key", "gated_figure", "ratio_rows", "pair_log_ratio", "STARTUP_METRICS",
-           "matrix", "Block", "figure_statistics", "is_earlier_loop", "policy_n",
+           "matrix", "Block", "figure_statistics", "policy_stream", "is_earlier_loop", "policy_n",
            "summarize"]

@@ -37,6 +37,7 @@ from ehss_gym.controllers import (
     compensated_tasks,
     compensator_kind,
     compensator_rows,
+    compensator_settings,
     dob_rows,
     parse_scripted,
 )
@@ -49,7 +50,7 @@ from .suites import TASKS
 
 # the law every ratio of the evaluation is taken to (evaluation.scoring): the env's default law
 REFERENCE_POLICY = f"clf-n{DEFAULTS.n}"
-SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "dob-n2", "dcomp-n2", "vinv-n2", "pid")
+SCRIPTED_DEFAULT = ("clf-n2", "clf-n4", "clf-n6", "dob-n2", "dcomp-n2", "vinv-n2", "eso-n2", "pid")
 LEARNED_KINDS = ("residual-ppo", "ppo-direct", "sb3")  # sb3: any algorithm, its mode from the saved env spec
 # The settings that shape the base law's closed loop (the env's loop settings but the task, n and when a run is
 # flagged as lost): a learned policy trained at other values is compared with the laws at its own.
@@ -111,6 +112,7 @@ def valid_forms() -> str:
             "<law>-<estimator>-n<k> (e.g. lin-sontag-n4, sontag-foh-n2), dob-n<even n> (the CLF law with the "
             "disturbance observer, e.g. dob-n2), dcomp-n<even n> (the CLF law with its reference delayed, e.g. "
             "dcomp-n2), vinv-n<even n> (the CLF law with the valve's dead band and hysteresis inverted, e.g. vinv-n2), "
+            "eso-n<even n> (the CLF law with the extended-state observer as its estimator, e.g. eso-n2), "
             "pid, residual-ppo:PATH, ppo-direct:PATH, "
             "sb3:PATH (any SB3 algorithm, the mode from its saved env spec; PATH = an SB3 .zip, a safe-weights stem "
             f"PATH with PATH.safetensors + PATH.json, a glob matching several training seeds, or an rl-zoo3 run "
@@ -124,7 +126,7 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
 
     Args:
         name: "clf-n<even n>", "<law>-n<k>", "<law>-<estimator>-n<k>", "dob-n<even n>", "dcomp-n<even n>",
-            "vinv-n<even n>" or "pid".
+            "vinv-n<even n>", "eso-n<even n>" or "pid".
         label: report name (default ``name``); needed when ``env_overrides`` change the law.
         env_overrides: env settings changed from the defaults (e.g. ``{"sigma": 1.0}``: the paper's scale).
         gains: PID only: task -> (kp [mA per output unit], ki [mA per unit*s], kd [mA per unit/s]) instead of
@@ -155,8 +157,9 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
         if kind is not None and not set(kw) & set(over) - {"n", "mode"}:
             # the task's own size; on a task where its rule chose none it is clf-n<k>, so it is not run there
             tasks = compensated_tasks(kind, TASKS, laws)
-            rows = compensator_rows(kind, tasks, laws)
-            what += ", " + ("; ".join(f"{COMPENSATOR_TEXT[kind].format(**r)} ({t})" for t, r in rows.items())
+            found = compensator_rows(kind, tasks, laws)
+            rows = {t: compensator_settings(kind, r) for t, r in found.items()}
+            what += ", " + ("; ".join(f"{COMPENSATOR_TEXT[kind].format(**r)} ({t})" for t, r in found.items())
                             or "no compensation chosen on any task")
             if laws is not None:
                 what += f", rows of {laws.describe()}"

@@ -33,7 +33,9 @@ from .render import render  # noqa: E402
 
 DEFAULT_OUT = os.path.join("reports", "headroom")
 KEYS = tuple(CLASSES) + ("figure",)  # the class figures, then the overall figure
-DOB = f"dob-n2 @{BASE_PERIOD}"  # the scripted residual's row, shown beside the best oracle
+DOB = f"dob-n2 @{BASE_PERIOD}"  # the scripted residual's row, shown per suite
+# the scripted policies' rows at the base period: the best of them is shown beside the best oracle
+SCRIPTED = tuple(f"{v.name} @{BASE_PERIOD}" for v in VARIANTS if v.kind == "scripted")
 CORRECTION_COLUMNS = ("task", "quantity", "unit", "rms", "median_rms", "max_rms", "max_abs", "episodes")
 COLUMNS = (("task", "suite", "policy", "variant", "kind", "agent_period", "failed", "n_failed", "n_used")
            + tuple(f"{k}{s}" for k in KEYS for s in ("", "_lo", "_hi")) + ("value_median", "value_moved", "observes"))
@@ -87,10 +89,12 @@ def _largest(blocks: list, task: str) -> list[list[str]]:
         suite, h = min(cands, key=lambda c: c[1]["ratio"])
         verdict = "material" if h["material"] else ("has headroom" if h["has"] else "none")
         fig = "figure" if key == "overall" else key
-        dob = [_ci(d.get(fig, math.nan), d.get(f"{fig}_lo"), d.get(f"{fig}_hi")) for b in blocks
-               if b["task"] == task and b["suite"] == suite for d in b["stats"] if d["policy"] == DOB]
+        scripted = [d for b in blocks if b["task"] == task and b["suite"] == suite for d in b["stats"]
+                    if d["policy"] in SCRIPTED and not d["failed"] and math.isfinite(d.get(fig, math.nan))]
+        best = min(scripted, key=lambda d: d[fig], default=None)
         out.append([key, suite, _headroom_cell(h), verdict, h["observes"] if h["ratio"] < 1.0 else "-",
-                    dob[0] if dob else "n/a"])
+                    "n/a" if best is None else
+                    f"{_ci(best[fig], best.get(f'{fig}_lo'), best.get(f'{fig}_hi'))} {best['policy'].split(' @')[0]}"])
     return out
 
 

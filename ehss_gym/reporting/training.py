@@ -135,8 +135,9 @@ def comparison_rows(res) -> list[list[str]]:
 
 
 def standing(name: str, res) -> list[dict]:
-    """Where a learned policy stands on each evaluated suite: its G with its CI, the best scripted policy's G, and
-    ``loses`` (a failed gate, or a G above the best scripted one's)."""
+    """Where a learned policy stands on each evaluated suite: its G with its CI, the best scripted policy's G,
+    ``loses`` (a failed gate, or a G above the best scripted one's) and ``beats`` (its CI's upper end below the best
+    scripted G); neither is a tie within its CI."""
     out = []
     scripted = {s.name for s in res.specs if not s.learned}
     for suite in an.SUITES:
@@ -147,7 +148,8 @@ def standing(name: str, res) -> list[dict]:
         out.append({"suite": suite, "g": mine["figure"], "lo": an.ci_lo(mine), "hi": an.ci_hi(mine),
                     "failed": bool(mine["failed"]), "scripted": best["policy"], "g_scripted": best["figure"],
                     "earlier_loop": bool(mine.get("earlier_loop")),
-                    "loses": bool(mine["failed"] or mine["figure"] > best["figure"])})
+                    "loses": bool(mine["failed"] or mine["figure"] > best["figure"]),
+                    "beats": bool(not mine["failed"] and an.ci_hi(mine) < best["figure"])})
     return out
 
 

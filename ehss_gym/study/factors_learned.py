@@ -50,7 +50,7 @@ from ehss_gym.infra.execution import Executor
 from .factors import CAUSES, PROG, removed
 
 SUITES = ("heldout", "unmodelled")
-SCRIPTED = ("clf-n2", "dob-n2", "dcomp-n2", "vinv-n2")
+SCRIPTED = ("clf-n2", "dob-n2", "dcomp-n2", "vinv-n2", "eso-n2")
 LEARNED_FAMILIES = ("residual-ppo", "residual-sac")
 SUITE_CAUSES = {"heldout": ("friction", "mismatch", "noise"),
                 "unmodelled": ("friction", "mismatch", "noise", "valve", "delay", "quantisation")}

@@ -354,6 +354,10 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("vinv-n2", "scripted", "vinv-n2", "check", True,
             "the valve distribution's best single inverse per task, chosen on training episodes (causal: a fixed "
             "dead band and hysteresis inverted on the law's current; in position the rule chose none)", _law),
+    Variant("eso-n2", "scripted", "eso-n2", "check", True,
+            "the sensors' quantisation known only by its distribution (causal: the law's estimator the extended-state "
+            "observer at a bandwidth chosen per task on training episodes; where the rule chose none, the base law)",
+            _law),
     Variant("true model", "oracle", "clf-n2", "free", True,
             "the plant-model mismatch (the true plant's parameters)", _true_model),
     Variant("ff centred", "oracle", "clf-n2", "all", False,
@@ -586,11 +590,11 @@ def block_stats(rows: list, suite: str, task: str, names: list, meta: dict, cfg:
     blk = Block(rows, names, suite, task)
     ecfg = EvalConfig(n_boot=cfg.n_boot, seed=cfg.seed)
     out = []
-    for k, name in enumerate(names):
+    for name in names:
         sel = [r for r in rows if r["policy"] == name and r["suite"] == suite and r["task"] == task]
         failed, n_failed = failure(sel)
         d = {"task": task, "suite": suite, "policy": name, **meta[name], "failed": failed, "n_failed": n_failed}
-        d.update(figure_statistics(blk, name, k, ecfg))
+        d.update(figure_statistics(blk, name, ecfg))
         vals = [r["value"] for r in sel if r["value"] is not None]
         d["value_median"] = float(np.median(vals)) if vals else math.nan
         d["value_moved"] = sum(1 for r in sel if r["value"] is not None and r["value"] != r["first"])

@@ -41,11 +41,11 @@ from .headroom import (
 )
 
 SUITE = "unmodelled"  # the suite split by cause
-# the variants run on every version of the episodes: the reference law, the three scripted residuals, the oracles that
+# the variants run on every version of the episodes: the reference law, the four scripted residuals, the oracles that
 # know the unmodelled effects (with the valve's and both compensations, run by "delay known") and the best width with
 # and without the known effects (the rows the headroom table's overall figure comes from on this suite)
-VARIANTS = ("base law", "dob-n2", "dcomp-n2", "vinv-n2", "best width", "delay known", "delay known, best width",
-            "both known, best width")
+VARIANTS = ("base law", "dob-n2", "dcomp-n2", "vinv-n2", "eso-n2", "best width", "delay known",
+            "delay known, best width", "both known, best width")
 SEP = "|"  # a version's suite label: "unmodelled|no delay"
 
 
