@@ -158,3 +158,24 @@ def test_quick_headroom_report(tmp_path):
     for cls in CLASSES:
         assert any(r[cls] not in ("", "nan") and math.isfinite(float(r[cls])) for r in rows), cls
     assert np.isfinite([float(r["figure_hi"]) for r in rows]).all()
+
+
+def test_on_another_base_every_variant_runs_on_that_loop_and_the_base_law_is_it(tmp_path):
+    """``--base eso-n2``: the base law's rows are eso-n2's loop (so eso-n2 itself scores 1 in every class, to the last
+    bit), the compensators run on top of it, and the report says so; an unknown base is refused by name."""
+    cfg = hr.HeadroomConfig.quick_config(tasks=("velocity",), base="eso-n2")
+    assert cfg.base_settings("velocity") == {"estimator": "eso", "observer_hz": 100.0}
+    kw = hr.variant_config(cfg, hr.VARIANT_BY_NAME["vinv-n2"], "velocity", "heldout", [], 5)["env_kwargs"]
+    assert kw["estimator"] == "eso" and kw["inverse_threshold"] > 0.0  # the compensator on top of the base loop
+    out = tmp_path / "hr"
+    assert main(["headroom", "--quick", "--task", "velocity", "--base", "eso-n2", "--workers", "1", "--no-progress",
+                 "--out", str(out), "--store", str(tmp_path / "store")]) == 0
+    rows = _csv(out / "headroom.csv")
+    for suite in {r["suite"] for r in rows}:
+        row = next(r for r in rows if r["suite"] == suite and r["policy"] == "eso-n2 @5")
+        assert [float(row[c]) for c in ("figure", *CLASSES) if row[c] not in ("", "nan")] == \
+            [1.0] * sum(row[c] not in ("", "nan") for c in ("figure", *CLASSES)), suite
+    assert "**Base**: every variant, the base law included, runs on the loop of `eso-n2`" in (
+        out / "HEADROOM.md").read_text()
+    with pytest.raises(ValueError, match="base must be clf-n2 or a scripted compensator's n = 2 name"):
+        hr.HeadroomConfig(base="dob-n2")

@@ -18,7 +18,8 @@ from .common import backend_from_args, check_out_folder, plant_note, plant_out_f
 def settings(args) -> HeadroomConfig:
     """The study's sizes from the options (--quick's smaller form, then any option given)."""
     base = HeadroomConfig.quick_config() if args.quick else HeadroomConfig()
-    changes = {"tasks": tuple(args.task), "plant": args.plant, "law_settings": args.law_settings}
+    changes = {"tasks": tuple(args.task), "plant": args.plant, "law_settings": args.law_settings,
+               "base": getattr(args, "base", base.base)}
     if args.episodes:
         changes["episodes"] = args.episodes
     if args.n_boot:

@@ -530,6 +530,10 @@ def add_headroom(p) -> None:
                    help=f"comma-separated subset of {','.join(TASKS)} (default: both)")
     p.add_argument("--n-boot", type=int_at_least("--n-boot", 100), default=None,
                    help="bootstrap replicates (default 2000; --quick 500)")
+    p.add_argument("--base", choices=("clf-n2", "dcomp-n2", "vinv-n2", "eso-n2"), default="clf-n2",
+                   help="the loop every variant runs on: the env's tuned n = 2 law (default) or a scripted "
+                        "compensator's, its row of each task under every variant's own settings, so that the oracles "
+                        "measure what is left over that law (the base law's rows keep the label clf-n2)")
     p.add_argument("--causes", nargs="?", const="all", default=None, metavar="CAUSES",
                    help="instead of the headroom table: the unmodelled suite's variants (the base law, dob-n2, "
                         "dcomp-n2, vinv-n2, eso-n2 and the oracles that know the unmodelled effects or search the "

@@ -177,7 +177,9 @@ def write_report(res: dict, out: str, command: str) -> str:
                   min_episodes=MIN_EPISODES, free_period=FREE_PERIOD, base_period=BASE_PERIOD,
                   check_suite=CHECK_SUITE, bias=cfg.bias.describe(), width=cfg.width.describe(),
                   corrections=corrections, compensators=COMPENSATOR_ROWS,
-                  plant=cfg.eval_config().rig.text())
+                  plant=cfg.eval_config().rig.text(), base=cfg.base,
+                  base_rows=", ".join(f"{t}: " + (", ".join(f"{k} {v}" for k, v in cfg.base_settings(t).items())
+                                                  or "none chosen, clf-n2 itself") for t in cfg.tasks))
     path = os.path.join(out, "HEADROOM.md")
     atomic_write_text(path, text)
     return path

@@ -45,8 +45,8 @@ exploration before the rule (disclosed, on training seeds 0-31) put the velocity
 against clf-n2 with the effects drawn, 0.61-0.70 without them.
 
 Table I's result is :data:`ehss_gym.controllers.clf.COMPENSATOR_ROWS`; another plant's goes into its law table
-(``law_settings.json``: rows ``dcomp-n2`` and ``vinv-n2`` per task). A compensator whose chosen size on a task is none
-acts on the other task only.
+(``law_settings.json``: rows ``dcomp-n2``, ``vinv-n2`` and ``eso-n2`` per task). A compensator whose chosen size on a
+task is none acts on the other task only.
 """
 
 from __future__ import annotations

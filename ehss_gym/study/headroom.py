@@ -51,7 +51,16 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ehss_gym.controllers import CLFPolicy, ConstantResidualPolicy, FrictionFeedforwardPolicy, dob_rows, parse_scripted
+from ehss_gym.controllers import (
+    CLFPolicy,
+    ConstantResidualPolicy,
+    FrictionFeedforwardPolicy,
+    compensator_kind,
+    compensator_rows,
+    compensator_settings,
+    dob_rows,
+    parse_scripted,
+)
 from ehss_gym.core.rig import Rig
 from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.config import DEFAULTS
@@ -408,6 +417,10 @@ class HeadroomConfig:
         plant: the rig the suites run on and the laws act on (``ehss evaluate``'s ``EvalConfig.plant``); None =
             Table I.
         law_settings: the laws' settings tuned for it (``EvalConfig.law_settings``); None = the built-in ones.
+        base: the loop every variant runs on: ``clf-n2`` (the env's tuned n = 2 law, the default) or a scripted
+            compensator's (``dcomp-n2``, ``vinv-n2``, ``eso-n2``: its row of each task added to every variant's
+            settings, under the variant's own), so that the oracles measure what is left over that law. The base
+            law's rows keep the label clf-n2.
     """
 
     episodes: int = EPISODES
@@ -420,6 +433,7 @@ class HeadroomConfig:
     seed: int = 0
     plant: Rig | None = None
     law_settings: LawTable | None = None
+    base: str = REFERENCE_POLICY
 
     @classmethod
     def quick_config(cls, **changes) -> HeadroomConfig:
@@ -435,6 +449,9 @@ class HeadroomConfig:
             raise ValueError(f"episodes must be an integer >= 1 (per task and suite), got {self.episodes!r}")
         if not self.tasks or any(t not in TASKS for t in self.tasks):
             raise ValueError(f"tasks must be a non-empty subset of {list(TASKS)}, got {list(self.tasks)}")
+        if self.base != REFERENCE_POLICY and (compensator_kind(self.base) is None or not self.base.endswith("-n2")):
+            raise ValueError(f"base must be {REFERENCE_POLICY} or a scripted compensator's n = 2 name (dcomp-n2, "
+                             f"vinv-n2, eso-n2), got {self.base!r}")
         if BASE_PERIOD not in self.agent_periods or any(not isinstance(p, int) or p < 1 for p in self.agent_periods):
             raise ValueError(f"agent_periods must be integers >= 1 including the env's default {BASE_PERIOD}, got "
                              f"{list(self.agent_periods)}")
@@ -447,6 +464,14 @@ class HeadroomConfig:
                                     plant=self.plant, law_settings=self.law_settings)
         return EvalConfig(tasks=self.tasks, heldout_episodes=self.episodes, plant=self.plant,
                           law_settings=self.law_settings)
+
+    def base_settings(self, task: str) -> dict:
+        """The loop settings :attr:`base` adds on ``task`` ({} for clf-n2, or where its rule chose none)."""
+        kind = compensator_kind(self.base)
+        if kind is None:
+            return {}
+        rows = compensator_rows(kind, (task,), self.law_settings)
+        return compensator_settings(kind, rows[task]) if task in rows else {}
 
     def periods_of(self, v: Variant, suite: str = CHECK_SUITE) -> tuple:
         """The agent periods variant ``v`` runs at on ``suite`` (:attr:`Variant.periods`)."""
@@ -492,8 +517,8 @@ def variant_config(cfg: HeadroomConfig, v: Variant, task: str, suite: str, eps: 
     """The job config of variant ``v`` on ``eps`` of (task, suite) at agent period ``ap`` (:func:`variant_job`); the
     env settings are those of suite ``env_suite`` (default: ``suite``)."""
     ev = cfg.eval_config()  # its law table's compensator rows replace Table I's, where one is given
-    kw = {"task": task, **parse_scripted(v.policy, task, ev.law_settings), **SUITE_ENV.get(env_suite or suite, {}),
-          "agent_period": ap, **ev.env_kwargs(), **_dob_row(v, task, cfg)}
+    kw = {"task": task, **cfg.base_settings(task), **parse_scripted(v.policy, task, ev.law_settings),
+          **SUITE_ENV.get(env_suite or suite, {}), "agent_period": ap, **ev.env_kwargs(), **_dob_row(v, task, cfg)}
     return {"variant": v.name, "task": task, "suite": suite, "agent_period": ap, "env_kwargs": kw, "episodes": eps,
             "search": getattr(cfg, v.search) if v.search else None}
 
@@ -509,7 +534,8 @@ def plan(cfg: HeadroomConfig) -> list[Job]:
                                     label=f"{task}/{suite}/{v.name}@{ap}"))
         eps = suite_episodes(cfg, task).get(CORRECTIONS_SUITE)
         if eps:  # the ideal corrections' sizes (ehss_gym.study.corrections)
-            kw = {"task": task, **parse_scripted(REFERENCE_POLICY, task), **cfg.eval_config().env_kwargs()}
+            kw = {"task": task, **cfg.base_settings(task), **parse_scripted(REFERENCE_POLICY, task),
+                  **cfg.eval_config().env_kwargs()}
             jobs.append(Job(corrections_job, {"corrections": True, "task": task, "suite": CORRECTIONS_SUITE,
                                               "env_kwargs": kw, "episodes": eps, "agent_period": FREE_PERIOD,
                                               "search": None, "variant": "corrections"}, seed=0,
