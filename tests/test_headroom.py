@@ -177,5 +177,12 @@ def test_on_another_base_every_variant_runs_on_that_loop_and_the_base_law_is_it(
             [1.0] * sum(row[c] not in ("", "nan") for c in ("figure", *CLASSES)), suite
     assert "**Base**: every variant, the base law included, runs on the loop of `eso-n2`" in (
         out / "HEADROOM.md").read_text()
+    # the cause split runs on the same loop and says so
+    causes = tmp_path / "causes"
+    assert main(["headroom", "--causes", "delay", "--quick", "--task", "velocity", "--base", "eso-n2", "--workers",
+                 "1", "--no-progress", "--out", str(causes), "--store", str(tmp_path / "store")]) == 0
+    text = (causes / "CAUSES.md").read_text()
+    assert "**Base**: every variant, the base law included, runs on the loop of `eso-n2`" in text
+    assert "| eso-n2 @5 | 1 [1, 1] | 1 |" in text
     with pytest.raises(ValueError, match="base must be clf-n2 or a scripted compensator's n = 2 name"):
         hr.HeadroomConfig(base="dob-n2")

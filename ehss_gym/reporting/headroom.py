@@ -78,6 +78,12 @@ def _detail_rows(block: dict) -> list[list[str]]:
     return rows
 
 
+def _base_rows(cfg) -> str:
+    """The loop settings the study's base adds per task, in words (``--base``)."""
+    return ", ".join(f"{t}: " + (", ".join(f"{k} {v}" for k, v in cfg.base_settings(t).items())
+                                 or "none chosen, clf-n2 itself") for t in cfg.tasks)
+
+
 def _largest(blocks: list, task: str) -> list[list[str]]:
     """Per class and overall, the largest headroom of the task over its suites (the lowest best-oracle ratio)."""
     out = []
@@ -177,9 +183,7 @@ def write_report(res: dict, out: str, command: str) -> str:
                   min_episodes=MIN_EPISODES, free_period=FREE_PERIOD, base_period=BASE_PERIOD,
                   check_suite=CHECK_SUITE, bias=cfg.bias.describe(), width=cfg.width.describe(),
                   corrections=corrections, compensators=COMPENSATOR_ROWS,
-                  plant=cfg.eval_config().rig.text(), base=cfg.base,
-                  base_rows=", ".join(f"{t}: " + (", ".join(f"{k} {v}" for k, v in cfg.base_settings(t).items())
-                                                  or "none chosen, clf-n2 itself") for t in cfg.tasks))
+                  plant=cfg.eval_config().rig.text(), base=cfg.base, base_rows=_base_rows(cfg))
     path = os.path.join(out, "HEADROOM.md")
     atomic_write_text(path, text)
     return path
@@ -218,7 +222,7 @@ def write_causes(res: dict, out: str, command: str) -> str:
     causes = tuple(res["causes"])
     text = render("headroom_causes.md.j2", command=command, version=__version__, res=res, cfg=res["cfg"],
                   suite=CAUSE_SUITE, causes=causes, tasks=[_cause_tables(t, causes) for t in res["tasks"]],
-                  plant=res["cfg"].eval_config().rig.text())
+                  plant=res["cfg"].eval_config().rig.text(), base=res["cfg"].base, base_rows=_base_rows(res["cfg"]))
     path = os.path.join(out, "CAUSES.md")
     atomic_write_text(path, text)
     return path
