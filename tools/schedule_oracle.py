@@ -25,16 +25,14 @@ import itertools
 import numpy as np
 
 from ehss_gym.controllers import parse_scripted
-from ehss_gym.core.rig import as_rig
-from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, UNMODELLED_DISTRIBUTION, sample_scenario
+from ehss_gym.core.scenarios import DEFAULT_DISTRIBUTION, UNMODELLED_DISTRIBUTION
 from ehss_gym.core.settings import LAYER_GAIN_MAX
 from ehss_gym.core.sim import simulate_batch
-from ehss_gym.envs import EnvConfig
-from ehss_gym.evaluation.scoring import episode_log_ratios, figure_of, physical_floors
+from ehss_gym.evaluation.scoring import episode_log_ratios, figure_of
+from ehss_gym.study.compensators import training_set
 
 SIGMA_FACTORS = (0.3, 0.5, 1.0, 2.0, 3.0)
 WIDTH_FACTORS = (0.3, 1.0, 3.0, 10.0)
-LOOP_KEYS = ("estimator", "observer_hz", "dob_hz", "reference_delay", "inverse_threshold", "inverse_hysteresis")
 
 
 def figure(logs: list[dict]) -> tuple[float, dict]:
@@ -59,18 +57,18 @@ def main(argv=None) -> None:
     kw = parse_scripted(a.policy, a.task)
     if kw is None:
         p.error(f"--policy must be a scripted CLF law's name, got {a.policy!r}")
-    loop = {k: v for k, v in kw.items() if k in LOOP_KEYS}
-    tmpl = EnvConfig.from_kwargs({"task": a.task, "n": kw["n"]}).template()
-    dist = UNMODELLED_DISTRIBUTION if a.unmodelled else DEFAULT_DISTRIBUTION
-    scs = [sample_scenario(s, tmpl, 2.0, dist) for s in range(a.episodes)]
-    noisy = [any(v > 0.0 for v in sc.noise_std) for sc in scs]
-    floors = physical_floors(as_rig(None))
-    base = [t.metrics() for t in simulate_batch(scs)]
+    if kw["n"] != 2:
+        p.error(f"--policy must be an n = 2 law (the ratios are against clf-n2), got {a.policy!r}")
+    loop = {k: v for k, v in kw.items() if k not in ("n", "mode")}  # the law's settings beyond clf-n2's
+    scs, noisy, floors, base = training_set(a.task, a.episodes, 2.0,
+                                            distribution=UNMODELLED_DISTRIBUTION if a.unmodelled else
+                                            DEFAULT_DISTRIBUTION)
+    law = scs[0]  # every scenario carries the template's law settings (sigma, width)
     pairs = list(itertools.product(SIGMA_FACTORS, WIDTH_FACTORS))
     logs = []  # per pair, per episode: the class log ratios against clf-n2 (None: failed)
     for fs, fw in pairs:
-        change = {**loop, "sigma": tmpl.sigma * fs, "smoothing": tmpl.smoothing * fw,
-                  "layer_gain": min(tmpl.layer_gain * fw, LAYER_GAIN_MAX)}
+        change = {**loop, "sigma": law.sigma * fs, "smoothing": law.smoothing * fw,
+                  "layer_gain": min(law.layer_gain * fw, LAYER_GAIN_MAX)}
         ms = [t.metrics() for t in simulate_batch([sc.replace(**change) for sc in scs])]
         logs.append([None if m["diverged"] or m["lost_track"] else episode_log_ratios(m, b, nz, a.task, floors)
                      for m, b, nz in zip(ms, base, noisy)])

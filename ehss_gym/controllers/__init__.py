@@ -53,6 +53,7 @@ from .clf import (
     CLFPolicy,
     compensated_tasks,
     compensator_kind,
+    compensator_loops,
     compensator_rows,
     compensator_settings,
     dob_rows,
@@ -62,7 +63,7 @@ from .feedforward import ConstantResidualPolicy, FrictionFeedforwardPolicy
 from .pid import PID_GAINS, PID_RELAY, PID_RELAY_GAINS, RULES, PIDPolicy, default_pid_gains, relay_experiment, tune_pid
 
 __all__ = ["ScriptedPolicy", "CLFPolicy", "parse_scripted", "SCRIPTED_FORMS", "DOB_HZ", "DOB_ROWS", "dob_rows",
-           "COMPENSATOR_ROWS", "COMPENSATOR_TEXT", "compensated_tasks", "compensator_kind",
+           "COMPENSATOR_ROWS", "COMPENSATOR_TEXT", "compensated_tasks", "compensator_kind", "compensator_loops",
            "compensator_rows", "compensator_settings",
            "PIDPolicy",
            "FrictionFeedforwardPolicy", "ConstantResidualPolicy", "tune_pid", "relay_experiment", "PID_GAINS",

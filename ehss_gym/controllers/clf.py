@@ -126,6 +126,12 @@ def compensator_rows(kind: str, tasks, law_table=None) -> dict[str, dict[str, fl
             if t in law_table.tasks and kind in law_table.tasks[t].compensators}
 
 
+def compensator_loops(kind: str, tasks, law_table=None) -> dict[str, dict]:
+    """The loop settings of the scripted compensator ``kind`` on each task of ``tasks`` that has a row
+    (:func:`compensator_rows` through :func:`compensator_settings`)."""
+    return {t: compensator_settings(kind, row) for t, row in compensator_rows(kind, tasks, law_table).items()}
+
+
 def compensated_tasks(kind: str, tasks, law_table=None) -> tuple[str, ...]:
     """The tasks of ``tasks`` on which the scripted compensator ``kind`` compensates anything (a nonzero setting of
     :func:`compensator_rows`): on the others its rule chose none, so it is ``clf-n<k>`` there and is not run twice."""

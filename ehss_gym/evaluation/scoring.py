@@ -55,7 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ehss_gym.controllers import COMPENSATOR_ROWS, compensator_rows, compensator_settings
+from ehss_gym.controllers import COMPENSATOR_ROWS, compensator_loops
 from ehss_gym.core.layout import QUIET_STARTUP
 from ehss_gym.core.resolution import (
     CURRENT_FLOOR,
@@ -458,8 +458,7 @@ def is_earlier_loop(spec: PolicySpec, task: str) -> bool:
     n = policy_n(spec, task)
     ours = controller_settings(spec.env_kwargs, task)
     laws = law_table_of(spec.env_kwargs.get("law_settings"))
-    bases = [{}] + [compensator_settings(kind, row) for kind in COMPENSATOR_ROWS
-                    for row in compensator_rows(kind, (task,), laws).values()]
+    bases = [{}] + [loop for kind in COMPENSATOR_ROWS for loop in compensator_loops(kind, (task,), laws).values()]
     for base in bases:
         today = controller_settings({"n": n, **base}, task)
         if all(ours[k] == today[k] for k in ours if k not in ADDON_KEYS):

@@ -36,8 +36,8 @@ from ehss_gym.controllers import (
     COMPENSATOR_TEXT,
     compensated_tasks,
     compensator_kind,
+    compensator_loops,
     compensator_rows,
-    compensator_settings,
     dob_rows,
     parse_scripted,
 )
@@ -157,9 +157,9 @@ def scripted_spec(name: str, label: str | None = None, env_overrides: dict | Non
         if kind is not None and not set(kw) & set(over) - {"n", "mode"}:
             # the task's own size; on a task where its rule chose none it is clf-n<k>, so it is not run there
             tasks = compensated_tasks(kind, TASKS, laws)
-            found = compensator_rows(kind, tasks, laws)
-            rows = {t: compensator_settings(kind, r) for t, r in found.items()}
-            what += ", " + ("; ".join(f"{COMPENSATOR_TEXT[kind].format(**r)} ({t})" for t, r in found.items())
+            rows = compensator_loops(kind, tasks, laws)
+            what += ", " + ("; ".join(f"{COMPENSATOR_TEXT[kind].format(**r)} ({t})"
+                                      for t, r in compensator_rows(kind, tasks, laws).items())
                             or "no compensation chosen on any task")
             if laws is not None:
                 what += f", rows of {laws.describe()}"

@@ -84,6 +84,18 @@ def size(c: dict) -> tuple:
             c.get("inverse_threshold", 0.0), hz > 0.0, -hz)
 
 
+def training_set(task: str, episodes: int, seconds: float, env: dict | None = None,
+                 distribution=UNMODELLED_DISTRIBUTION) -> tuple[list, list, object, list]:
+    """The training scenarios of the sweep and what scores a candidate on them: (scenarios of seeds 0..episodes-1
+    drawn from ``distribution`` on the n = 2 law of ``env``'s plant and law table, which of them are noisy, the
+    plant's physical floors, clf-n2's metrics on them)."""
+    env = dict(env or {})
+    tmpl = EnvConfig.from_kwargs({"task": task, "n": 2, **env}).template()
+    scs = [sample_scenario(s, tmpl, seconds, distribution) for s in range(episodes)]
+    noisy = [any(v > 0.0 for v in sc.noise_std) for sc in scs]
+    return scs, noisy, physical_floors(as_rig(env.get("plant"))), [t.metrics() for t in simulate_batch(scs)]
+
+
 def sweep_task(task: str, cands: Sequence[dict], episodes: int, seconds: float, env: dict | None = None,
                progress: Callable[[], None] | None = None) -> list[dict]:
     """Per candidate the objective of rule 2 on one task (:func:`ehss_gym.evaluation.scoring.gated_figure`).
@@ -96,12 +108,7 @@ def sweep_task(task: str, cands: Sequence[dict], episodes: int, seconds: float, 
         env: env settings of the loop (the plant and its law table; none: Table I's built-in laws).
         progress: called once per candidate.
     """
-    env = dict(env or {})
-    tmpl = EnvConfig.from_kwargs({"task": task, "n": 2, **env}).template()
-    scs = [sample_scenario(s, tmpl, seconds, UNMODELLED_DISTRIBUTION) for s in range(episodes)]
-    noisy = [any(v > 0.0 for v in sc.noise_std) for sc in scs]
-    floors = physical_floors(as_rig(env.get("plant")))
-    base = [t.metrics() for t in simulate_batch(scs)]
+    scs, noisy, floors, base = training_set(task, episodes, seconds, env)
     out = []
     for c in cands:
         loop = compensator_settings(kind_of(c), c)
@@ -163,4 +170,4 @@ def tune_compensators(tasks: Sequence[str], episodes: int, seconds: float, env: 
 
 
 __all__ = ["KINDS", "DELAYS", "THRESHOLDS", "HYSTERESES", "OBSERVER_HZ", "TIE", "candidates", "size", "kind_of",
-           "sweep_task", "lowest", "choose", "evaluations", "tune_compensators"]
+           "training_set", "sweep_task", "lowest", "choose", "evaluations", "tune_compensators"]

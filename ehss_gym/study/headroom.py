@@ -56,8 +56,7 @@ from ehss_gym.controllers import (
     ConstantResidualPolicy,
     FrictionFeedforwardPolicy,
     compensator_kind,
-    compensator_rows,
-    compensator_settings,
+    compensator_loops,
     dob_rows,
     parse_scripted,
 )
@@ -468,10 +467,7 @@ class HeadroomConfig:
     def base_settings(self, task: str) -> dict:
         """The loop settings :attr:`base` adds on ``task`` ({} for clf-n2, or where its rule chose none)."""
         kind = compensator_kind(self.base)
-        if kind is None:
-            return {}
-        rows = compensator_rows(kind, (task,), self.law_settings)
-        return compensator_settings(kind, rows[task]) if task in rows else {}
+        return {} if kind is None else compensator_loops(kind, (task,), self.law_settings).get(task, {})
 
     def periods_of(self, v: Variant, suite: str = CHECK_SUITE) -> tuple:
         """The agent periods variant ``v`` runs at on ``suite`` (:attr:`Variant.periods`)."""
