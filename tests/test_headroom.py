@@ -186,3 +186,21 @@ def test_on_another_base_every_variant_runs_on_that_loop_and_the_base_law_is_it(
     assert "| eso-n2 @5 | 1 [1, 1] | 1 |" in text
     with pytest.raises(ValueError, match="base must be clf-n2 or a scripted compensator's n = 2 name"):
         hr.HeadroomConfig(base="dob-n2")
+
+
+def test_the_largest_headroom_table_shows_the_best_scripted_policy_that_passes_the_gate():
+    """Beside the best oracle: the lowest figure among the scripted policies at the base period that pass the gate
+    (a lower one that fails it is passed over), with its name."""
+    from ehss_gym.reporting import headroom as report
+
+    h = {"ratio": 0.8, "lo": 0.7, "hi": 0.9, "oracle": "true model", "few": False, "material": True, "has": True,
+         "observes": "the plant-model mismatch", "n": 32}
+
+    def row(policy, g, failed=False):
+        return {"policy": policy, "figure": g, "figure_lo": g - 0.01, "figure_hi": g + 0.01, "failed": failed}
+
+    block = {"task": "velocity", "suite": "unmodelled", "headroom": {"overall": h},
+             "stats": [row("clf-n2", 1.0), row("dob-n2 @5", 0.9), row("vinv-n2 @5", 0.3, failed=True),
+                       row("eso-n2 @5", 0.2), row("eso-n2 @20", 0.1), row("true model", 0.8)]}
+    (line,) = report._largest([block], "velocity")
+    assert line[0] == "overall" and line[1] == "unmodelled" and line[-1] == "0.2 [0.19, 0.21] eso-n2"

@@ -558,6 +558,24 @@ def _row(suite, policy, g, hi, failed=False, lo=None, earlier=False):
             "failed": failed, "n_failed": int(failed), "earlier_loop": earlier}
 
 
+def test_a_learned_policys_standing_loses_beats_or_is_level_with_the_best_scripted_policy():
+    """The training report's sentence per suite: "loses" for a G above the best scripted one's (or a failed gate),
+    "beats" only where its CI's upper end is below it, else "level with" (a G at or below it, the CI holding it)."""
+    from types import SimpleNamespace
+
+    scripted = [SimpleNamespace(name="eso-n2", learned=False), SimpleNamespace(name="clf-n2", learned=False)]
+    res = lambda *rows: SimpleNamespace(specs=scripted, summary=[  # noqa: E731
+        _row("heldout", "eso-n2", 0.64, 0.72), _row("heldout", "clf-n2", 1.0, 1.0), *rows])
+    (level,) = report_writer.standing("r", res(_row("heldout", "r", 0.64, 0.70)))
+    assert level["scripted"] == "eso-n2" and not level["loses"] and not level["beats"]
+    (beats,) = report_writer.standing("r", res(_row("heldout", "r", 0.50, 0.63)))
+    assert beats["beats"] and not beats["loses"]
+    (loses,) = report_writer.standing("r", res(_row("heldout", "r", 0.65, 0.70)))
+    assert loses["loses"] and not loses["beats"]
+    (failed,) = report_writer.standing("r", res(_row("heldout", "r", 0.1, 0.2, failed=True)))
+    assert failed["loses"] and not failed["beats"]
+
+
 def test_unmodelled_target_met_and_not_met():
     """Target (a): best learned G <= 0.80 x the best scripted G *and* its CI's upper end below the scripted G."""
     from ehss_gym.study import training as an
