@@ -466,11 +466,11 @@ def vector_miss(kc: dict, vec: dict, rows: list) -> dict:
 
     t_single = 1e6 / vec["single"]
     needed = t_single / VEC_TARGET / ap * 1e3
-    law = part("lane_law")
+    law = part("law_lanes")
     return {"kc": kc, "target": VEC_TARGET, "size": VEC_TARGET_SIZE, "threads": vec["threads"], "ap": ap,
             "ratio": vec["ratio"], "ratio_par": vec["ratio_par"], "compiled_ns": vec["compiled_ns"],
             "compiled_share": sum(sh for sh, nm in rows if "advance" in nm),
-            "ctrl_ns": part("sense_lanes", "lane_law", "controller_apply"), "sense_ns": part("sense_lanes"),
+            "ctrl_ns": part("sense_lanes", "law_lanes", "controller_apply"), "sense_ns": part("sense_lanes"),
             "law_ns": law, "ref_ns": next(ns for name, ns in stages.items() if "reference_value" in name),
             "plant_ns": part("integrate_lanes"), "book_ns": part("friction", "divergence", "metrics", "copy"),
             "obs_ns": next(ns for name, ns in step.items() if name.startswith("observation")),

@@ -5,7 +5,7 @@ the lanes of a native vector env caught mid-episode (seeded random residuals fir
 metric windows are live as in training), one thread, each timed alone as the best of many short runs:
 
 - the control period's stages as :func:`ehss_gym.core.loop.lanes_period` runs them (the sensors and model over the
-  lanes, the rest of the controller per lane, the current, the friction torque, the plant, the divergence check, the
+  lanes, the rest of the controller over the lanes, the current, the friction torque, the plant, the divergence check, the
   metrics, the state copy);
 - the env's per-agent-step work (the look-ahead :func:`ehss_gym.envs.kernels.peek_lanes`, the observation), spread
   over the agent step's control periods, and the whole compiled step;
@@ -27,7 +27,7 @@ import time
 import numba as nb
 import numpy as np
 
-from ehss_gym.core.controller import CW_TODO, controller_apply, lane_law, sense_lanes
+from ehss_gym.core.controller import CW_TODO, controller_apply, law_lanes, sense_lanes
 from ehss_gym.core.jit import jit_noalloc
 from ehss_gym.core.layout import I_UBASE, N_INFO, N_LOOP, N_PLANT, X_OMEGA
 from ehss_gym.core.loop import check_state, lanes_period
@@ -69,12 +69,11 @@ def _sense(n, k0, z, ctrl, c, cw, kv):
 
 
 @jit_noalloc
-def _law(n, k0, h, z, ctrl, ref, filt, info, work, cw):
-    total = 0.0
+def _law(n, k0, h, z, ctrl, ref, filt, info, work, cw, kv):
     for j in range(n):
-        for b in range(z.shape[0]):
-            total += lane_law(b, z[b], k0 + j, h, ctrl[b], ref[b], filt[b], info[b], work, cw)
-    return total
+        for b in range(kv.shape[0]):
+            kv[b] = k0 + j
+        law_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, 0)
 
 
 @jit_noalloc
@@ -218,8 +217,8 @@ class StageTimer:
         return {
             "sensors and model over the lanes (sense_lanes)": self.cost(lambda: _sense(n, k0, z, ctrl, c, cw,
                                                                                        self.kv)),
-            "rest of the controller per lane (lane_law)": self.cost(
-                lambda: _law(n, k0, h, z, ctrl, ref, L.filt, info, work, cw)),
+            "rest of the controller over the lanes (law_lanes)": self.cost(
+                lambda: _law(n, k0, h, z, ctrl, ref, L.filt, info, work, cw, self.kv)),
             "  of it: the reference (reference_value)": self.cost(lambda: _reference(n, k0, h, ref)),
             "residual, valve inverse, current limit (controller_apply)": self.cost(
                 lambda: _apply(n, z, info, ctrl, self.u_res, U)),

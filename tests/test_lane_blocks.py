@@ -75,6 +75,23 @@ def test_a_block_of_lanes_equals_blocks_of_one_bitwise(task):
         assert acc1[0].tobytes() == acc[j].tobytes(), f"lane {j} ({sc.law}, {sc.estimator}, n = {sc.n})"
 
 
+def test_a_block_of_both_tasks_equals_blocks_of_one_task_bitwise():
+    """The law over the lanes of a block is compiled for their relative degree when they share one (every env's
+    block: ehss_gym.core.controller.law_lanes); a block of both tasks runs the body with the degree read at run
+    time, lane by lane. Both give every lane the same bits."""
+    vel, pos = _mixed_scenarios("velocity", 30, 0.02), _mixed_scenarios("position", 30, 0.02)
+    both = [sc for pair in zip(vel, pos) for sc in pair]
+    log, acc, n_log = _run_block(both)
+    assert (n_log > 0).all()
+    for task, one in (("velocity", vel), ("position", pos)):
+        log1, acc1, n1 = _run_block(one)
+        for j, sc in enumerate(one):
+            k = 2 * j + (task == "position")
+            assert n1[j] == n_log[k]
+            assert log1[j].tobytes() == log[k].tobytes(), f"{task} lane {j} ({sc.law}, {sc.estimator}, n = {sc.n})"
+            assert acc1[j].tobytes() == acc[k].tobytes(), f"{task} lane {j} ({sc.law}, {sc.estimator}, n = {sc.n})"
+
+
 def test_the_vector_env_in_parallel_chunks_equals_one_call_bitwise():
     """The vector env's lanes in parallel chunks (threads > 1, the last chunk padded) step as in one call: each chunk
     reads and writes its own lanes' rows of the shared hot blocks (ehss_gym.envs.buffers), so observations, rewards,

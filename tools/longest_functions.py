@@ -3,8 +3,8 @@
     python tools/longest_functions.py [--top 10] [--limit 80] [PATHS ...]
 
 A function's length is its line count from ``def`` to its last line (decorators and docstring included).
-Exits 1 if any function outside a compiled kernel (decorated with ``jit``, ``jit_noalloc`` or ``*njit*``)
-is longer than ``--limit`` lines, so CI can enforce it.
+Exits 1 if any function outside a compiled kernel (decorated with ``jit``, ``jit_noalloc``, ``jit_inline`` or
+``*njit*``) is longer than ``--limit`` lines, so CI can enforce it.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pathlib
 import sys
 
 DEFAULT_PATHS = ("ehss_gym", "agents", "train", "benchmarks", "tools")
-KERNEL_DECORATORS = ("jit", "jit_noalloc", "njit")
+KERNEL_DECORATORS = ("jit", "jit_noalloc", "jit_inline", "njit")
 
 
 def _is_kernel(node: ast.AST) -> bool:

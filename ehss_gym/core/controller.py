@@ -218,6 +218,63 @@ def sense_lanes(z, kv, ctrl, c, cw):
 
 
 @jit_noalloc
+def law_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff):
+    """Stages 3 on of the controller for the lanes of a block flagged in ``cw[CW_TODO]``, after :func:`sense_lanes`:
+    each lane's u_base [mA] into ``info[b, I_UBASE]`` (and the rest of ``info[b]``, as :func:`lane_law` writes it).
+
+    Lane b's loop state is ``z[b, zoff:]`` (``zoff`` > 0: the look-ahead's copy beside its info). When every flagged
+    lane has one relative degree m (every lane of an env does), the lanes run :func:`order_law` compiled for that m
+    (:func:`velocity_lanes`, :func:`position_lanes`): the same arithmetic as :func:`lane_law`, bit for bit, without its
+    per-lane dispatch on the order; lanes of mixed orders (a batch of both tasks) run :func:`lane_law` one at a time.
+    """
+    B = z.shape[0]
+    order = 0.0
+    mixed = False
+    for b in range(B):
+        if cw[CW_TODO, b] != 0.0:
+            if order == 0.0:
+                order = ctrl[b, C_ORDER]
+            elif ctrl[b, C_ORDER] != order:
+                mixed = True
+    if order == 0.0:
+        return
+    if not mixed and order == 3.0:
+        velocity_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff)
+    elif not mixed and order == 4.0:
+        position_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff)
+    else:
+        for b in range(B):
+            if cw[CW_TODO, b] != 0.0:
+                lane_law(b, z[b, zoff:], kv[b], h, ctrl[b], ref[b], filt[b], info[b], work, cw)
+
+
+@jit_inline
+def order_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff, m):
+    """:func:`law_lanes` for flagged lanes that all have the relative degree ``m``, a compile-time constant where
+    :func:`velocity_lanes` and :func:`position_lanes` call it."""
+    for b in range(z.shape[0]):
+        if cw[CW_TODO, b] == 0.0:
+            continue
+        for i in range(N_PLANT):
+            work[5, i] = cw[CW_XM + i, b]
+        output_derivatives(cw[CW_XM, b], cw[CW_XM + 1, b], cw[CW_MO + 2, b], cw[CW_MO + 3, b], m == 4, work[6])
+        order_law(z[b, zoff:], kv[b], h, cw[CW_MO, b], cw[CW_MO + 1, b], cw[CW_MO + 2, b], ctrl[b], ref[b], filt[b],
+                  info[b], work, m)
+
+
+@jit_noalloc
+def velocity_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff):
+    """:func:`order_lanes` compiled for the velocity output (m = 3)."""
+    order_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff, 3)
+
+
+@jit_noalloc
+def position_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff):
+    """:func:`order_lanes` compiled for the position output (m = 4)."""
+    order_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff, 4)
+
+
+@jit_noalloc
 def lane_law(b, z, k, h, ctrl, ref, filt, info, work, cw):
     """Stages 3 on of the controller for lane ``b`` after :func:`sense_lanes`: its measured state and model's output
     derivatives into ``work[5]`` and ``work[6]``, then :func:`controller_law`; returns u_base [mA]."""
@@ -233,9 +290,18 @@ def controller_law(z, k, h, F, G, am, ctrl, ref, filt, info, work):
     """Stages 3 on of the controller at t_k, after the sensors and the model: the reference, the estimator, the
     reference shaper and model, s, psi, the controller's memory, the law; returns u_base [mA]. ``work[5]`` holds the
     measured state and ``work[6]`` the model's output derivatives there (``work[6]`` is scratch afterwards), F, G
-    and a_m (= f2) the model's (:func:`model_terms`). Writes ``info`` as :func:`controller_sense` says."""
+    and a_m (= f2) the model's (:func:`model_terms`). Writes ``info`` as :func:`controller_sense` says.
+
+    The lanes of a block run the same body compiled for their relative degree (:func:`law_lanes`)."""
+    return order_law(z, k, h, F, G, am, ctrl, ref, filt, info, work, int(ctrl[C_ORDER]))
+
+
+@jit_inline
+def order_law(z, k, h, F, G, am, ctrl, ref, filt, info, work, m):
+    """:func:`controller_law`'s body for the relative degree ``m`` (3 velocity, 4 position): a compile-time constant
+    where :func:`order_lanes` calls it, so the compiler unrolls every loop over the output's derivatives (the same
+    arithmetic in the same order, bit for bit what the loops bounded at run time give)."""
     t = k * h
-    m = int(ctrl[C_ORDER])
     n = ctrl[C_N]
     sigma = ctrl[C_SIGMA]
     xm = work[5]
@@ -487,6 +553,7 @@ def _sgn(x):
 
 
 __all__ = ["controller_update", "controller_sense", "controller_apply", "sense_plant", "model_terms",
-           "output_derivatives", "sense_lanes", "lane_law", "controller_law", "model_constants", "dob_current",
-           "lyapunov_residual", "reference_shift", "shape_reference", "fhan", "NOISE_TAU", "CW_XM", "CW_MO", "CW_U1",
-           "CW_U2", "CW_TODO"]
+           "output_derivatives", "sense_lanes", "law_lanes", "order_lanes", "velocity_lanes", "position_lanes",
+           "lane_law", "controller_law", "order_law", "model_constants",
+           "dob_current", "lyapunov_residual", "reference_shift", "shape_reference", "fhan", "NOISE_TAU", "CW_XM",
+           "CW_MO", "CW_U1", "CW_U2", "CW_TODO"]

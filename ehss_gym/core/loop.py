@@ -18,7 +18,7 @@ import numba as nb
 import numpy as np
 
 from .compensators import inverse_model_update
-from .controller import CW_TODO, controller_apply, lane_law, model_constants, sense_lanes
+from .controller import CW_TODO, controller_apply, law_lanes, model_constants, sense_lanes
 from .jit import jit, jit_noalloc
 from .layout import (
     DIV_CURRENT,
@@ -162,8 +162,9 @@ def lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_re
     active.
 
     In stages over the lanes of the block: the controller's sensors and its model at the measured states for every
-    lane (:func:`ehss_gym.core.controller.sense_lanes`, reading the controller's rows of the lane constants ``c``);
-    then per lane the rest of the controller (with residual ``u_res[b]`` [mA]) and the friction torque at the sample;
+    lane (:func:`ehss_gym.core.controller.sense_lanes`, reading the controller's rows of the lane constants ``c``),
+    the rest of the controller's law (:func:`ehss_gym.core.controller.law_lanes`, compiled for the lanes' relative
+    degree); then per lane the residual ``u_res[b]`` [mA], the current limit and the friction torque at the sample;
     then the plants of all lanes integrated together; then the divergence checks and the metrics. The lanes need not
     be at the same sample (lanes reset at different times are out of phase): each computes its own, as a block of one
     would. ``lwork`` is scratch (N_LWORK, N_LOOP, B). A lane that diverges is marked inactive, keeps its last finite
@@ -197,9 +198,11 @@ def lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_re
         sense = active[b] and not pre[b]
         cw[CW_TODO, b] = 1.0 if sense else 0.0
         n_todo += sense
-    # stages 1-2 of the controller, each over the lanes: the sensors, the model at the measured states (vectorised)
+    # stages 1-2 of the controller, each over the lanes: the sensors, the model at the measured states (vectorised);
+    # then stages 3 on over the lanes, compiled for their relative degree
     if n_todo > 0:
         sense_lanes(z, kv, ctrl, c, cw)
+        law_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, 0)
     for b in range(B):
         if not active[b]:
             U[b] = 0.0
@@ -211,8 +214,8 @@ def lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_re
             for i in range(N_PLANT, z.shape[1]):
                 z[b, i] = peek[b, N_INFO + i]
             u_base = peek[b, I_UBASE]
-        else:  # stages 3 on of the controller, one lane at a time (the reference, estimator, law ...)
-            u_base = lane_law(b, z[b], kv[b], h, ctrl[b], ref[b], filt[b], info[b], work, cw)
+        else:  # the law's current, from law_lanes
+            u_base = info[b, I_UBASE]
         u = controller_apply(z[b], info[b], ctrl[b], u_base, u_res[b])
         t0[b] = kv[b] * h
         info[b, I_TF] = friction_torque(t0[b], zprev[b, X_OMEGA], events[b], plant[b, P_DF])  # the plant's, at t_k

@@ -10,13 +10,14 @@ import math
 import numba as nb
 import numpy as np
 
-from ehss_gym.core.controller import CW_TODO, controller_apply, controller_update, lane_law, sense_lanes
+from ehss_gym.core.controller import CW_TODO, controller_apply, controller_update, law_lanes, sense_lanes
 from ehss_gym.core.jit import dispatch, jit, jit_inline, jit_noalloc
 from ehss_gym.core.layout import (
     I_E,
     I_E_TRUE,
     I_SAT,
     I_UAPP,
+    I_UBASE,
     M_DST_MAX,
     M_DST_STEPS,
     M_DST_SUM_ABS,
@@ -191,8 +192,8 @@ def _peek(b, k, h, z, model, ctrl, ref, peek, u_res, BB, filt, work):
 def peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, kv, h, filt, c, work, cw):
     """:func:`_peek` for every lane that stepped in this call (``gid`` 0, IB_GID), lane b at its sample kv[b], in the
     controller's stages on the copies of the loop states in the look-ahead blocks: the sensors and model over the lanes
-    (:func:`ehss_gym.core.controller.sense_lanes`), then the rest of the controller per lane. The same arithmetic as
-    :func:`_peek`."""
+    (:func:`ehss_gym.core.controller.sense_lanes`), then the rest of the law over them
+    (:func:`ehss_gym.core.controller.law_lanes`). The same arithmetic as :func:`_peek`."""
     B = z.shape[0]
     zt = peek[:, N_INFO:]  # the copies, which the sensors' delay line moves on (the loop state stays)
     for b in range(B):
@@ -202,13 +203,12 @@ def peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, kv, h, filt, c, work, cw):
             for i in range(N_LOOP):
                 zt[b, i] = z[b, i]
     sense_lanes(zt, kv, ctrl, c, cw)
+    law_lanes(peek, kv, h, ctrl, ref, filt, peek, work, cw, N_INFO)  # a lane's info and state copy share its row
     for b in range(B):
         if gid[b] != 0:
             continue
         pk = peek[b, :N_INFO]
-        zb = peek[b, N_INFO:]
-        u_base = lane_law(b, zb, kv[b], h, ctrl[b], ref[b], filt[b], pk, work, cw)
-        controller_apply(zb, pk, ctrl[b], u_base, u_res[b])
+        controller_apply(peek[b, N_INFO:], pk, ctrl[b], pk[I_UBASE], u_res[b])
         BB[b, BB_PRE] = True
 
 
