@@ -5,8 +5,8 @@ the lanes of a native vector env caught mid-episode (seeded random residuals fir
 metric windows are live as in training), one thread, each timed alone as the best of many short runs:
 
 - the control period's stages as :func:`ehss_gym.core.loop.lanes_period` runs them (the sensors and model over the
-  lanes, the rest of the controller over the lanes, the current, the friction torque, the plant, the divergence check, the
-  metrics, the state copy);
+  lanes, the rest of the controller over the lanes, the current, the friction torque, the plant, the divergence
+  check, the metrics, the state copy);
 - the env's per-agent-step work (the look-ahead :func:`ehss_gym.envs.kernels.peek_lanes`, the observation), spread
   over the agent step's control periods, and the whole compiled step;
 - the whole ``lanes_period`` on two layouts of the same lanes: the env's (each block a (B, width) array, lane rows
