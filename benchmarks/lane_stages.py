@@ -29,14 +29,14 @@ import numpy as np
 
 from ehss_gym.core.controller import CW_TODO, controller_apply, law_lanes, sense_lanes
 from ehss_gym.core.jit import jit_noalloc
-from ehss_gym.core.layout import I_UBASE, N_INFO, N_LOOP, N_PLANT, X_OMEGA
+from ehss_gym.core.layout import I_UBASE, N_LOOP, N_PLANT, X_OMEGA
 from ehss_gym.core.loop import check_state, lanes_period
 from ehss_gym.core.metrics import accumulate
 from ehss_gym.core.params import P_DF
 from ehss_gym.core.physics import friction_torque, integrate_lanes
 from ehss_gym.core.references import reference_value
-from ehss_gym.envs.buffers import BB_RUN, F_MEM, F_URES, HOT_BLOCKS, IB_GID, IB_K, N_EXTRA
-from ehss_gym.envs.kernels import _write_obs, advance, peek_lanes
+from ehss_gym.envs.buffers import BB_RUN, F_URES, HOT_BLOCKS, IB_GID, IB_K
+from ehss_gym.envs.kernels import advance, observe_lanes, peek_lanes
 from ehss_gym.envs.lanes import hot_block
 from ehss_gym.envs.vector import EHSSTrackingVectorEnv
 
@@ -138,10 +138,9 @@ def _peek(n, kv, h, z, ctrl, ref, peek, u_res, gid, BB, filt, c, work, cw):
 
 
 @jit_noalloc
-def _observe(n, F, peek, info_ok, obs, lay):
+def _observe(n, F, peek, info_ok, obs, lay, gid, scratch):
     for _ in range(n):
-        for b in range(F.shape[0]):
-            _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
+        observe_lanes(obs, peek, info_ok, F, lay, gid, scratch)
 
 
 def live_lanes(lanes: int, steps: int = 64, seed: int = 0):
@@ -246,8 +245,8 @@ class StageTimer:
             f"look-ahead (peek_lanes), once per agent step of {self.ap} periods": self.cost(
                 lambda: _peek(1, np.full(self.B, self.k0), self.h, z, ctrl, ref, peek, L.F[:, F_URES], L.IB[IB_GID],
                               L.BB, L.filt, L.c[0], L.work[0], lw[6]), one_group) * per_step,
-            "observation, once per agent step": self.cost(
-                lambda: _observe(1, L.F, peek, info_ok, L.obs, L.lay)) * per_step,
+            "observation, once per agent step (observe_lanes)": self.cost(
+                lambda: _observe(1, L.F, peek, info_ok, L.obs, L.lay, L.IB[IB_GID], lw[0]), one_group) * per_step,
         }
 
     def layout(self) -> dict:

@@ -35,6 +35,7 @@ from ehss_gym.core.layout import (
 )
 from ehss_gym.core.loop import lanes_period
 from ehss_gym.core.settings import N_CTRL
+from ehss_gym.core.vecmath import symlog_block
 
 from .actions import ACTIONS
 from .buffers import (
@@ -136,6 +137,22 @@ from .buffers import (
 from .observation import OBS_BOUND
 
 
+@jit_inline
+def _obs_input(x, scale):
+    """An observation entry's value before the squash: x / scale, a non-finite one replaced by +-OBS_BOUND (0 for
+    NaN)."""
+    v = x / scale
+    if not math.isfinite(v):
+        v = OBS_BOUND if v > 0.0 else (-OBS_BOUND if v < 0.0 else 0.0)
+    return v
+
+
+@jit_inline
+def _obs_clip(v):
+    """An observation entry clipped to +-OBS_BOUND."""
+    return OBS_BOUND if v > OBS_BOUND else (-OBS_BOUND if v < -OBS_BOUND else v)
+
+
 @jit
 def _write_obs(obs_row, peek_row, last_row, mem_row, lay):
     """Observation of one lane: symlog(x / scale), clipped, finite.
@@ -149,16 +166,36 @@ def _write_obs(obs_row, peek_row, last_row, mem_row, lay):
         j = int(lay[LAY_SRC, i])
         fl = int(lay[LAY_FLAGS, i])
         x = mem_row[j] if fl & FLAG_MEM else (last_row[j] if fl & FLAG_LAST else peek_row[j])
-        v = x / lay[LAY_SCALE, i]
-        if not math.isfinite(v):
-            v = OBS_BOUND if v > 0.0 else (-OBS_BOUND if v < 0.0 else 0.0)
+        v = _obs_input(x, lay[LAY_SCALE, i])
         if fl & FLAG_SQUASH:
             v = math.copysign(math.log1p(abs(v)), v)
-        if v > OBS_BOUND:
-            v = OBS_BOUND
-        elif v < -OBS_BOUND:
-            v = -OBS_BOUND
-        obs_row[i] = v
+        obs_row[i] = _obs_clip(v)
+
+
+@jit_noalloc
+def observe_lanes(obs, peek, last, F, lay, gid, scratch):
+    """:func:`_write_obs` for every lane with ``gid`` 0, one entry at a time over the lanes, so the squash runs on
+    the whole block (:func:`ehss_gym.core.vecmath.symlog_block`, whose float32 result is libm's): the same float32
+    observations, bit for bit. ``last`` is the lanes' last finite info (H_INFO_OK), ``scratch`` a C-contiguous
+    float64 array of at least 6 B entries."""
+    B = obs.shape[0]
+    s = scratch.reshape(-1)[:6 * B].reshape(6, B)  # rows of exactly B lanes (a chunk's scratch may be longer)
+    v, y, w = s[0], s[1], s[2:6]
+    for i in range(lay.shape[1]):
+        j = int(lay[LAY_SRC, i])
+        fl = int(lay[LAY_FLAGS, i])
+        scale = lay[LAY_SCALE, i]
+        for b in range(B):
+            x = F[b, F_MEM + j] if fl & FLAG_MEM else (last[b, j] if fl & FLAG_LAST else peek[b, j])
+            v[b] = _obs_input(x, scale)
+        if fl & FLAG_SQUASH:
+            symlog_block(v, y, w)
+        else:
+            for b in range(B):
+                y[b] = v[b]
+        for b in range(B):
+            if gid[b] == 0:
+                obs[b, i] = _obs_clip(y[b])
 
 
 @jit_inline
@@ -546,9 +583,7 @@ def advance_lanes(s, B_all, n_per, h, substeps, F, H, IB, BB, events, filt, c, X
         nstep[b] = j + 1
     # the look-ahead: what each lane's controller sees at its next sample, then its observation
     peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, ks, h, filt, c, work, lwork[6])
-    for b in range(B):
-        if gid[b] == 0:
-            _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
+    observe_lanes(obs, peek, info_ok, F, lay, gid, lwork[0])  # the integrator's scratch rows, free by now
 
 
 @jit_noalloc
