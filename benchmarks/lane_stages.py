@@ -73,7 +73,7 @@ def _law(n, k0, h, z, ctrl, ref, filt, info, work, cw, kv):
     for j in range(n):
         for b in range(kv.shape[0]):
             kv[b] = k0 + j
-        law_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, 0)
+        law_lanes(z, kv, h, ctrl, ref, filt, info, work, cw)
 
 
 @jit_noalloc

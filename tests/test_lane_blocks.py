@@ -9,10 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from ehss_gym.core.layout import DIV_NONE, DIV_NONFINITE, N_LOG, N_LOOP, N_METRICS, N_PARAM
+from ehss_gym.core.controller import CW_TODO, controller_sense, law_lanes, model_constants, sense_lanes
+from ehss_gym.core.layout import DIV_NONE, DIV_NONFINITE, N_INFO, N_LOG, N_LOOP, N_METRICS, N_PARAM
 from ehss_gym.core.loop import check_state, run_lanes
 from ehss_gym.core.metrics import init_accumulator
 from ehss_gym.core.params import P_PS
+from ehss_gym.core.physics import N_LANE_CONST, lane_constants
 from ehss_gym.core.registry import ESTIMATORS, LAWS, names
 from ehss_gym.core.scenarios import sample_scenario
 from ehss_gym.core.settings import C_OMEGA_MAX, C_P_BOUND, N_CTRL
@@ -75,21 +77,38 @@ def test_a_block_of_lanes_equals_blocks_of_one_bitwise(task):
         assert acc1[0].tobytes() == acc[j].tobytes(), f"lane {j} ({sc.law}, {sc.estimator}, n = {sc.n})"
 
 
-def test_a_block_of_both_tasks_equals_blocks_of_one_task_bitwise():
-    """The law over the lanes of a block is compiled for their relative degree when they share one (every env's
-    block: ehss_gym.core.controller.law_lanes); a block of both tasks runs the body with the degree read at run
-    time, lane by lane. Both give every lane the same bits."""
-    vel, pos = _mixed_scenarios("velocity", 30, 0.02), _mixed_scenarios("position", 30, 0.02)
-    both = [sc for pair in zip(vel, pos) for sc in pair]
-    log, acc, n_log = _run_block(both)
-    assert (n_log > 0).all()
-    for task, one in (("velocity", vel), ("position", pos)):
-        log1, acc1, n1 = _run_block(one)
-        for j, sc in enumerate(one):
-            k = 2 * j + (task == "position")
-            assert n1[j] == n_log[k]
-            assert log1[j].tobytes() == log[k].tobytes(), f"{task} lane {j} ({sc.law}, {sc.estimator}, n = {sc.n})"
-            assert acc1[j].tobytes() == acc[k].tobytes(), f"{task} lane {j} ({sc.law}, {sc.estimator}, n = {sc.n})"
+@pytest.mark.parametrize("k", [0, 1, 57])
+def test_the_law_over_the_lanes_equals_the_one_lane_controller_bitwise(k):
+    """The law over the lanes (ehss_gym.core.controller.law_lanes after sense_lanes) is compiled once per relative
+    degree, with the degree a constant; the one-lane controller (controller_sense) reads it at run time and runs no
+    lane stages. On a block of both tasks, every law, estimator and n, the disturbance observer, the unmodelled
+    effects and noise, both give every lane the same info and loop state, bit for bit: at the first sample (the
+    bumpless start), the second, and mid-run."""
+    scenarios = [sc for pair in zip(_mixed_scenarios("velocity", 30, 0.02), _mixed_scenarios("position", 30, 0.02))
+                 for sc in pair]
+    a = LoopArrays.build(scenarios)
+    B, h = len(scenarios), scenarios[0].control_period
+    z = a.z0.copy()
+    if k > 0:  # the loop run to sample k first, so the filters, observers and delay lines hold a history
+        log = np.zeros((B, k + 1, N_LOG))
+        acc = np.zeros((B, N_METRICS))
+        run_lanes(z, h, scenarios[0].substeps, k, k + 1, a.plant, a.model, a.ctrl, a.ref, a.events, a.filt, log,
+                  acc, np.zeros(B, dtype=np.int64))
+    c = np.zeros((N_LANE_CONST, B))
+    lane_constants(a.plant, c)
+    model_constants(a.model, a.ctrl, c)
+    cw = np.zeros((N_LOOP, B))
+    cw[CW_TODO] = 1.0
+    kv = np.full(B, k, dtype=np.int64)
+    zl, info_l, work = z.copy(), np.zeros((B, N_INFO)), np.zeros((8, 4))
+    sense_lanes(zl, kv, a.ctrl, c, cw)
+    law_lanes(zl, kv, h, a.ctrl, a.ref, a.filt, info_l, work, cw)
+    for b, sc in enumerate(scenarios):
+        z1, info1 = z[b].copy(), np.zeros(N_INFO)
+        controller_sense(z1, k, h, a.model[b], a.ctrl[b], a.ref[b], a.filt[b], info1, np.zeros((8, 4)))
+        what = f"lane {b} ({sc.task}, {sc.law}, {sc.estimator}, n = {sc.n})"
+        assert info1.tobytes() == info_l[b].tobytes(), what
+        assert z1.tobytes() == zl[b].tobytes(), what
 
 
 def test_the_vector_env_in_parallel_chunks_equals_one_call_bitwise():

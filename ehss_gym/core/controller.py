@@ -48,6 +48,7 @@ from .layout import (
     I_XM,
     I_YD,
     I_YE,
+    N_LOOP,
     N_PLANT,
     X_AV,
     X_OMEGA,
@@ -218,42 +219,36 @@ def sense_lanes(z, kv, ctrl, c, cw):
 
 
 @jit_noalloc
-def law_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff):
+def law_lanes(z, kv, h, ctrl, ref, filt, info, work, cw):
     """Stages 3 on of the controller for the lanes of a block flagged in ``cw[CW_TODO]``, after :func:`sense_lanes`:
-    each lane's u_base [mA] into ``info[b, I_UBASE]`` (and the rest of ``info[b]``, as :func:`lane_law` writes it).
+    each lane's u_base [mA] into ``info[b, I_UBASE]`` and the rest of ``info[b]`` as :func:`controller_sense` writes
+    it, bit for bit.
 
-    Lane b's loop state is ``z[b, zoff:]`` (``zoff`` > 0: the look-ahead's copy beside its info). When every flagged
-    lane has one relative degree m (every lane of an env does), the lanes run :func:`order_law` compiled for that m
-    (:func:`velocity_lanes`, :func:`position_lanes`): the same arithmetic as :func:`lane_law`, bit for bit, without its
-    per-lane dispatch on the order; lanes of mixed orders (a batch of both tasks) run :func:`lane_law` one at a time.
+    The law's body (:func:`order_law`) is compiled once per relative degree m, with m a constant, so the compiler
+    unrolls every loop over the output's derivatives: the velocity lanes run :func:`velocity_lanes`, the position
+    lanes :func:`position_lanes` (a block of one task, as every env's, makes one of the two calls). Lane b's loop
+    state is the last N_LOOP entries of ``z[b]`` (the look-ahead's copy sits beside its info in one row; the offset is
+    read from the shape, not passed, so one compiled version serves both).
     """
-    B = z.shape[0]
-    order = 0.0
-    mixed = False
-    for b in range(B):
+    zoff = z.shape[1] - N_LOOP
+    velocity = False
+    position = False
+    for b in range(z.shape[0]):
         if cw[CW_TODO, b] != 0.0:
-            if order == 0.0:
-                order = ctrl[b, C_ORDER]
-            elif ctrl[b, C_ORDER] != order:
-                mixed = True
-    if order == 0.0:
-        return
-    if not mixed and order == 3.0:
+            velocity |= ctrl[b, C_ORDER] == 3.0
+            position |= ctrl[b, C_ORDER] == 4.0
+    if velocity:
         velocity_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff)
-    elif not mixed and order == 4.0:
+    if position:
         position_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff)
-    else:
-        for b in range(B):
-            if cw[CW_TODO, b] != 0.0:
-                lane_law(b, z[b, zoff:], kv[b], h, ctrl[b], ref[b], filt[b], info[b], work, cw)
 
 
 @jit_inline
 def order_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff, m):
-    """:func:`law_lanes` for flagged lanes that all have the relative degree ``m``, a compile-time constant where
+    """:func:`law_lanes` for the flagged lanes of relative degree ``m``, a compile-time constant where
     :func:`velocity_lanes` and :func:`position_lanes` call it."""
     for b in range(z.shape[0]):
-        if cw[CW_TODO, b] == 0.0:
+        if cw[CW_TODO, b] == 0.0 or ctrl[b, C_ORDER] != m:
             continue
         for i in range(N_PLANT):
             work[5, i] = cw[CW_XM + i, b]
@@ -272,17 +267,6 @@ def velocity_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff):
 def position_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff):
     """:func:`order_lanes` compiled for the position output (m = 4)."""
     order_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, zoff, 4)
-
-
-@jit_noalloc
-def lane_law(b, z, k, h, ctrl, ref, filt, info, work, cw):
-    """Stages 3 on of the controller for lane ``b`` after :func:`sense_lanes`: its measured state and model's output
-    derivatives into ``work[5]`` and ``work[6]``, then :func:`controller_law`; returns u_base [mA]."""
-    for i in range(N_PLANT):
-        work[5, i] = cw[CW_XM + i, b]
-    output_derivatives(cw[CW_XM, b], cw[CW_XM + 1, b], cw[CW_MO + 2, b], cw[CW_MO + 3, b], ctrl[C_ORDER] == 4.0,
-                       work[6])
-    return controller_law(z, k, h, cw[CW_MO, b], cw[CW_MO + 1, b], cw[CW_MO + 2, b], ctrl, ref, filt, info, work)
 
 
 @jit_noalloc
@@ -554,6 +538,6 @@ def _sgn(x):
 
 __all__ = ["controller_update", "controller_sense", "controller_apply", "sense_plant", "model_terms",
            "output_derivatives", "sense_lanes", "law_lanes", "order_lanes", "velocity_lanes", "position_lanes",
-           "lane_law", "controller_law", "order_law", "model_constants",
+           "controller_law", "order_law", "model_constants",
            "dob_current", "lyapunov_residual", "reference_shift", "shape_reference", "fhan", "NOISE_TAU", "CW_XM",
            "CW_MO", "CW_U1", "CW_U2", "CW_TODO"]

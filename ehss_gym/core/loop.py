@@ -202,7 +202,7 @@ def lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_re
     # then stages 3 on over the lanes, compiled for their relative degree
     if n_todo > 0:
         sense_lanes(z, kv, ctrl, c, cw)
-        law_lanes(z, kv, h, ctrl, ref, filt, info, work, cw, 0)
+        law_lanes(z, kv, h, ctrl, ref, filt, info, work, cw)
     for b in range(B):
         if not active[b]:
             U[b] = 0.0

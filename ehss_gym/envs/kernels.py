@@ -10,7 +10,7 @@ import math
 import numba as nb
 import numpy as np
 
-from ehss_gym.core.controller import CW_TODO, controller_apply, controller_update, law_lanes, sense_lanes
+from ehss_gym.core.controller import CW_TODO, controller_apply, law_lanes, sense_lanes
 from ehss_gym.core.jit import dispatch, jit, jit_inline, jit_noalloc
 from ehss_gym.core.layout import (
     I_E,
@@ -72,7 +72,6 @@ from .buffers import (
     LAY_SRC,
     MEM_APREV2,
     MEM_EINT,
-    N_EXTRA,
     N_MEM,
     N_PARTS,
     N_PEEK,
@@ -153,31 +152,17 @@ def _obs_clip(v):
     return OBS_BOUND if v > OBS_BOUND else (-OBS_BOUND if v < -OBS_BOUND else v)
 
 
-@jit
-def _write_obs(obs_row, peek_row, last_row, mem_row, lay):
-    """Observation of one lane: symlog(x / scale), clipped, finite.
-
-    x is read from ``peek_row`` (what the controller sees at the next sample) or, for entries flagged
-    FLAG_LAST, from ``last_row`` (the last control period actually run: applied current, residual), or for entries
-    flagged FLAG_MEM from ``mem_row`` (the lane's block of extras: the memory features, layout MEM_*, then the action
-    of a mode but "current").
-    """
-    for i in range(lay.shape[1]):
-        j = int(lay[LAY_SRC, i])
-        fl = int(lay[LAY_FLAGS, i])
-        x = mem_row[j] if fl & FLAG_MEM else (last_row[j] if fl & FLAG_LAST else peek_row[j])
-        v = _obs_input(x, lay[LAY_SCALE, i])
-        if fl & FLAG_SQUASH:
-            v = math.copysign(math.log1p(abs(v)), v)
-        obs_row[i] = _obs_clip(v)
-
-
 @jit_noalloc
 def observe_lanes(obs, peek, last, F, lay, gid, scratch):
-    """:func:`_write_obs` for every lane with ``gid`` 0, one entry at a time over the lanes, so the squash runs on
-    the whole block (:func:`ehss_gym.core.vecmath.symlog_block`, whose float32 result is libm's): the same float32
-    observations, bit for bit. ``last`` is the lanes' last finite info (H_INFO_OK), ``scratch`` a C-contiguous
-    float64 array of at least 6 B entries."""
+    """The observations of the lanes with ``gid`` 0: entry i of lane b is symlog(x / scale), clipped to
+    +-OBS_BOUND, finite, where x (layout ``lay``, :mod:`ehss_gym.envs.observation`) is read from the look-ahead
+    ``peek[b]`` (what the controller sees at the next sample) or, for entries flagged FLAG_LAST, from ``last[b]``
+    (the last control period actually run, H_INFO_OK: applied current, residual), or for entries flagged FLAG_MEM
+    from the lane's extras in ``F`` (the memory features, layout MEM_*, then the action of a mode but "current").
+
+    One entry at a time over the lanes, so the squash runs on the whole block
+    (:func:`ehss_gym.core.vecmath.symlog_block`, whose float32 result is libm's log1p's, bit for bit).
+    ``scratch`` is a C-contiguous float64 array of at least 6 B entries."""
     B = obs.shape[0]
     s = scratch.reshape(-1)[:6 * B].reshape(6, B)  # rows of exactly B lanes (a chunk's scratch may be longer)
     v, y, w = s[0], s[1], s[2:6]
@@ -211,26 +196,16 @@ def hot_blocks(H, B, s, n):
 
 
 @jit_noalloc
-def _peek(b, k, h, z, model, ctrl, ref, peek, u_res, BB, filt, work):
-    """Fill lane b's look-ahead block ``peek`` with what its controller sees at sample k, without advancing it.
-
-    The filters are advanced on a copy of the loop state, kept in the block's last N_LOOP entries, and BB_PRE is set:
-    the lane's next control period (at this k, from this state) reuses all of it and only applies its residual
-    (see :func:`ehss_gym.core.loop.lanes_period`), so look-ahead and step share one controller evaluation.
-    """
-    zt = peek[b, N_INFO:]
-    for i in range(N_LOOP):
-        zt[i] = z[b, i]
-    controller_update(zt, k, h, model[b], ctrl[b], ref[b], filt[b], u_res[b], peek[b, :N_INFO], work)
-    BB[b, BB_PRE] = True
-
-
-@jit_noalloc
 def peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, kv, h, filt, c, work, cw):
-    """:func:`_peek` for every lane that stepped in this call (``gid`` 0, IB_GID), lane b at its sample kv[b], in the
-    controller's stages on the copies of the loop states in the look-ahead blocks: the sensors and model over the lanes
-    (:func:`ehss_gym.core.controller.sense_lanes`), then the rest of the law over them
-    (:func:`ehss_gym.core.controller.law_lanes`). The same arithmetic as :func:`_peek`."""
+    """Fill the look-ahead block ``peek`` of every lane that stepped in this call (``gid`` 0, IB_GID) with what its
+    controller sees at its next sample kv[b], without advancing it.
+
+    The controller's stages run on copies of the loop states kept in the blocks' last N_LOOP entries: the sensors and
+    model over the lanes (:func:`ehss_gym.core.controller.sense_lanes`), the rest of the law over them
+    (:func:`ehss_gym.core.controller.law_lanes`), the residual (:func:`ehss_gym.core.controller.controller_apply`);
+    the arithmetic of :func:`ehss_gym.core.controller.controller_update` on each copy. BB_PRE is set: the lane's next
+    control period (at this k, from this state) reuses all of it and only applies its residual (see
+    :func:`ehss_gym.core.loop.lanes_period`), so look-ahead and step share one controller evaluation."""
     B = z.shape[0]
     zt = peek[:, N_INFO:]  # the copies, which the sensors' delay line moves on (the loop state stays)
     for b in range(B):
@@ -240,7 +215,7 @@ def peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, kv, h, filt, c, work, cw):
             for i in range(N_LOOP):
                 zt[b, i] = z[b, i]
     sense_lanes(zt, kv, ctrl, c, cw)
-    law_lanes(peek, kv, h, ctrl, ref, filt, peek, work, cw, N_INFO)  # a lane's info and state copy share its row
+    law_lanes(peek, kv, h, ctrl, ref, filt, peek, work, cw)  # a lane's info and state copy share its row
     for b in range(B):
         if gid[b] != 0:
             continue
@@ -250,21 +225,28 @@ def peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, kv, h, filt, c, work, cw):
 
 
 @jit_noalloc
-def observe(h, F, H, IB, BB, events, filt, work, obs, lay):
-    """Observations of the lanes flagged in BB[:, BB_ACT] at their current step, without advancing them.
+def observe(h, F, H, IB, BB, filt, c, work, lwork, obs, lay):
+    """Observations of the lanes flagged in BB[:, BB_ACT] at their current step, without advancing them: each chunk's
+    flagged lanes through :func:`peek_lanes` and :func:`observe_lanes`, as a step ends (``c``, ``work``, ``lwork``:
+    the chunks' scratch, as :func:`advance_chunks` takes them).
 
     Used at reset: the last-period block (applied current, residual) is zeroed, nothing was applied yet.
     """
-    B = F.shape[0]
-    z, _, model, ctrl, ref, _, info_ok, peek, _, _ = hot_blocks(H, B, 0, B)
-    u_res = F[:, F_URES]
-    for b in range(B):
-        if not BB[b, BB_ACT]:
-            continue
-        for i in range(N_INFO):
-            info_ok[b, i] = 0.0
-        _peek(b, IB[IB_K, b], h, z, model, ctrl, ref, peek, u_res, BB, filt, work)
-        _write_obs(obs[b], peek[b, :N_INFO], info_ok[b], F[b, F_MEM:F_MEM + N_EXTRA], lay)
+    B_all = F.shape[0]
+    chunk = c.shape[2]
+    for j in range(c.shape[0]):
+        s = j * chunk
+        B = min(chunk, B_all - s)
+        z, _, _, ctrl, ref, _, info_ok, peek, _, _ = hot_blocks(H, B_all, s, B)
+        gid, kv = IB[IB_GID, s:s + B], IB[IB_K, s:s + B]
+        for b in range(B):
+            gid[b] = 0 if BB[s + b, BB_ACT] else -1
+            if BB[s + b, BB_ACT]:
+                for i in range(N_INFO):
+                    info_ok[b, i] = 0.0
+        peek_lanes(z, ctrl, ref, peek, F[s:s + B, F_URES], BB[s:s + B], gid, kv, h, filt[s:s + B], c[j],
+                   work[j], lwork[j, 6])
+        observe_lanes(obs[s:s + B], peek, info_ok, F[s:s + B], lay, gid, lwork[j, 0])
 
 
 def reward_weights(weights: dict, error_scale: float, residual_scale: float, memory_tau: float | None = None,

@@ -411,7 +411,7 @@ class Lanes:
         """Fill the observations of the given lanes from their current state (no time passes)."""
         self.BB[:, BB_ACT] = False
         self.BB[lanes, BB_ACT] = True
-        observe(self.cfg.control_period, self.F, self.H, self.IB, self.BB, self.events, self.filt, self.work[0],
+        observe(self.cfg.control_period, self.F, self.H, self.IB, self.BB, self.filt, self.c, self.work, self.lwork,
                 self.obs, self.lay)
 
     def _bind(self) -> None:
