@@ -36,7 +36,7 @@ PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 QUIET_SECONDS = 2.0
 # CPU time of a cold compile, as measured (README, "How long it takes"): the env's kernels (a first env step, a small
 # evaluation), and every kernel the commands use (the env's, the simulator's and the step bound's: ehss warmup) [CPU-s]
-TYPICAL_CPU_S = (45, 80)
+TYPICAL_CPU_S = (25, 50)
 
 
 def cache_folder(path: str | None) -> str:
