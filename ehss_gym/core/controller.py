@@ -363,7 +363,7 @@ def order_law(z, k, h, F, G, am, ctrl, ref, filt, info, work, m):
     return u_base
 
 
-@jit_inline
+@jit
 def reference_shift(z, m, ctrl, filt, dd):
     r"""The law's reference shift at the sample: (Delta, its share of s, its share of psi).
 
@@ -385,7 +385,7 @@ def reference_shift(z, m, ctrl, filt, dd):
     return dd[0], s_shift, psi_shift
 
 
-@jit_inline
+@jit
 def dob_current(z, k, h, alpha, s, G, ulim, info):
     """The disturbance observer at sample k: its estimate d_hat updated from this sample's s; returns its current [mA].
 
@@ -482,7 +482,7 @@ def lyapunov_residual(info, kappa, u0, u_res):
     return decrease_clip(a, b, u0, u_res, kappa * decrease)
 
 
-@jit_inline
+@jit
 def shape_reference(z, k, h, r, a_max, p0):
     r"""The reference shaper (position task): the shaped reference p_k at sample k, which drives the reference model.
 
