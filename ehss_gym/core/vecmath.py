@@ -18,7 +18,7 @@ from .jit import jit_noalloc
 
 LN2 = 0.6931471805599453  # log(2), rounded to float64
 SQRT2 = 1.4142135623730951
-# Bound on the relative error of _log1p_poly against the true log(1 + a), a >= 0: the range reduction is exact, the
+# Bound on the relative error of log1p_block against the true log(1 + a), a >= 0: the range reduction is exact, the
 # series' truncation is below 1e-20, and the few roundings (the division s = (f - 1)/(f + 1), the series, k log 2 +
 # log f with its mild cancellation for f < 1, and Kahan's a / (u - 1) factor) stay within a few units of 2^-53;
 # tests/test_vecmath.py measures the largest error over the float64 range, far below this bound.

@@ -238,6 +238,7 @@ def observe(h, F, H, IB, BB, filt, c, work, lwork, obs, lay):
         s = j * chunk
         B = min(chunk, B_all - s)
         z, _, _, ctrl, ref, _, info_ok, peek, _, _ = hot_blocks(H, B_all, s, B)
+        # the step's group row marks the flagged lanes, as a step's does (advance writes it afresh before using it)
         gid, kv = IB[IB_GID, s:s + B], IB[IB_K, s:s + B]
         for b in range(B):
             gid[b] = 0 if BB[s + b, BB_ACT] else -1
