@@ -29,3 +29,24 @@ def test_a_name_that_is_not_a_scripted_law_is_refused(capsys):
     with pytest.raises(SystemExit):
         oracle.main(["--policy", "residual-ppo-velocity-n2"])
     assert "--policy must be a scripted CLF law's name" in capsys.readouterr().err
+
+
+def test_a_law_of_another_n_runs_at_that_n_and_is_scored_against_clf_n2(capsys):
+    """clf-n4 runs as itself (not as clf-n2: its figure against clf-n2 is not 1), on the grid's pairs, and the
+    class-wise bound is reported beside the others."""
+    oracle.main(["--policy", "clf-n4", "--task", "position", "--nominal", "--episodes", "3"])
+    out = capsys.readouterr().out
+    g = {k: float(v) for k, v in
+         re.findall(r"(as it is|best fixed pair|hindsight|each class at its best):\s+([\d.]+)", out)}
+    assert set(g) == {"as it is", "best fixed pair", "hindsight", "each class at its best"}
+    assert g["as it is"] != 1.0
+    assert g["best fixed pair"] <= g["as it is"]
+    assert g["each class at its best"] <= g["best fixed pair"]
+
+
+def test_the_action_grid_spans_the_schedule_actions_ranges():
+    from ehss_gym.envs.actions import SCHEDULE_RANGES
+    ranges = {name: (lo, hi) for name, lo, hi in SCHEDULE_RANGES}
+    assert (min(oracle.ACTION_WIDTH_FACTORS), max(oracle.ACTION_WIDTH_FACTORS)) == ranges["width"]
+    assert (min(oracle.ACTION_SIGMA_FACTORS), max(oracle.ACTION_SIGMA_FACTORS)) == ranges["sigma"]
+    assert 1.0 in oracle.ACTION_WIDTH_FACTORS and 1.0 in oracle.ACTION_SIGMA_FACTORS
