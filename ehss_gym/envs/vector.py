@@ -42,6 +42,7 @@ from gymnasium.vector.utils import batch_space
 from ehss_gym.core.layout import M_LOST, N_INFO
 
 from .config import EnvConfig, warn_untuned
+from .kernels import vector_actions, vector_ends, vector_launch
 from .lanes import Lanes, step_info
 from .observation import OBS_BOUND
 
@@ -205,66 +206,55 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         N = self.num_envs
         lanes = self._lanes
         k = lanes.action_dims
-        a = np.asarray(actions, dtype=np.float64).reshape(N, -1)
+        a = np.ascontiguousarray(actions, dtype=np.float64).reshape(N, -1)
         if a.shape[1] != k:
             raise ValueError(f"actions must have shape ({N}, {k}), got {np.shape(actions)}")
-        if np.isnan(a).any():
+        # the clipped actions, which sub-envs had one clipped and which step (not resetting, nor ended)
+        clip, clipped, stepped = np.empty_like(a), np.empty(N, dtype=np.bool_), np.empty(N, dtype=np.bool_)
+        if not vector_actions(a, self._autoreset, self._ended, clip, clipped, stepped):
             raise ValueError("actions contain NaN; actions must be numbers in [-1, 1] (out-of-range values are "
                              "clipped)")
-        clipped = ((a > 1.0) | (a < -1.0)).any(axis=1)
-        a = np.clip(a, -1.0, 1.0)
-        # the lanes that do not step: those resetting (autoreset) and, with autoreset disabled, those that ended
-        skip = self._autoreset | self._ended
-        stepped = ~skip
         resetting = np.flatnonzero(self._autoreset)
         infos: dict = {}
         if len(resetting):
             infos = self._reset_lanes([int(b) for b in resetting], [None] * len(resetting), [None] * len(resetting),
                                       infos)
             lanes.observe(resetting)
-        clipped &= stepped
-        self._n_clipped += clipped
-        if k == 1 and self.config.action == "current":  # today's action, as it always was
-            lanes.u_res[:N] = a[:, 0] * self.config.residual_scale
-            lanes.u_res[resetting] = 0.0
-        else:  # the lanes that step (a lane just reset keeps its loaded state: zero action)
-            lanes.set_actions(np.flatnonzero(stepped), a[stepped])
-        run = lanes.run[:N]
-        run[skip] = False  # not advanced (a lane resetting is not advanced on its reset step)
+        current = k == 1 and self.config.action == "current"  # today's action, as it always was
+        # the lanes that do not step are not advanced (a lane resetting is not advanced on its reset step)
+        vector_launch(clip, clipped, stepped, self._autoreset, self._n_clipped, lanes.run, lanes.u_res,
+                      float(self.config.residual_scale), current)
+        if not current:  # the lanes that step (a lane just reset keeps its loaded state: zero action)
+            lanes.set_actions(np.flatnonzero(stepped), clip[stepped])
         lanes.step()
-        rewards = lanes.rew[:N].copy()
-        rewards[skip] = 0.0
+        rewards = np.where(stepped, lanes.rew[:N], 0.0)
         n = 1
         if record is not None:
             record[0, stepped] = lanes.info_ok[:N][stepped]
         if max_steps > 1 and not len(resetting):
             n += self._hold(stepped, clipped, max_steps - 1, record, rewards)
-        diverged = stepped & ~run
-        lost = lanes.acc[:N, M_LOST] > 0.0
-        if self.config.terminate_on_lost_track:
-            run &= ~(stepped & lost)  # the lane stops here, as a diverged one does
-        terminated = stepped & ~run
-        self._steps[stepped] += n
-        truncated = stepped & run & (self._steps >= lanes.T[:N])
-        run[resetting] = True
-        # one copy of the lanes' last samples and step statistics, so the info's arrays outlive the next step
-        step = step_info(lanes.info_ok[:N].T.copy(), lanes.stats[:N].T.copy(), clipped, self._n_clipped.copy(),
-                         diverged, lost)
+        # fresh arrays each step, so what a step returns outlives the next
+        flags = np.empty((5, N), dtype=np.bool_)
+        info_t, stats_t = np.empty((N_INFO, N)), np.empty((lanes.stats.shape[1], N))
+        n_end = vector_ends(lanes.run, lanes.acc, lanes.T, self._steps, stepped, self._autoreset, n,
+                            bool(self.config.terminate_on_lost_track), lanes.info_ok, lanes.stats, flags, info_t,
+                            stats_t)
+        diverged, lost, terminated, truncated, ended = flags
+        step = step_info(info_t, stats_t, clipped, self._n_clipped.copy(), diverged, lost)
         mask = np.ones(N, dtype=np.bool_)
         for key, v in step.items():
             infos[key] = v
             infos["_" + key] = mask
-        ended = np.nonzero(terminated | truncated)[0]
-        for b in ended:
+        for b in np.flatnonzero(ended) if n_end else ():
             m = lanes.metrics(int(b))
             extra = {"metrics": m}
             if diverged[b]:
                 extra["divergence_reason"] = m["divergence_reason"]
             infos = self._add_info(infos, extra, int(b))
         if self.metadata["autoreset_mode"] == AutoresetMode.DISABLED:
-            self._ended |= terminated | truncated
+            self._ended |= ended
         else:
-            self._autoreset = terminated | truncated
+            self._autoreset = ended.copy()
         return lanes.obs[:N].copy(), rewards, terminated, truncated, infos, n
 
     def _hold(self, stepped, clipped, most: int, record, rewards) -> int:

@@ -1,0 +1,85 @@
+"""The vector env's compiled bookkeeping around its step (:func:`ehss_gym.envs.kernels.vector_actions`,
+:func:`~ehss_gym.envs.kernels.vector_launch`, :func:`~ehss_gym.envs.kernels.vector_ends`) against the same rules
+written as whole-array numpy expressions, on random sub-env states."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ehss_gym.core.layout import M_LOST, N_METRICS
+from ehss_gym.envs.kernels import vector_actions, vector_ends, vector_launch
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), N=st.integers(1, 40), k=st.integers(1, 4), nan=st.booleans())
+def test_actions_are_checked_and_clipped_as_numpy_does(seed, N, k, nan):
+    rng = np.random.default_rng(seed)
+    a = rng.choice([-np.inf, -3.0, -1.0, -0.5, -0.0, 0.0, 0.7, 1.0, 1.0 + 1e-16, 2.0, np.inf], size=(N, k))
+    a += rng.uniform(-0.1, 0.1, (N, k)) * (rng.random((N, k)) < 0.5)
+    if nan:
+        a[rng.integers(N), rng.integers(k)] = np.nan
+    autoreset, ended = rng.random(N) < 0.2, rng.random(N) < 0.2
+    out, clipped, stepped = np.full((N, k), 7.0), np.zeros(N, np.bool_), np.zeros(N, np.bool_)
+    ok = vector_actions(a, autoreset, ended, out, clipped, stepped)
+    assert ok == (not np.isnan(a).any())
+    if not ok:  # nothing written
+        assert (out == 7.0).all() and not clipped.any() and not stepped.any()
+        return
+    want_stepped = ~(autoreset | ended)
+    assert np.array_equal(out, np.clip(a, -1.0, 1.0))
+    assert np.array_equal(np.signbit(out), np.signbit(np.clip(a, -1.0, 1.0)))
+    assert np.array_equal(stepped, want_stepped)
+    assert np.array_equal(clipped, ((a > 1.0) | (a < -1.0)).any(axis=1) & want_stepped)
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), N=st.integers(1, 40), pad=st.integers(0, 3), current=st.booleans())
+def test_the_launch_counts_clips_stops_idle_lanes_and_writes_residuals(seed, N, pad, current):
+    rng = np.random.default_rng(seed)
+    out = rng.uniform(-1, 1, (N, 1))
+    clipped, stepped, autoreset = rng.random(N) < 0.3, rng.random(N) < 0.7, rng.random(N) < 0.2
+    n_clipped = rng.integers(0, 5, N)
+    B = N + pad
+    run, u_res = rng.random(B) < 0.5, rng.uniform(-5, 5, B)
+    want_n, want_run, want_u = n_clipped + clipped, run.copy(), u_res.copy()
+    want_run[:N][~stepped] = False
+    if current:
+        want_u[:N] = out[:, 0] * 10.0
+        want_u[:N][autoreset] = 0.0
+    vector_launch(out, clipped, stepped, autoreset, n_clipped, run, u_res, 10.0, current)
+    assert np.array_equal(n_clipped, want_n) and np.array_equal(run, want_run) and np.array_equal(u_res, want_u)
+
+
+@settings(max_examples=80, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), N=st.integers(1, 40), pad=st.integers(0, 3), n=st.integers(1, 5),
+       stop_lost=st.booleans())
+def test_the_ends_flags_and_info_copies_follow_the_numpy_rules(seed, N, pad, n, stop_lost):
+    rng = np.random.default_rng(seed)
+    B = N + pad
+    run = rng.random(B) < 0.7
+    acc = rng.uniform(0, 1, (B, N_METRICS))
+    acc[:, M_LOST] = rng.random(B) < 0.3
+    T = rng.integers(1, 8, B)
+    steps = rng.integers(0, 8, N)
+    stepped, autoreset = rng.random(N) < 0.8, rng.random(N) < 0.2
+    info_ok, stats = rng.normal(size=(B, 37)), rng.normal(size=(B, 15))
+    # the rules as the vector env wrote them with numpy
+    r, s = run[:N].copy(), steps.copy()
+    diverged = stepped & ~r
+    lost = acc[:N, M_LOST] > 0.0
+    if stop_lost:
+        r &= ~(stepped & lost)
+    terminated = stepped & ~r
+    s[stepped] += n
+    truncated = stepped & r & (s >= T[:N])
+    r[autoreset] = True
+    flags = np.empty((5, N), np.bool_)
+    info_t, stats_t = np.empty((37, N)), np.empty((15, N))
+    run_before_pad = run[N:].copy()
+    n_end = vector_ends(run, acc, T, steps, stepped, autoreset, n, stop_lost, info_ok, stats, flags, info_t, stats_t)
+    assert np.array_equal(flags, np.stack([diverged, lost, terminated, truncated, terminated | truncated]))
+    assert n_end == int((terminated | truncated).sum())
+    assert np.array_equal(run[:N], r) and np.array_equal(run[N:], run_before_pad) and np.array_equal(steps, s)
+    assert np.array_equal(info_t, info_ok[:N].T) and np.array_equal(stats_t, stats[:N].T)
