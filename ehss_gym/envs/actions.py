@@ -52,6 +52,9 @@ FILTER_TAU = 0.01  # [s] the filtered mode's time constant (the servo valve's ow
 # table's per-episode best widths (reports/headroom: medians 18x the default in velocity on the held-out suite, 270x
 # in position on the unmodelled suite); sigma and the observer's bandwidth a decade either way.
 SCHEDULE_RANGES = (("width", 0.1, 1000.0), ("sigma", 0.1, 10.0), ("observer", 0.1, 10.0))
+# their logarithms, taken once (every agent step of the mode uses them)
+_LOG_LO = np.log([r[1] for r in SCHEDULE_RANGES])
+_LOG_HI = np.log([r[2] for r in SCHEDULE_RANGES])
 
 
 @dataclass(frozen=True)
@@ -117,9 +120,9 @@ def compensation_factors(a: np.ndarray) -> np.ndarray:
 def schedule_factors(a: np.ndarray) -> np.ndarray:
     """The schedule mode's factors (n, k) of actions a (n, k) in [-1, 1]: hi^a for a >= 0, lo^(-a) for a < 0, with
     (lo, hi) of :data:`SCHEDULE_RANGES` per column (a = 0 gives exactly 1)."""
-    lo = np.log([r[1] for r in SCHEDULE_RANGES[:a.shape[1]]])
-    hi = np.log([r[2] for r in SCHEDULE_RANGES[:a.shape[1]]])
-    return np.exp(np.where(a >= 0.0, a * hi, -a * lo))
+    k = a.shape[1]
+    return np.exp(np.where(a >= 0.0, a * _LOG_HI[:k], -a * _LOG_LO[:k]))
+
 
 
 # The residual's authority R of the rate and filtered modes and the reference mode's bound D, each twice the RMS of the

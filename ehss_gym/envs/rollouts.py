@@ -129,7 +129,10 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
     obs, _ = env.reset(options={"scenario": list(scenarios)})
     done = np.zeros(N, dtype=bool)
     results: list = [None] * N
-    traces = [{k: [] for k in TRACE_KEYS} for _ in range(N)] if trace else None
+    # the trace's columns of every lane per agent step, stacked at the end; lane i's trace is the first rows[i] of them
+    # (a lane stops being recorded when its episode ends, and ended lanes never restart)
+    chunks: list = []
+    rows = np.zeros(N, dtype=np.int64)
     info_ok = env._lanes.info_ok  # the lanes' last finite sample of the step (what the step's info shows)
     # a policy that acts the same whatever it observes runs HOLD_STEPS agent steps per compiled call
     fixed = getattr(policy, "fixed_action", None)
@@ -155,31 +158,30 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
         live = np.flatnonzero(~done)
         total[live] += reward[live]
         if trace:
-            for i in live:
-                _record(traces[i], info_ok[i:i + 1] if record is None else record[:n, i])
+            chunks.append(info_ok[None, :N, _TRACE_COLS] if record is None else record[:n, :, _TRACE_COLS])
+            rows[live] += n
         for i in live[(term | trunc)[live]]:
             done[i] = True
             m = _lane_dict(info["metrics"], i)
             m["n_clipped"] = int(info["n_clipped"][i])
             m["agent_steps"] = steps
             results[i] = m
+    stacked = np.concatenate(chunks) if trace and chunks else np.zeros((0, N, len(_TRACE_COLS)))
     out = []
     for i in range(N):
-        tr = {k: np.asarray(v, dtype=np.float64) for k, v in traces[i].items()} if trace else None
+        tr = _trace(stacked[:rows[i], i]) if trace else None
         out.append(EpisodeResult(results[i], tr, float(total[i]) if returns else math.nan))
     return out
 
 
 HOLD_STEPS = 4096  # agent steps per call for a fixed policy (its trace's record: 4096 x N_INFO doubles per lane)
 TRACE_KEYS = ("t", "e", "y_ref", "y", "r", "u", "friction")
+# the info's columns (layout I_*) the trace is made of: t, e, y_d, the true error, r, u applied, friction
+_TRACE_COLS = np.array([layout.I_T, layout.I_E, layout.I_YD, layout.I_E_TRUE, layout.I_R, layout.I_UAPP, layout.I_TF])
 
 
-def _record(tr: dict, rows: np.ndarray) -> None:
-    """Append agent steps' samples (a lane's info rows (n, N_INFO), layout I_*) to a trace."""
-    tr["t"].extend(rows[:, layout.I_T].tolist())
-    tr["e"].extend(rows[:, layout.I_E].tolist())
-    tr["y_ref"].extend(rows[:, layout.I_YD].tolist())
-    tr["y"].extend((rows[:, layout.I_YD] + rows[:, layout.I_E_TRUE]).tolist())  # the true output: y_d + (y - y_d)
-    tr["r"].extend(rows[:, layout.I_R].tolist())
-    tr["u"].extend(rows[:, layout.I_UAPP].tolist())
-    tr["friction"].extend(rows[:, layout.I_TF].tolist())
+def _trace(cols: np.ndarray) -> dict:
+    """A lane's trace (TRACE_KEYS) from its rows of the info's trace columns (n, len(_TRACE_COLS))."""
+    t, e, yd, e_true, r, u, tf = cols.T
+    return {"t": t.copy(), "e": e.copy(), "y_ref": yd.copy(), "y": yd + e_true,  # the true output: y_d + (y - y_d)
+            "r": r.copy(), "u": u.copy(), "friction": tf.copy()}
