@@ -14,7 +14,7 @@ from ehss_gym.controllers import CLFPolicy, PIDPolicy
 from ehss_gym.controllers.feedforward import ConstantResidualPolicy
 from ehss_gym.core.layout import N_INFO
 from ehss_gym.core.scenarios import heldout_scenarios
-from ehss_gym.envs import EHSSTrackingVectorEnv, EnvConfig
+from ehss_gym.envs import EHSSTrackingEnv, EHSSTrackingVectorEnv, EnvConfig
 from ehss_gym.envs import lanes as lanes_mod
 from ehss_gym.envs.actions import ACTION_NAMES
 from ehss_gym.envs.rollouts import HOLD_STEPS, SideBySide, rollout
@@ -208,3 +208,30 @@ def test_the_runs_of_a_policy_share_a_job_and_give_what_each_gives_alone():
         alone = harness._eval_job({"batches": [batch], "items": [digest]}, 0, items)[0]
         assert repr(alone["metrics"]) == repr(res["metrics"])
     assert repr(together[0]["metrics"]) != repr(together[1]["metrics"])
+
+
+def test_a_rollouts_trace_is_what_a_single_env_reports_step_by_step():
+    """The rollout's trace (stacked per agent step over the lanes, each lane's rows up to its end) against the single
+    env's info, step by step, for lanes that end at different steps: the same times, errors, applied currents and
+    friction torques, bit for bit, and as many rows as the episode has agent steps."""
+    kw = {"task": "position", "mode": "direct", "agent_period": 3}
+    cfg = EnvConfig.from_kwargs(kw)
+    scs = [sc.replace(t_end=0.006 + 0.003 * i) for i, sc in enumerate(heldout_scenarios(3, cfg.template()))]
+    pid = PIDPolicy(cfg, (2.0, 1.0, 0.0))
+    results = rollout(pid, kw, scs, trace=True)
+    for sc, res in zip(scs, results):
+        env = EHSSTrackingEnv(**kw)
+        obs, _ = env.reset(options={"scenario": sc})
+        state, start, rows = None, np.ones(1, dtype=bool), []
+        done = False
+        while not done:
+            a, state = pid.predict(obs[None], state=state, episode_start=start, deterministic=True)
+            start[:] = False
+            obs, _, term, trunc, info = env.step(np.asarray(a, dtype=np.float32).reshape(-1))
+            rows.append((info["t"], info["e"], info["u_applied"], info["friction_torque"]))
+            done = term or trunc
+        want = np.array(rows)
+        assert len(res.trace["t"]) == len(rows) == res.metrics["agent_steps"]
+        for j, key in enumerate(("t", "e", "u", "friction")):
+            assert res.trace[key].tobytes() == want[:, j].tobytes(), key
+    assert len({len(r.trace["t"]) for r in results}) == 3  # the lanes ended at different steps
