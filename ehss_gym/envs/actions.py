@@ -124,7 +124,6 @@ def schedule_factors(a: np.ndarray) -> np.ndarray:
     return np.exp(np.where(a >= 0.0, a * _LOG_HI[:k], -a * _LOG_LO[:k]))
 
 
-
 # The residual's authority R of the rate and filtered modes and the reference mode's bound D, each twice the RMS of the
 # ideal corrections on the unmodelled suite (32 episodes per task, the n = 2 law; ``python tools/action_authority.py``,
 # docs/ENV.md "Action modes"), rounded up to one significant digit:

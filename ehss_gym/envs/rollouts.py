@@ -129,10 +129,9 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
     obs, _ = env.reset(options={"scenario": list(scenarios)})
     done = np.zeros(N, dtype=bool)
     results: list = [None] * N
-    # the trace's columns of every lane per agent step, stacked at the end; lane i's trace is the first rows[i] of them
-    # (a lane stops being recorded when its episode ends, and ended lanes never restart)
-    chunks: list = []
-    rows = np.zeros(N, dtype=np.int64)
+    # the trace: per agent step the live lanes' trace columns, grouped by the set of live lanes (it only shrinks, as
+    # ended lanes never restart), so memory follows the lanes still running; each lane's rows are cut out at the end
+    epochs: list = []  # (live lanes, [arrays (steps, live lanes, columns)])
     info_ok = env._lanes.info_ok  # the lanes' last finite sample of the step (what the step's info shows)
     # a policy that acts the same whatever it observes runs HOLD_STEPS agent steps per compiled call
     fixed = getattr(policy, "fixed_action", None)
@@ -158,18 +157,24 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
         live = np.flatnonzero(~done)
         total[live] += reward[live]
         if trace:
-            chunks.append(info_ok[None, :N, _TRACE_COLS] if record is None else record[:n, :, _TRACE_COLS])
-            rows[live] += n
+            if not epochs or len(epochs[-1][0]) != len(live):
+                epochs.append((live, []))
+            epochs[-1][1].append(info_ok[np.ix_(live, _TRACE_COLS)][None] if record is None else
+                                 record[:n, live][..., _TRACE_COLS])
         for i in live[(term | trunc)[live]]:
             done[i] = True
             m = _lane_dict(info["metrics"], i)
             m["n_clipped"] = int(info["n_clipped"][i])
             m["agent_steps"] = steps
             results[i] = m
-    stacked = np.concatenate(chunks) if trace and chunks else np.zeros((0, N, len(_TRACE_COLS)))
+    lane_rows: list = [[] for _ in range(N)]
+    for live, chunks in epochs:
+        block = np.concatenate(chunks)
+        for j, i in enumerate(live):
+            lane_rows[i].append(block[:, j])
     out = []
     for i in range(N):
-        tr = _trace(stacked[:rows[i], i]) if trace else None
+        tr = _trace(np.concatenate(lane_rows[i] or [np.zeros((0, len(_TRACE_COLS)))])) if trace else None
         out.append(EpisodeResult(results[i], tr, float(total[i]) if returns else math.nan))
     return out
 
