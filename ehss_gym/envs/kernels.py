@@ -648,16 +648,13 @@ def vector_actions(a, autoreset, ended, out, clipped, stepped):
 
 
 @jit_noalloc
-def vector_launch(out, clipped, stepped, autoreset, n_clipped, run, u_res, scale, current):
-    """Before the vector env's step: count the clipped actions, stop the sub-envs that do not step (their run flags)
-    and, with the current action (``current``), write the residuals [mA] (``scale`` [mA] per unit action; a
-    resetting sub-env's is zero)."""
-    for b in range(out.shape[0]):
+def vector_launch(clipped, stepped, n_clipped, run):
+    """Before the vector env's step: count the clipped actions and stop the sub-envs that do not step (their run
+    flags)."""
+    for b in range(clipped.shape[0]):
         n_clipped[b] += clipped[b]
         if not stepped[b]:
             run[b] = False
-        if current:
-            u_res[b] = 0.0 if autoreset[b] else out[b, 0] * scale
 
 
 @jit_noalloc

@@ -220,15 +220,13 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
             infos = self._reset_lanes([int(b) for b in resetting], [None] * len(resetting), [None] * len(resetting),
                                       infos)
             lanes.observe(resetting)
-        current = k == 1 and self.config.action == "current"  # today's action, as it always was
         # the lanes that do not step are not advanced (a lane resetting is not advanced on its reset step)
-        vector_launch(clip, clipped, stepped, self._autoreset, self._n_clipped, lanes.run, lanes.u_res,
-                      float(self.config.residual_scale), current)
-        if not current:  # the lanes that step (a lane just reset keeps its loaded state: zero action)
-            if stepped.all():  # all of them: a slice, which numpy indexes several times faster than a list of lanes
-                lanes.set_actions(slice(0, N), clip)
-            else:
-                lanes.set_actions(np.flatnonzero(stepped), clip[stepped])
+        vector_launch(clipped, stepped, self._n_clipped, lanes.run)
+        # the action mode's writer, for the lanes that step (a lane just reset keeps its loaded state: zero action)
+        if stepped.all():  # all of them: a slice, which numpy indexes several times faster than a list of lanes
+            lanes.set_actions(slice(0, N), clip)
+        else:
+            lanes.set_actions(np.flatnonzero(stepped), clip[stepped])
         lanes.step()
         rewards = np.where(stepped, lanes.rew[:N], 0.0)
         n = 1
