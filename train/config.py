@@ -78,6 +78,10 @@ class Config:
             raise runs.RunError(f"--agent must be one of {agent_names()}, got {self.agent!r}")
         if self.task not in TASKS:
             raise runs.RunError(f"--task must be one of {list(TASKS)}, got {self.task!r}")
+        tasks = self.spec().tasks
+        if self.task not in tasks:
+            raise runs.RunError(f"--task must be one of {list(tasks)} for agent {self.agent!r} (its base law was "
+                                f"chosen for {'that task' if len(tasks) == 1 else 'those tasks'}), got {self.task!r}")
         if not isinstance(self.n, int):  # a float 4.0 would pass check_even_n but not the run name's n<k>
             raise runs.RunError(f"--n must be an even integer >= 2 (2, 4, 6, ...), got {self.n!r}")
         try:
