@@ -23,9 +23,9 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
-from ehss_gym.controllers.clf import compensator_loops
 from ehss_gym.core.settings import TASKS
 from ehss_gym.envs.config import POLICY_KEYS, EnvConfig
+from ehss_gym.envs.law_table import COMPENSATOR_ROWS, compensator_settings
 
 TASK_NAMES = tuple(TASKS)
 
@@ -259,7 +259,8 @@ AGENTS: dict[str, AgentSpec] = {
     # observer. Trained for 1,000,000 steps (the recipe's 300,000 left its validation curves still falling on this
     # base); shipped by the rule in docs/RL.md, "Residual PPO on the observer's law".
     "residual-ppo-eso": AgentSpec(name="residual-ppo-eso", mode="residual",
-                                  env_kwargs={**RESIDUAL_ENV, **compensator_loops("eso", ("velocity",))["velocity"]},
+                                  env_kwargs={**RESIDUAL_ENV,
+                                              **compensator_settings("eso", COMPENSATOR_ROWS["eso"]["velocity"])},
                                   log_std_init=-3.0, zero_init_action=True, tasks=("velocity",)),
     "ppo": AgentSpec(name="ppo", mode="direct", env_kwargs={**COMMON_ENV, "reward_weights": {"rate": 1.0}},
                      log_std_init=-1.0, zero_init_action=False),

@@ -101,7 +101,8 @@ def test_policy_class_round_trips_through_sb3_save(residual, tmp_path):
 
 
 def test_bad_agent_input():
-    with pytest.raises(ValueError, match=r"agent must be one of \['ppo', 'residual-ppo', 'residual-sac'\]"):
+    with pytest.raises(ValueError,
+                       match=r"agent must be one of \['ppo', 'residual-ppo', 'residual-ppo-eso', 'residual-sac'\]"):
         get_spec("sac")
     with pytest.raises(ValueError, match=r"unknown or fixed agent hyperparameter\(s\) \['mode'\]"):
         get_spec("residual-ppo", mode="direct")
@@ -118,6 +119,28 @@ def test_env_kwargs_override_merges():
     assert spec.env_kwargs == {**AGENTS["residual-ppo"].env_kwargs, "agent_period": 20}
     assert env_kwargs_for(spec, "position", 4) == {"task": "position", "n": 4, "mode": "residual",
                                                    **spec.env_kwargs}
+
+
+def test_the_observers_residual_acts_in_eso_n2s_loop_on_the_velocity_task_only():
+    """residual-ppo-eso is the residual recipe as it is on the loop of the scripted eso-n2 (the same controller
+    settings, defaults resolved), and refuses the position task, where the compensator rule chose no observer."""
+    from ehss_gym.controllers import parse_scripted
+    from ehss_gym.evaluation.specs import controller_settings
+
+    spec = AGENTS["residual-ppo-eso"]
+    assert spec.tasks == ("velocity",) and spec.as_dict()["tasks"] == ["velocity"]
+    assert "tasks" not in AGENTS["residual-ppo"].as_dict()  # an agent of both tasks keeps its earlier record
+    assert {k: v for k, v in spec.as_dict().items() if k not in ("name", "env_kwargs", "tasks")} == {
+        k: v for k, v in AGENTS["residual-ppo"].as_dict().items() if k not in ("name", "env_kwargs")}
+    kw = env_kwargs_for(spec, "velocity", 2)
+    assert controller_settings(kw, "velocity") == controller_settings(parse_scripted("eso-n2", "velocity"), "velocity")
+    assert controller_settings(kw, "velocity") != controller_settings({"n": 2}, "velocity")
+    with pytest.raises(ValueError, match=r"agent 'residual-ppo-eso' trains on the task\(s\) \['velocity'\], got "
+                                         r"task 'position'"):
+        env_kwargs_for(spec, "position", 2)
+    assert AgentSpec(**{**spec.as_dict(), "net_arch": (64, 64)}).tasks == ("velocity",)  # from a run's record
+    with pytest.raises(ValueError, match=r"tasks must be a non-empty tuple of tasks of \['velocity', 'position'\]"):
+        get_spec("residual-ppo", tasks=("torque",))
 
 
 def test_every_hyperparameter_is_documented():

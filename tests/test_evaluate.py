@@ -287,6 +287,30 @@ def test_a_policy_recorded_in_another_loop_is_listed_apart():
     assert all(r["q_overall"] == 1.0 for r in rows)
 
 
+def test_a_residual_is_compared_with_the_scripted_law_whose_loop_it_acts_in():
+    """A zero residual on the observer's loop is eso-n2 itself: its base law is eso-n2, not clf-n2, and its figure
+    over that base law's is exactly 1 with a CI of [1, 1]; over clf-n2 it is eso-n2's ratio. A zero residual at the
+    defaults has clf-n2 as both its best CLF and its base law: the same ratio and CI twice."""
+    from ehss_gym.controllers import parse_scripted
+
+    eso = parse_scripted("eso-n2", "velocity")
+    on_eso = ev.object_spec("zero-on-eso", _FixedPolicy(value=0.0),
+                            env_kwargs={"task": "velocity", **{k: v for k, v in eso.items() if k != "mode"}})
+    today = ev.object_spec("zero-residual", _FixedPolicy(value=0.0), env_kwargs={"task": "velocity"})
+    specs = [ev.parse_policy("clf-n2"), ev.parse_policy("eso-n2"), on_eso, today]
+    res = ev.evaluate(specs, TINY, workers=1, progress=False)
+    by = {c["policy"]: c for c in res.comparisons}
+    c = by["zero-on-eso"]
+    assert c["best_clf"] == "clf-n2" and c["base_law"] == "eso-n2"
+    assert (c["ratio_to_base"], c["ratio_to_base_lo"], c["ratio_to_base_hi"]) == (1.0, 1.0, 1.0)
+    fig = {d["policy"]: d["figure"] for d in res.summary}
+    assert c["ratio_to_best"] == pytest.approx(fig["eso-n2"], rel=1e-12) and c["ratio_to_best"] != 1.0
+    c = by["zero-residual"]
+    assert c["base_law"] == "clf-n2" and c["ratio_to_base"] == c["ratio_to_best"] == 1.0
+    assert c["ratio_to_base_lo"] == pytest.approx(1.0 - c["improvement_hi"], rel=1e-12)
+    assert c["ratio_to_base_hi"] == pytest.approx(1.0 - c["improvement_lo"], rel=1e-12)
+
+
 # ---------------------------------------------------------------------------------------------------
 # Suites, ranking and determinism
 

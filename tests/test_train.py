@@ -69,7 +69,10 @@ def test_run_name_reproducible_and_sensitive():
 
 @pytest.mark.parametrize("argv, match", [
     (["--agent", "sac"],
-     r"argument --agent: invalid choice: 'sac' \(choose from 'ppo', 'residual-ppo', 'residual-sac'\)"),
+     r"argument --agent: invalid choice: 'sac' \(choose from 'ppo', 'residual-ppo', 'residual-ppo-eso', "
+     r"'residual-sac'\)"),
+    (["--agent", "residual-ppo-eso", "--task", "position"],
+     r"--task must be one of \['velocity'\] for agent 'residual-ppo-eso'"),
     (["--seeds", "4-0"], "--seeds range '4-0' has start > end"),
     (["--seeds", "x"], "--seeds must be like"),
     (["--seed", "1", "--seeds", "0-1"], "either --seed or --seeds"),

@@ -34,6 +34,7 @@ import re
 import numpy as np
 
 from ehss_gym.core.registry import ESTIMATORS, LAWS, names
+from ehss_gym.envs.law_table import COMPENSATOR_ROWS, compensator_settings
 
 from .base import ScriptedPolicy
 
@@ -66,39 +67,10 @@ def dob_rows(tasks, law_table=None) -> dict[str, dict[str, float]]:
     if law_table is None:
         return {t: dict(DOB_ROWS[t]) for t in tasks}
     return {t: dict(law_table.tasks[t].dob) for t in tasks if t in law_table.tasks and law_table.tasks[t].dob}
-# The compensators' settings of ``dcomp-n<k>`` (the reference delay [control samples]), ``vinv-n<k>`` (the valve
-# inverse's threshold and hysteresis [% of rated current]) and ``eso-n<k>`` (the observer's bandwidth [Hz]) per task on
-# Table I: the choice of ``ehss baselines``'s compensator sweep (:mod:`ehss_gym.study.compensators`;
-# reports/baselines/law_settings.json, which tests/test_scripted_compensators.py checks them against) on 48 training
-# scenarios per task drawn with the unmodelled effects (the env's ``unmodelled_effects=True``: delay 1 or 2 samples,
-# threshold 0.25-0.5 %, hysteresis 1.5-3 %) by its rule, written before it ran (per task: no failure, then the lowest
-# overall figure of the ruler against clf-n2 on the same episodes, a tie within 1 % to the smaller compensation). Its
-# figures: the delay in velocity 0.993 at best (1.5 samples), a tie with none, so none; in position 0.701 at 1 sample
-# (0.711 at 2, 0.713 at 1.5); the valve inverse in velocity 0.857 at best (0.5 %, 2.25 %), the smallest within 1 %
-# being the distribution's mean (0.375 %, 2.25 %) at 0.864; in position no inverse helps (1.008 at the smallest, its
-# effort up), so none. The extended-state observer (``eso-n2``, its own rule in the same stage) in velocity 0.171 at
-# 100 Hz (50 Hz 0.171, 200 Hz 0.173, 1 kHz 0.198: the paper's state-variable filter differentiates the quantisation
-# steps into the current); in position, whose default estimator is already the observer at 1 kHz, 0.995 at best (400
-# Hz), a tie with none, so none. ``dcomp-n2`` acts in position only, ``vinv-n2`` and ``eso-n2`` in velocity only: on
-# the other task each is clf-n2. Another plant's rows are in its law table.
-COMPENSATOR_ROWS: dict[str, dict[str, dict[str, float]]] = {
-    "dcomp": {"velocity": {"reference_delay": 0.0}, "position": {"reference_delay": 1.0}},
-    "vinv": {"velocity": {"inverse_threshold": 0.375, "inverse_hysteresis": 2.25},
-             "position": {"inverse_threshold": 0.0, "inverse_hysteresis": 0.0}},
-    "eso": {"velocity": {"observer_hz": 100.0}, "position": {"observer_hz": 0.0}},
-}
 COMPENSATOR_TEXT = {"dcomp": "its reference delayed by {reference_delay:g} control sample(s)",
                     "vinv": "the valve's dead band and hysteresis inverted at {inverse_threshold:g} % and "
                             "{inverse_hysteresis:g} % of rated current",
                     "eso": "the extended-state observer at {observer_hz:g} Hz as its estimator"}  # (str.format)
-
-
-def compensator_settings(kind: str, row: dict) -> dict:
-    """The loop settings a compensator's row stands for: the row itself for ``dcomp`` and ``vinv``; for ``eso`` the
-    estimator "eso" at the row's ``observer_hz`` [Hz], or none where it is 0 (the task's default estimator)."""
-    if kind == "eso":
-        return {"estimator": "eso", "observer_hz": row["observer_hz"]} if row.get("observer_hz", 0.0) > 0.0 else {}
-    return dict(row)
 
 
 DEFAULT_TASK = "velocity"  # the env's default task: the row a compensator name takes where no task is given

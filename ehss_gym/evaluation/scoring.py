@@ -522,9 +522,9 @@ def _paired_logs(blk: Block, a: str, b: str) -> tuple[list, list]:
 
 def _comparison(blk: Block, spec: PolicySpec, specs: Sequence[PolicySpec], summary: list, suite: str, task: str,
                 cfg: EvalConfig) -> dict | None:
-    """A learned policy in today's loop against the best CLF of the block and its base law (the CLF with its n at
-    the env defaults): the ratio of their figures with a paired bootstrap CI, the PoI, and its class figures over
-    the base law's. None if no CLF ran."""
+    """A learned policy in today's loop against the best CLF of the block and against its base law
+    (:func:`base_law_of`; a direct policy's is the best CLF): the ratio of its figure to each with a paired bootstrap
+    CI, the PoI over the best CLF, and its class figures over the base law's. None if no CLF ran."""
     by = {d["policy"]: d for d in summary}
     best = by[spec.name]["best_clf"]
     if not best:
@@ -540,13 +540,35 @@ def _comparison(blk: Block, spec: PolicySpec, specs: Sequence[PolicySpec], summa
          "best_clf": best, "figure": by[spec.name]["figure"], "best_clf_figure": by[best]["figure"],
          "ratio_to_best": ratio, "improvement": 1.0 - ratio, "improvement_lo": 1.0 - math.exp(hi),
          "improvement_hi": 1.0 - math.exp(lo), "poi": p, "poi_lo": plo, "poi_hi": phi}
-    nn = int(spec.env_kwargs.get("n", 2))
-    base = f"clf-n{nn}" if spec.env_kwargs.get("mode", "residual") == "residual" and f"clf-n{nn}" in by else best
+    base = base_law_of(spec, [s for s in specs if s.name in by], task) or best
     c["base_law"] = base
     diffs, names = _paired_logs(blk, spec.name, base)
     for cls in CLASSES:
         c[f"{cls}_ratio"] = (math.exp(float(np.nanmean(diffs[names.index(cls)]))) if cls in names else math.nan)
+    # the overall figure over the base law's, paired the same way: what the residual adds to the law it acts on
+    if base != best:
+        ratio, lo, hi = math.nan, math.nan, math.nan
+        if diffs:
+            ratio = math.exp(stats.grouped_mean(diffs))
+            lo, hi = stats.grouped_mean_ci(diffs, over, cfg.n_boot, seed=cfg.seed + 9)
+    c["ratio_to_base"], c["ratio_to_base_lo"], c["ratio_to_base_hi"] = ratio, math.exp(lo), math.exp(hi)
     return c
+
+
+def base_law_of(spec: PolicySpec, specs: Sequence[PolicySpec], task: str) -> str | None:
+    """The scripted policy among ``specs`` whose closed loop a learned residual acts in on ``task`` (the same
+    controller settings, defaults resolved: ``eso-n2`` for a residual on the observer's law), the CLF with the
+    policy's n first; else that CLF where it ran; None for a direct policy or where neither ran."""
+    if spec.env_kwargs.get("mode", "residual") != "residual":
+        return None
+    n = policy_n(spec, task)
+    own = f"clf-n{n}"
+    ours = controller_settings(spec.env_kwargs, task)
+    scripted = sorted((s for s in specs if not s.learned), key=lambda s: s.name != own)
+    for s in scripted:
+        if controller_settings(s.env_kwargs_for(task), task) == ours:
+            return s.name
+    return own if any(s.name == own for s in scripted) else None
 
 
 def summarize(rows: list, specs: Sequence[PolicySpec], cfg: EvalConfig) -> tuple[list, list]:
@@ -587,5 +609,5 @@ __all__ = ["CLASSES", "CLASS_METRICS", "IAE_WINDOW", "Floors", "FLOORS", "PHYSIC
            "TV_FLOOR", "CURRENT_FLOOR", "SATURATION_GATE", "ABSOLUTE_LEVELS", "absolute_levels", "METRICS",
            "METRIC_KEYS", "FIGURE_SUITES", "episode_classes", "class_log_ratio", "episode_log_ratios", "failure",
            "figure_of", "rank_key", "gated_figure", "ratio_rows", "pair_log_ratio", "STARTUP_METRICS",
-           "matrix", "Block", "figure_statistics", "policy_stream", "is_earlier_loop", "policy_n",
+           "matrix", "Block", "figure_statistics", "policy_stream", "is_earlier_loop", "policy_n", "base_law_of",
            "summarize"]

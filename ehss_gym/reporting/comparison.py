@@ -210,8 +210,15 @@ def _comparison_rows(res: Results) -> list[list]:
     """Rows of the learned-against-scripted table (today's loop; ratios [-])."""
     return [[c["suite"], c["task"], c["policy"], c["n_runs"], c["best_clf"],
              f"{c['improvement']:+.1%} [{c['improvement_lo']:+.1%}, {c['improvement_hi']:+.1%}]",
-             f"{c['poi']:.2f} [{c['poi_lo']:.2f}, {c['poi_hi']:.2f}]", c["base_law"]]
+             f"{c['poi']:.2f} [{c['poi_lo']:.2f}, {c['poi_hi']:.2f}]", c["base_law"], _over_base(c)]
             + [fmt(c[f"{cls}_ratio"]) for cls in CLASSES] for c in res.comparisons]
+
+
+def _over_base(c: dict) -> str:
+    """A comparison's overall figure over its base law's with its CI (results made before the column: blank)."""
+    if not math.isfinite(c.get("ratio_to_base", math.nan)):
+        return ""
+    return f"{fmt(c['ratio_to_base'])} [{fmt(c['ratio_to_base_lo'])}, {fmt(c['ratio_to_base_hi'])}]"
 
 
 # ---------------------------------------------------------------------------------------------------

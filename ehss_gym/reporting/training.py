@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import os
 import re
 
@@ -130,6 +131,8 @@ def comparison_rows(res) -> list[list[str]]:
     """The learned policies against the best CLF law and against their own base law."""
     return cells([[c["suite"], c["policy"], c["n_runs"], c["figure"], c["best_clf"], c["best_clf_figure"],
                    c["improvement"], f"[{cell(c['improvement_lo'])}, {cell(c['improvement_hi'])}]", c["base_law"],
+                   c.get("ratio_to_base", math.nan),
+                   f"[{cell(c.get('ratio_to_base_lo', math.nan))}, {cell(c.get('ratio_to_base_hi', math.nan))}]",
                    c["tracking_ratio"], c["disturbance_ratio"], c["effort_ratio"], c["chatter_ratio"]]
                   for c in res.comparisons])
 

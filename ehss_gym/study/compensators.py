@@ -44,7 +44,7 @@ control's derivatives, and so into the current; the observer reads the measured 
 exploration before the rule (disclosed, on training seeds 0-31) put the velocity law with the observer at G 0.17
 against clf-n2 with the effects drawn, 0.61-0.70 without them.
 
-Table I's result is :data:`ehss_gym.controllers.clf.COMPENSATOR_ROWS`; another plant's goes into its law table
+Table I's result is :data:`ehss_gym.envs.law_table.COMPENSATOR_ROWS`; another plant's goes into its law table
 (``law_settings.json``: rows ``dcomp-n2``, ``vinv-n2`` and ``eso-n2`` per task). A compensator whose chosen size on a
 task is none acts on the other task only.
 """

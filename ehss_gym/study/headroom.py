@@ -18,7 +18,7 @@ chatter), the figures against the base law (the env's tuned n = 2 law, zero resi
   width**, which add the best width's search to them (what knowing the effects and the episode in hindsight reach
   together);
 - ``dcomp-n2`` and ``vinv-n2``, the causal counterparts of the delay compensation and the valve inverse (fixed sizes
-  per task chosen on training episodes, :data:`ehss_gym.controllers.COMPENSATOR_ROWS`), beside ``dob-n2``;
+  per task chosen on training episodes, :data:`ehss_gym.envs.law_table.COMPENSATOR_ROWS`), beside ``dob-n2``;
 - the sizes of the ideal corrections on the unmodelled suite (:mod:`ehss_gym.study.corrections`).
 
 **The agent period.** The residuals that change their current during an episode (the feed-forward doublets) run at
