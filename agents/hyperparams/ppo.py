@@ -2,7 +2,7 @@ r"""rl-zoo3 hyperparameters of residual-ppo on EHSSTracking-v0 (velocity task, b
 python -m ehss_gym.train.zoo from ehss_gym.agents.specs.AGENTS: do not edit (a test fails when this file and
 the specs differ).
 
-Train with (add -n 400000 for the shipped recipe's length):
+Train with (n_timesteps below is the shipped recipe's length, ehss train's default):
   python -m rl_zoo3.train --algo ppo --env EHSSTracking-v0 --gym-packages ehss_gym \
       --conf-file ehss_gym.agents.hyperparams.ppo --seed 0
 
