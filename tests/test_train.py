@@ -964,3 +964,17 @@ def test_a_seed_trains_the_same_weights_twice_and_another_seed_other_ones(tmp_pa
 
     first = weights("a", 0)
     assert weights("b", 0) == first and weights("c", 1) != first
+
+
+def test_the_reports_train_command_carries_the_runs_settings():
+    """A group's command in the training report repeats every setting its runs were given beyond the usual ones
+    (--n-envs, --plant, --law-settings, --hp), so that it trains the same runs again; runs without them get none."""
+    from ehss_gym.reporting.training import runs_context
+
+    base = {"agent": "residual-ppo", "task": "velocity", "n": 2, "seed": 0, "timesteps": 64, "eval_freq": 32,
+            "eval_episodes": 1, "hp": {}, "n_envs": None}
+    given = {**base, "n_envs": 32, "plant": "compact140", "hp": {"gamma": 0.99}}
+    (plain,) = runs_context({("residual-ppo", "velocity", 2, ""): [{"config": base}]})
+    (rich,) = runs_context({("residual-ppo", "velocity", 2, "x"): [{"config": given}]})
+    assert plain["hp"] == ""
+    assert rich["hp"] == " --n-envs 32 --plant compact140 --hp 'gamma=0.99'"

@@ -85,6 +85,10 @@ def runs_context(groups: dict) -> list[dict]:
     for k, rs in groups.items():
         c = rs[0]["config"]
         hp = "".join(f" --hp '{key}={json.dumps(v)}'" for key, v in sorted((c.get("hp") or {}).items()))
+        # the run settings a command needs beyond the usual ones, where the runs were given them
+        hp = "".join(f" --{flag} {c[key]}" for key, flag in (("n_envs", "n-envs"), ("plant", "plant"),
+                                                             ("law_settings", "law-settings"))
+                     if c.get(key) is not None) + hp
         out.append({"label": an.label(k), "agent": c["agent"], "task": c["task"], "n": c["n"],
                     "seeds": ",".join(str(r["config"]["seed"]) for r in rs), "timesteps": c["timesteps"],
                     "eval_freq": c["eval_freq"], "eval_episodes": c["eval_episodes"], "hp": hp})
