@@ -812,6 +812,14 @@ def test_runs_with_todays_settings_form_one_group_however_given(tmp_path):
     assert an.variant({**cfg, "hp": {"gamma": 0.98}}) == ""  # today's value, given as a flag
     other = {**cfg, "hp": {"gamma": 0.9}, "agent_spec": {**cfg["agent_spec"], "gamma": 0.9}}
     assert an.variant(other) == '{"gamma":0.9}'
+    # settings given as their own flags (--n-envs) or an agent whose defaults changed since: what differs, by name
+    flags = {**cfg, "n_envs": 32, "agent_spec": {**cfg["agent_spec"], "n_envs": 32}}
+    assert an.variant(flags) == '{"n_envs":32}'
+    env = dict(cfg["agent_spec"]["env_kwargs"], agent_period=5)
+    assert an.variant({**cfg, "agent_spec": {**cfg["agent_spec"], "env_kwargs": env}}) == \
+        '{"env_kwargs":{"agent_period":5}}'
+    assert an.variant({**cfg, "agent": "gone", "agent_spec": {**cfg["agent_spec"], "n_envs": 32}}).startswith(
+        "settings #")
 
 
 class _ZeroAction:

@@ -82,15 +82,31 @@ def load_runs(folder: str) -> list[dict]:
 
 def variant(config: dict) -> str:
     """A run's settings variant: "" when its agent settings are today's (:data:`ehss_gym.agents.specs.AGENTS`, however
-    they were given), else its --hp overrides as compact JSON (or, without any, a hash of its settings)."""
+    they were given), else its --hp overrides as compact JSON; without any (settings given as their own flags, such as
+    --n-envs, or an agent whose defaults have changed since), the settings that differ from today's agent as compact
+    JSON (a dict setting: its differing entries), or a hash of them where the agent is gone."""
     spec = config["agent_spec"]
     today = AGENTS.get(config["agent"])
-    if today is not None and json.loads(json.dumps(today.as_dict())) == spec:
+    now = json.loads(json.dumps(today.as_dict())) if today is not None else None
+    if now == spec:
         return ""
     hp = config.get("hp") or {}
     if hp:
-        return json.dumps(hp, sort_keys=True, separators=(",", ":"))
-    return "settings #" + hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:8]
+        return _compact(hp)
+    if now is None:
+        return "settings #" + hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:8]
+    diff = {}
+    for k in sorted(set(spec) | set(now)):
+        a, b = spec.get(k), now.get(k)
+        if a != b:
+            diff[k] = ({e: a[e] for e in sorted(a) if a[e] != b.get(e)} if isinstance(a, dict) and isinstance(b, dict)
+                       else a)
+    return _compact(diff)
+
+
+def _compact(d: dict) -> str:
+    """Settings as compact JSON (keys sorted): a group label's variant."""
+    return json.dumps(d, sort_keys=True, separators=(",", ":"))
 
 
 def group_key(run: dict) -> tuple:
