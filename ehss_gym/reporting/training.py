@@ -79,16 +79,18 @@ def plot_curve(key: tuple, rs: list[dict], path: str, made_by: str = COMMAND) ->
 # The report's numbers and tables
 
 
+# run settings with flags of their own (config key, ehss train flag), absent from a run's config when not given
+RUN_FLAGS = (("n_envs", "n-envs"), ("plant", "plant"), ("law_settings", "law-settings"))
+
+
 def runs_context(groups: dict) -> list[dict]:
     """Per group: the ``ehss train`` settings that made its runs."""
     out = []
     for k, rs in groups.items():
         c = rs[0]["config"]
-        hp = "".join(f" --hp '{key}={json.dumps(v)}'" for key, v in sorted((c.get("hp") or {}).items()))
-        # the run settings a command needs beyond the usual ones, where the runs were given them
-        hp = "".join(f" --{flag} {c[key]}" for key, flag in (("n_envs", "n-envs"), ("plant", "plant"),
-                                                             ("law_settings", "law-settings"))
-                     if c.get(key) is not None) + hp
+        # the run settings a command needs beyond the usual ones, where the runs were given them, then the overrides
+        flags = "".join(f" --{flag} {c[key]}" for key, flag in RUN_FLAGS if c.get(key) is not None)
+        hp = flags + "".join(f" --hp '{key}={json.dumps(v)}'" for key, v in sorted((c.get("hp") or {}).items()))
         out.append({"label": an.label(k), "agent": c["agent"], "task": c["task"], "n": c["n"],
                     "seeds": ",".join(str(r["config"]["seed"]) for r in rs), "timesteps": c["timesteps"],
                     "eval_freq": c["eval_freq"], "eval_episodes": c["eval_episodes"], "hp": hp})
