@@ -72,12 +72,26 @@ from .layout import (
     X_OMEGA,
     X_PL,
     X_THETA,
+    Z_DELAY,
     Z_REF,
+    Z_REF_RING,
+    Z_SHIFT,
+    Z_VINV,
 )
 from .metrics import accumulate
 from .params import P_DF, P_PS
 from .physics import N_LANE_CONST, friction_torque, integrate_lanes, lane_constants
-from .settings import C_ANALOG, C_OMEGA_MAX, C_ORDER, C_P_BOUND
+from .settings import (
+    C_ANALOG,
+    C_DELAY,
+    C_INV_HYSTERESIS,
+    C_INV_THRESHOLD,
+    C_OMEGA_MAX,
+    C_ORDER,
+    C_P_BOUND,
+    C_REF_DELAY,
+    C_SHIFT_ON,
+)
 from .unmodelled_kernels import valve_input
 
 MAX_LANES = 128  # scenarios integrated in lock-step by one thread
@@ -86,12 +100,53 @@ MAX_LANES = 128  # scenarios integrated in lock-step by one thread
 N_LWORK = 7
 
 
+# The loop state's rows a lane can write, in N_SPANS spans (:func:`live_span`). Most of the state belongs to add-ons
+# that are off on most lanes (the sensor delay line, the valve inverse's model, the reference delay's ring, the
+# reference action's filter: 87 of the N_LOOP doubles); a row no code of the lane writes keeps its reset value (0)
+# and no code reads it. So the period's state copy, its divergence check and a diverged lane's restore cover the
+# live spans only, with the same results (tests/test_live_rows.py fills the other rows with NaN and checks that
+# nothing writes or reads them).
+N_SPANS = 5
+
+
+@jit
+def live_span(ctrl, j):
+    """Rows [lo, hi) of span ``j`` (< N_SPANS) of the loop state that a lane with the controller row ``ctrl`` writes
+    (empty: lo == hi): the plant, filters, observers and valve play always; the sensor delay line's first N_PLANT * d
+    rows for a delay of d samples (:func:`ehss_gym.core.unmodelled_kernels.delay_line`); the valve inverse's model
+    with the inverse on (:func:`ehss_gym.core.compensators.inverse_model_update`); the reference ring with a
+    reference delay (:func:`ehss_gym.core.compensators.law_errors`); the reference action's filter
+    (:func:`ehss_gym.core.controller.controller_sense`). Each condition is its writer's own."""
+    if j == 0:
+        return 0, Z_DELAY
+    if j == 1:
+        return Z_DELAY, Z_DELAY + N_PLANT * int(ctrl[C_DELAY])
+    if j == 2:
+        on = ctrl[C_INV_THRESHOLD] != 0.0 or ctrl[C_INV_HYSTERESIS] != 0.0
+        return Z_VINV, Z_VINV + 1 if on else Z_VINV
+    if j == 3:
+        return Z_REF_RING, Z_SHIFT if ctrl[C_REF_DELAY] != 0.0 else Z_REF_RING
+    return Z_SHIFT, N_LOOP if ctrl[C_SHIFT_ON] != 0.0 else Z_SHIFT
+
+
+@jit
+def copy_live(dst, src, ctrl, first):
+    """dst[i] = src[i] for the live rows i >= ``first`` of a lane's loop state (:func:`live_span`)."""
+    for j in range(N_SPANS):
+        lo, hi = live_span(ctrl, j)
+        for i in range(max(lo, first), hi):
+            dst[i] = src[i]
+
+
 @jit
 def check_state(z, ctrl, plant_p):
-    """DIV_* code of a loop state: non-finite, or outside the velocity/pressure bounds."""
+    """DIV_* code of a loop state: a non-finite live row (:func:`live_span`), or outside the velocity/pressure
+    bounds."""
     bad = False
-    for i in range(z.shape[0]):  # x - x: 0 for a finite x, NaN for inf or NaN; no exit per entry, so it vectorises
-        bad |= z[i] - z[i] != 0.0
+    for j in range(N_SPANS):
+        lo, hi = live_span(ctrl, j)
+        for i in range(lo, hi):  # x - x: 0 for a finite x, NaN for inf or NaN; no exit per entry, so it vectorises
+            bad |= z[i] - z[i] != 0.0
     if bad:
         return DIV_NONFINITE
     if abs(z[X_OMEGA]) > ctrl[C_OMEGA_MAX]:
@@ -193,8 +248,7 @@ def lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_re
     n_todo = 0
     for b in range(B):
         if active[b]:
-            for i in range(z.shape[1]):  # element loops: an array assignment may allocate (no NRT here)
-                zprev[b, i] = z[b, i]
+            copy_live(zprev[b], z[b], ctrl[b], 0)
         sense = active[b] and not pre[b]
         cw[CW_TODO, b] = 1.0 if sense else 0.0
         n_todo += sense
@@ -211,8 +265,7 @@ def lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_re
             pre[b] = False
             for i in range(N_INFO):
                 info[b, i] = peek[b, i]
-            for i in range(N_PLANT, z.shape[1]):
-                z[b, i] = peek[b, N_INFO + i]
+            copy_live(z[b], peek[b, N_INFO:], ctrl[b], N_PLANT)
             u_base = peek[b, I_UBASE]
         else:  # the law's current, from law_lanes
             u_base = info[b, I_UBASE]
@@ -222,8 +275,7 @@ def lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_re
         if not (math.isfinite(u) and math.isfinite(info[b, I_V]) and math.isfinite(info[b, I_S])):
             _diverge(acc[b], DIV_CURRENT if not math.isfinite(u) else DIV_NONFINITE, kv[b], h)
             active[b] = False
-            for i in range(z.shape[1]):
-                z[b, i] = zprev[b, i]
+            copy_live(z[b], zprev[b], ctrl[b], 0)
             U[b] = 0.0
             continue
         U[b] = valve_input(z[b], u, ctrl[b])  # the valve's threshold and hysteresis (off: u)
@@ -245,8 +297,7 @@ def lanes_period(z, kv, h, substeps, plant, model, ctrl, ref, events, filt, u_re
         if code != DIV_NONE:
             _diverge(acc[b], code, kv[b], h)
             active[b] = False
-            for i in range(z.shape[1]):
-                z[b, i] = zprev[b, i]
+            copy_live(z[b], zprev[b], ctrl[b], 0)
             for i in range(nx):
                 X[i, b] = z[b, i]
             n_active -= 1
@@ -305,4 +356,4 @@ def run_batch(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, event
 
 
 __all__ = ["lanes_period", "run_lanes", "run_batch", "check_state", "init_filters", "write_log", "widen_envelope",
-           "MAX_LANES", "N_LWORK"]
+           "live_span", "copy_live", "MAX_LANES", "N_LWORK", "N_SPANS"]

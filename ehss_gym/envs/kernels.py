@@ -33,7 +33,7 @@ from ehss_gym.core.layout import (
     N_PARAM,
     N_REF,
 )
-from ehss_gym.core.loop import lanes_period
+from ehss_gym.core.loop import copy_live, lanes_period
 from ehss_gym.core.settings import N_CTRL
 from ehss_gym.core.vecmath import symlog_block
 
@@ -212,8 +212,7 @@ def peek_lanes(z, ctrl, ref, peek, u_res, BB, gid, kv, h, filt, c, work, cw):
         member = gid[b] == 0
         cw[CW_TODO, b] = 1.0 if member else 0.0
         if member:
-            for i in range(N_LOOP):
-                zt[b, i] = z[b, i]
+            copy_live(zt[b], z[b], ctrl[b], 0)  # the rows it can write or read; the others are never read
     sense_lanes(zt, kv, ctrl, c, cw)
     law_lanes(peek, kv, h, ctrl, ref, filt, peek, work, cw)  # a lane's info and state copy share its row
     for b in range(B):
