@@ -1,8 +1,10 @@
-"""The loop state's live rows: the period's state copy, its divergence check, a diverged lane's restore and the env's
-look-ahead cover only the rows a lane's settings can write (ehss_gym.core.loop.live_span). That is only right if no
-code of the lane writes or reads any other row. Here those rows are filled with NaN before a run: a writer that
-touched one would overwrite the NaN, a reader would carry it into the results. Both runs must give the same results,
-bit for bit, as the run with the rows at their reset value, and the NaN must still be there at the end."""
+"""The loop state's live rows: the period's state copy at t_k, a diverged lane's restore from it and the env's
+look-ahead copy only the rows a lane's settings can write (ehss_gym.core.loop.live_span). That is only right if no
+code of the lane writes or reads any other row. Here those rows are filled with a sentinel no run produces (1e300,
+finite, so the divergence check, which reads every row, lets it be; any arithmetic on it overflows) before a run: a
+writer that touched one would overwrite the sentinel, a reader would carry it into the results. The run must give
+the same results, bit for bit, as the run with the rows at their reset value (0), and the sentinel must still be
+there at the end."""
 
 from __future__ import annotations
 
@@ -39,6 +41,8 @@ from ehss_gym.core.sim import LoopArrays
 from ehss_gym.core.unmodelled import Unmodelled
 from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.vector import EHSSTrackingVectorEnv
+
+SENTINEL = 1e300
 
 
 def dead_rows(ctrl_row: np.ndarray) -> np.ndarray:
@@ -111,20 +115,20 @@ def test_no_code_of_a_lane_writes_or_reads_a_row_outside_its_live_spans(task):
     assert (z0[dead] == 0.0).all()  # the reset value
     z_ref, log_ref, acc_ref = _run(a, sc, z0)
     poisoned = z0.copy()
-    poisoned[dead] = np.nan
+    poisoned[dead] = SENTINEL
     z, log, acc = _run(a, sc, poisoned)
     assert acc_ref[5, M_DIVERGED] == DIV_OMEGA
     assert log.tobytes() == log_ref.tobytes()
     assert acc.tobytes() == acc_ref.tobytes()
     assert z[~dead].tobytes() == z_ref[~dead].tobytes()
-    assert np.isnan(z[dead]).all(), "a lane's code wrote a row outside its live spans"
+    assert (z[dead] == SENTINEL).all(), "a lane's code wrote a row outside its live spans"
     assert (z_ref[dead] == 0.0).all()
 
 
 def test_the_env_never_writes_or_reads_a_row_outside_the_live_spans():
     """The vector env (look-ahead, pre-sensed periods, the reference action's filter, the sensors' delay line, the
-    valve inverse and the reference delay): NaN in every lane's dead rows after the reset changes no observation,
-    reward or end, and stays."""
+    valve inverse and the reference delay): the sentinel in every lane's dead rows after the reset changes no
+    observation, reward or end, and stays."""
     runs = []
     for poison in (False, True):
         env = EHSSTrackingVectorEnv(6, episode_seconds=0.5, action="reference", unmodelled_effects=True,
@@ -135,7 +139,7 @@ def test_the_env_never_writes_or_reads_a_row_outside_the_live_spans():
         assert dead.any()
         if poison:
             z = L.z
-            z[:6][dead] = np.nan
+            z[:6][dead] = SENTINEL
         out = [obs.tobytes()]
         actions = np.random.default_rng(11).uniform(-1.0, 1.0, (30, 6) + env.single_action_space.shape)
         for act in actions:  # 30 steps of 5 periods: within the episodes
@@ -144,7 +148,7 @@ def test_the_env_never_writes_or_reads_a_row_outside_the_live_spans():
         zl = L.z[:6]
         out.append(zl[~dead].tobytes())
         if poison:
-            assert np.isnan(zl[dead]).all()
+            assert (zl[dead] == SENTINEL).all()
         env.close()
         runs.append(out)
     assert runs[0] == runs[1]

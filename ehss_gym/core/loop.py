@@ -103,9 +103,9 @@ N_LWORK = 7
 # The loop state's rows a lane can write, in N_SPANS spans (:func:`live_span`). Most of the state belongs to add-ons
 # that are off on most lanes (the sensor delay line, the valve inverse's model, the reference delay's ring, the
 # reference action's filter: 87 of the N_LOOP doubles); a row no code of the lane writes keeps its reset value (0)
-# and no code reads it. So the period's state copy, its divergence check and a diverged lane's restore cover the
-# live spans only, with the same results (tests/test_live_rows.py fills the other rows with NaN and checks that
-# nothing writes or reads them).
+# and no code reads it. So the period's state copy at t_k, a diverged lane's restore from it and the look-ahead's copy
+# cover the live spans only, with the same results (tests/test_live_rows.py fills the other rows with a sentinel and
+# checks that nothing writes or reads them).
 N_SPANS = 5
 
 
@@ -140,13 +140,12 @@ def copy_live(dst, src, ctrl, first):
 
 @jit
 def check_state(z, ctrl, plant_p):
-    """DIV_* code of a loop state: a non-finite live row (:func:`live_span`), or outside the velocity/pressure
-    bounds."""
+    """DIV_* code of a loop state: non-finite, or outside the velocity/pressure bounds. Every row is checked, the
+    dead ones too (they hold their reset value): a fixed-length loop that vectorises costs less than reading the
+    lane's spans."""
     bad = False
-    for j in range(N_SPANS):
-        lo, hi = live_span(ctrl, j)
-        for i in range(lo, hi):  # x - x: 0 for a finite x, NaN for inf or NaN; no exit per entry, so it vectorises
-            bad |= z[i] - z[i] != 0.0
+    for i in range(z.shape[0]):  # x - x: 0 for a finite x, NaN for inf or NaN; no exit per entry, so it vectorises
+        bad |= z[i] - z[i] != 0.0
     if bad:
         return DIV_NONFINITE
     if abs(z[X_OMEGA]) > ctrl[C_OMEGA_MAX]:
