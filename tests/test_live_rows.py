@@ -128,7 +128,7 @@ def test_no_code_of_a_lane_writes_or_reads_a_row_outside_its_live_spans(task):
 def test_the_env_never_writes_or_reads_a_row_outside_the_live_spans():
     """The vector env (look-ahead, pre-sensed periods, the reference action's filter, the sensors' delay line, the
     valve inverse and the reference delay): the sentinel in every lane's dead rows after the reset changes no
-    observation, reward or end, and stays."""
+    observation, reward, end or info, and stays."""
     runs = []
     for poison in (False, True):
         env = EHSSTrackingVectorEnv(6, episode_seconds=0.5, action="reference", unmodelled_effects=True,
@@ -143,8 +143,9 @@ def test_the_env_never_writes_or_reads_a_row_outside_the_live_spans():
         out = [obs.tobytes()]
         actions = np.random.default_rng(11).uniform(-1.0, 1.0, (30, 6) + env.single_action_space.shape)
         for act in actions:  # 30 steps of 5 periods: within the episodes
-            obs, rew, term, trunc, _ = env.step(act.astype(np.float32))
+            obs, rew, term, trunc, info = env.step(act.astype(np.float32))
             out += [obs.tobytes(), rew.tobytes(), term.tobytes(), trunc.tobytes()]
+            out += [(key, np.asarray(v).tobytes()) for key, v in sorted(info.items()) if key != "metrics"]
         zl = L.z[:6]
         out.append(zl[~dead].tobytes())
         if poison:
