@@ -18,6 +18,7 @@ import time
 from ehss_gym import Scenario, simulate_batch
 from ehss_gym.core.layout import N_LOG
 
+from . import lane_memory
 from .common import Section, Table, child_main, log, run_child
 
 SCENARIO = dict(task="velocity", sigma=1e5, smoothing=1e3, current_limit=10.0)  # n = 2, 4, 6 in turn
@@ -87,6 +88,11 @@ def run(quick: bool) -> Section:
     r = measure(n, t_end, log_interval)
     sec.tables.append(memory_table(r))
     sec.context = report_context(quick, (n, t_end), log_interval, avail if low_memory else None, r)
+    log(f"memory: the vector env at {' and '.join(map(str, lane_memory.SIZES))} sub-envs, each in a subprocess")
+    lanes = lane_memory.measure()
+    log("memory: vector env children " + "; ".join(f"{r['n']} sub-envs: RSS {r['baseline_rss'] / 2**20:.1f} -> "
+                                                   f"{r['rss'] / 2**20:.1f} MiB" for r in lanes["runs"]))
+    sec.tables.append(lane_table(lanes))
     return sec
 
 
@@ -111,6 +117,8 @@ def report_context(quick: bool, batch: tuple[int, float], log_interval: float, a
                                                   "fallback_ms": LOW_MEMORY_LOG_INTERVAL * 1e3},
         "seconds": r["seconds"], "rate_M": r["substeps"] / r["seconds"] / 1e6,
         "increase": (r["peak_rss"] - r["baseline_peak_rss"]) / r["data_bytes"],
+        "lanes": {"sizes": lane_memory.SIZES, "steps": lane_memory.AGENT_STEPS,
+                  "episode_s": lane_memory.EPISODE_SECONDS},
     }
 
 
@@ -125,6 +133,14 @@ def memory_table(r: dict) -> Table:
     tb.add("peak RSS increase due to the batch", (r["peak_rss"] - r["baseline_peak_rss"]) / mib,
            (r["peak_rss"] - r["baseline_peak_rss"]) / d)
     tb.add("RSS after the batch (trajectories held)", r["rss_after"] / mib, r["rss_after"] / d)
+    return tb
+
+
+def lane_table(r: dict) -> Table:
+    """The vector env's memory per sub-env [KiB]: its buffers and the resident set it holds (:mod:`lane_memory`)."""
+    tb = Table("memory_per_lane", columns=["quantity", "KiB_per_sub_env"])
+    tb.add("the env's buffers (sum of the arrays it owns)", r["buffers_per_lane"] / 1024.0)
+    tb.add("resident set the env holds after its steps", r["rss_per_lane"] / 1024.0)
     return tb
 
 

@@ -101,7 +101,7 @@ SECTION_TABLES = {
     "sim.md.j2": ["setting_check", "sim_vs_solve_ivp", "substeps_per_second", "batch_scaling", "setup_blas_threads",
                   "sim_profile"],
     "env.md.j2": ["env_steps", "env_profile", "vector_env", "lane_stages"],
-    "memory.md.j2": ["memory"],
+    "memory.md.j2": ["memory", "memory_per_lane"],
     "compile.md.j2": ["compile_time"],
 }
 # a phrase of each conditional paragraph: in the page when its branch is taken, absent when it is not
