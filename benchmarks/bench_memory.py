@@ -2,16 +2,16 @@
 
 Measured in a fresh subprocess (``python -m benchmarks.bench_memory --child N T_END LOG_INTERVAL``) so
 nothing else in the benchmark run inflates it: the child imports ehss_gym, runs a
-tiny warm-up batch (kernels loaded, thread pool started), reads its peak RSS
-(``resource.getrusage(...).ru_maxrss``) as the baseline, runs the batch, and reads
-the peak again. The data size is the sum of ``nbytes`` of every returned
-trajectory's arrays (log and metrics accumulator).
+tiny warm-up batch (kernels loaded, thread pool started), resets its peak RSS to the
+RSS then (:func:`benchmarks.common.reset_peak_rss`: Linux keeps the high-water mark
+across exec, so the child would otherwise start with this benchmark process's peak),
+reads it as the baseline, runs the batch, and reads the peak again. The data size is the
+sum of ``nbytes`` of every returned trajectory's arrays (log and metrics accumulator).
 """
 
 from __future__ import annotations
 
 import os
-import resource
 import sys
 import time
 
@@ -19,7 +19,7 @@ from ehss_gym import Scenario, simulate_batch
 from ehss_gym.core.layout import N_LOG
 
 from . import lane_memory
-from .common import Section, Table, child_main, log, run_child
+from .common import Section, Table, child_main, log, peak_rss, reset_peak_rss, run_child
 
 SCENARIO = dict(task="velocity", sigma=1e5, smoothing=1e3, current_limit=10.0)  # n = 2, 4, 6 in turn
 FULL = (1024, 20.0)  # scenarios, simulated time [s] of the full run
@@ -51,18 +51,19 @@ def child(n: int, t_end: float, log_interval: float) -> dict:
     """Run in the subprocess: returns the measurements as a dict."""
     base = Scenario(**SCENARIO, t_end=t_end, log_interval=log_interval)
     simulate_batch([base.replace(t_end=0.01)] * 2)
-    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    reset = reset_peak_rss()
+    rss0 = peak_rss()
     cur0 = _current_rss()
     scenarios = [base.replace(n=(2, 4, 6)[i % 3]) for i in range(n)]
     t0 = time.perf_counter()
     trajs = simulate_batch(scenarios)
     dt = time.perf_counter() - t0
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    peak = peak_rss()
     data = sum(tr.log.nbytes + tr.acc.nbytes for tr in trajs)
     rows = trajs[0].log.shape[0]
     return {"n": n, "t_end": t_end, "log_interval": log_interval, "rows": rows, "baseline_peak_rss": rss0,
             "baseline_rss": cur0, "peak_rss": peak, "rss_after": _current_rss(), "data_bytes": data, "seconds": dt,
-            "substeps": n * scenarios[0].n_steps * scenarios[0].substeps}
+            "substeps": n * scenarios[0].n_steps * scenarios[0].substeps, "peak_reset": reset}
 
 
 def measure(n: int, t_end: float, log_interval: float) -> dict:
@@ -81,7 +82,7 @@ def run(quick: bool) -> Section:
     n, t_end = QUICK if quick else FULL
     data_est = _data_estimate(n, t_end)
     avail = _mem_available()
-    # simulate_batch holds the batch log and the per-trajectory copies at once: ~2x the data
+    # the batch's log is resident once (each trajectory is a view of its rows); the margin leaves room for the rest
     low_memory = avail is not None and 2.5 * data_est > 0.6 * avail
     log_interval = LOW_MEMORY_LOG_INTERVAL if low_memory else LOG_INTERVAL
     log(f"memory: {n} x {t_end:g} s (log every {log_interval:g} s) in a subprocess")
@@ -128,7 +129,8 @@ def memory_table(r: dict) -> Table:
     mib = 2.0 ** 20
     d = r["data_bytes"]
     tb.add("trajectory data returned (sum of array nbytes)", d / mib, 1.0)
-    tb.add("peak RSS before the batch (import, warm-up)", r["baseline_peak_rss"] / mib, r["baseline_peak_rss"] / d)
+    tb.add("RSS before the batch (import and warm-up done; the peak is reset to it)", r["baseline_peak_rss"] / mib,
+           r["baseline_peak_rss"] / d)
     tb.add("peak RSS of the process", r["peak_rss"] / mib, r["peak_rss"] / d)
     tb.add("peak RSS increase due to the batch", (r["peak_rss"] - r["baseline_peak_rss"]) / mib,
            (r["peak_rss"] - r["baseline_peak_rss"]) / d)
@@ -137,10 +139,12 @@ def memory_table(r: dict) -> Table:
 
 
 def lane_table(r: dict) -> Table:
-    """The vector env's memory per sub-env [KiB]: its buffers and the resident set it holds (:mod:`lane_memory`)."""
+    """The vector env's memory per sub-env [KiB]: its buffers, the resident set it holds and the peak it adds
+    (:mod:`lane_memory`)."""
     tb = Table("memory_per_lane", columns=["quantity", "KiB_per_sub_env"])
     tb.add("the env's buffers (sum of the arrays it owns)", r["buffers_per_lane"] / 1024.0)
     tb.add("resident set the env holds after its steps", r["rss_per_lane"] / 1024.0)
+    tb.add("peak resident set the env adds (its steps' results included)", r["peak_per_lane"] / 1024.0)
     return tb
 
 

@@ -99,6 +99,31 @@ def run_child(module: str, args: list, env: dict | None = None, timeout: float =
     return {**json.loads(p.stdout.strip().splitlines()[-1]), "wall_s": wall}
 
 
+def reset_peak_rss() -> bool:
+    """Reset this process's peak resident set (VmHWM) to its current size, through /proc/self/clear_refs (Linux 4.0
+    on). A child needs it before it measures a peak: Linux keeps the high-water mark across exec, so a child started
+    by a large process (this benchmark's, with torch loaded) would otherwise report the parent's peak. Returns False
+    where it is not possible (then :func:`peak_rss` includes what came before)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_rss() -> int:
+    """This process's peak resident set [bytes]: VmHWM (which :func:`reset_peak_rss` resets), else ru_maxrss."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
 def child_main(fn: Callable[..., dict], types: dict[str, type], description: str, argv=None) -> int:
     """The ``--child`` entry point of a benchmark module: calls ``fn`` and prints its result as one JSON line.
 
