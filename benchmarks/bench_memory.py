@@ -11,7 +11,6 @@ sum of ``nbytes`` of every returned trajectory's arrays (log and metrics accumul
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 
@@ -19,7 +18,7 @@ from ehss_gym import Scenario, simulate_batch
 from ehss_gym.core.layout import N_LOG
 
 from . import lane_memory
-from .common import Section, Table, child_main, log, peak_rss, reset_peak_rss, run_child
+from .common import Section, Table, child_main, current_rss, log, peak_rss, proc_kib_field, reset_peak_rss, run_child
 
 SCENARIO = dict(task="velocity", sigma=1e5, smoothing=1e3, current_limit=10.0)  # n = 2, 4, 6 in turn
 FULL = (1024, 20.0)  # scenarios, simulated time [s] of the full run
@@ -28,32 +27,13 @@ LOG_INTERVAL = 1e-3  # [s]
 LOW_MEMORY_LOG_INTERVAL = 1e-2  # [s] when the 1 ms log would not fit in the available memory
 
 
-def _mem_available() -> int | None:
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
-def _current_rss() -> int:
-    try:
-        with open("/proc/self/statm") as f:
-            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    except OSError:
-        return -1
-
-
 def child(n: int, t_end: float, log_interval: float) -> dict:
     """Run in the subprocess: returns the measurements as a dict."""
     base = Scenario(**SCENARIO, t_end=t_end, log_interval=log_interval)
     simulate_batch([base.replace(t_end=0.01)] * 2)
     reset = reset_peak_rss()
     rss0 = peak_rss()
-    cur0 = _current_rss()
+    cur0 = current_rss()
     scenarios = [base.replace(n=(2, 4, 6)[i % 3]) for i in range(n)]
     t0 = time.perf_counter()
     trajs = simulate_batch(scenarios)
@@ -62,7 +42,7 @@ def child(n: int, t_end: float, log_interval: float) -> dict:
     data = sum(tr.log.nbytes + tr.acc.nbytes for tr in trajs)
     rows = trajs[0].log.shape[0]
     return {"n": n, "t_end": t_end, "log_interval": log_interval, "rows": rows, "baseline_peak_rss": rss0,
-            "baseline_rss": cur0, "peak_rss": peak, "rss_after": _current_rss(), "data_bytes": data, "seconds": dt,
+            "baseline_rss": cur0, "peak_rss": peak, "rss_after": current_rss(), "data_bytes": data, "seconds": dt,
             "substeps": n * scenarios[0].n_steps * scenarios[0].substeps, "peak_reset": reset}
 
 
@@ -81,7 +61,7 @@ def run(quick: bool) -> Section:
     sec = Section("memory", "4. Memory: peak RSS of a batch vs the size of its trajectories", template="memory.md.j2")
     n, t_end = QUICK if quick else FULL
     data_est = _data_estimate(n, t_end)
-    avail = _mem_available()
+    avail = proc_kib_field("/proc/meminfo", "MemAvailable")
     # the batch's log is resident once (each trajectory is a view of its rows); the margin leaves room for the rest
     low_memory = avail is not None and 2.5 * data_est > 0.6 * avail
     log_interval = LOW_MEMORY_LOG_INTERVAL if low_memory else LOG_INTERVAL

@@ -99,6 +99,27 @@ def run_child(module: str, args: list, env: dict | None = None, timeout: float =
     return {**json.loads(p.stdout.strip().splitlines()[-1]), "wall_s": wall}
 
 
+def proc_kib_field(path: str, key: str) -> int | None:
+    """[bytes] of a "key: N kB" line of a /proc file (``/proc/meminfo``, ``/proc/self/status``); None if absent."""
+    try:
+        with open(path) as f:
+            for line in f:
+                if line.startswith(key + ":"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def current_rss() -> int:
+    """This process's resident set now [bytes] (``/proc/self/statm``), -1 where it cannot be read."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except OSError:
+        return -1
+
+
 def reset_peak_rss() -> bool:
     """Reset this process's peak resident set (VmHWM) to its current size, through /proc/self/clear_refs (Linux 4.0
     on). A child needs it before it measures a peak: Linux keeps the high-water mark across exec, so a child started
@@ -114,14 +135,8 @@ def reset_peak_rss() -> bool:
 
 def peak_rss() -> int:
     """This process's peak resident set [bytes]: VmHWM (which :func:`reset_peak_rss` resets), else ru_maxrss."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    hwm = proc_kib_field("/proc/self/status", "VmHWM")
+    return hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
 def child_main(fn: Callable[..., dict], types: dict[str, type], description: str, argv=None) -> int:

@@ -12,12 +12,11 @@ buffers, the compiled step's scratch, the observations); views of them are not c
 
 from __future__ import annotations
 
-import os
 import sys
 
 import numpy as np
 
-from .common import child_main, peak_rss, reset_peak_rss, run_child
+from .common import child_main, current_rss, peak_rss, reset_peak_rss, run_child
 
 AGENT_STEPS = 500  # more than an episode of EPISODE_SECONDS (400 agent steps at the default periods): resets included
 EPISODE_SECONDS = 0.1
@@ -29,12 +28,6 @@ def owned_bytes(obj) -> int:
     return sum(v.nbytes for v in vars(obj).values() if isinstance(v, np.ndarray) and v.base is None)
 
 
-def resident_bytes() -> int:
-    """The process's resident set now [bytes]."""
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-
-
 def child(n: int) -> dict:
     """Run in the subprocess: the resident set before and after a vector env of ``n`` sub-envs has stepped, and its
     buffers' bytes."""
@@ -44,14 +37,14 @@ def child(n: int) -> dict:
     warm.reset(seed=0)
     warm.step(np.zeros((1,) + warm.single_action_space.shape, dtype=np.float32))
     warm.close()
-    base = resident_bytes()
+    base = current_rss()
     reset_peak_rss()
     env = EHSSTrackingVectorEnv(n, episode_seconds=EPISODE_SECONDS)
     env.reset(seed=0)
     rng = np.random.default_rng(0)
     for _ in range(AGENT_STEPS):
         env.step(rng.uniform(-1.0, 1.0, (n,) + env.single_action_space.shape).astype(np.float32))
-    return {"n": n, "baseline_rss": base, "rss": resident_bytes(), "peak_rss": peak_rss(),
+    return {"n": n, "baseline_rss": base, "rss": current_rss(), "peak_rss": peak_rss(),
             "buffer_bytes": owned_bytes(env._lanes)}
 
 

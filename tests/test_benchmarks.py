@@ -24,10 +24,20 @@ from benchmarks import (  # noqa: E402
     bench_memory,
     bench_sim,
     compile_child,
+    lane_memory,
     lane_stages,
     report,
 )
-from benchmarks.common import Section, Table, Target, interleave  # noqa: E402
+from benchmarks.common import (  # noqa: E402
+    Section,
+    Table,
+    Target,
+    current_rss,
+    interleave,
+    peak_rss,
+    proc_kib_field,
+    reset_peak_rss,
+)
 
 pytestmark = pytest.mark.xdist_group("benchmarks")  # one worker computes the measured sections (a module fixture) once
 
@@ -253,3 +263,33 @@ def test_bench_cli_without_checkout(monkeypatch, capsys):
     monkeypatch.setattr(bench, "_benchmarks_module", lambda: None)
     assert main(["bench", "--quick"]) == 2
     assert "source checkout" in capsys.readouterr().err
+
+
+def test_a_reset_peak_is_the_resident_set_then_not_an_earlier_peak():
+    """The memory benchmark's children reset their peak RSS after the warm-up (Linux keeps a parent's across exec).
+    After a 320 MB array is touched and freed, the peak still holds it; reset, it is the resident set (VmRSS, read
+    apart from the peak) and no longer the array's."""
+    a = np.ones(40_000_000)
+    a[::4096] = 2.0
+    del a
+    before = peak_rss()
+    if not reset_peak_rss():
+        pytest.skip("/proc/self/clear_refs is not writable here")
+    after = peak_rss()
+    assert after < before - 200 * 2**20
+    assert abs(after - proc_kib_field("/proc/self/status", "VmRSS")) < 64 * 2**20
+    assert abs(after - current_rss()) < 64 * 2**20
+
+
+def test_a_lane_buffer_and_its_views_are_counted_once():
+    """The vector env's buffer bytes (benchmarks.lane_memory.owned_bytes) count an array once, not its views."""
+    class Owner:
+        pass
+
+    o = Owner()
+    o.a = np.zeros(100)
+    o.view = o.a[10:]
+    o.rows = o.a.reshape(10, 10)[2]
+    o.b = np.zeros(5, dtype=np.float32)
+    o.n = 3
+    assert lane_memory.owned_bytes(o) == 100 * 8 + 5 * 4

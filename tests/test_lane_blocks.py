@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from mixed_scenarios import cycled_scenarios
 
 from ehss_gym.core.controller import CW_TODO, controller_sense, law_lanes, model_constants, sense_lanes
 from ehss_gym.core.layout import DIV_NONE, DIV_NONFINITE, N_INFO, N_LOG, N_LOOP, N_METRICS, N_PARAM
@@ -15,12 +16,9 @@ from ehss_gym.core.loop import check_state, run_lanes
 from ehss_gym.core.metrics import init_accumulator
 from ehss_gym.core.params import P_PS
 from ehss_gym.core.physics import N_LANE_CONST, lane_constants
-from ehss_gym.core.registry import ESTIMATORS, LAWS, names
-from ehss_gym.core.scenarios import sample_scenario
 from ehss_gym.core.settings import C_OMEGA_MAX, C_P_BOUND, N_CTRL
 from ehss_gym.core.sim import LoopArrays
 from ehss_gym.core.unmodelled import Unmodelled
-from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.buffers import HOT_BLOCKS, N_H
 from ehss_gym.envs.kernels import hot_blocks
 from ehss_gym.envs.lanes import hot_block
@@ -32,21 +30,15 @@ BLOCK = 256
 def _mixed_scenarios(task: str, count: int, t_end: float) -> list:
     """``count`` randomised scenarios of ``task`` cycling through every law, estimator and n (noise on most; the
     unmodelled valve and sensors on every fifth)."""
-    tmpl = EnvConfig.from_kwargs({"task": task}).template()
-    laws, ests = names(LAWS), names(ESTIMATORS)
-    out = []
-    for i in range(count):
-        sc = sample_scenario(1000 + i, tmpl)
-        est = ests[(i // 3) % len(ests)]
-        change = {"t_end": t_end, "law": laws[i % len(laws)], "estimator": est, "n": (2, 4, 6)[i % 3],
-                  "dob_hz": 200.0 if i % 7 == 0 else sc.dob_hz}
-        if est == "analog":  # the reference shaper drives a digital reference model only
-            change["ref_accel"] = 0.0
+
+    def extra(i, sc):
+        out = {"dob_hz": 200.0 if i % 7 == 0 else sc.dob_hz}
         if i % 5 == 0:  # the unmodelled valve and sensors (their state is in the loop state)
-            change["unmodelled"] = Unmodelled(threshold=1.0, hysteresis=2.0, delay=1 + i % 4, encoder_counts=4096,
-                                              velocity_step=0.01)
-        out.append(sc.replace(**change))
-    return out
+            out["unmodelled"] = Unmodelled(threshold=1.0, hysteresis=2.0, delay=1 + i % 4, encoder_counts=4096,
+                                           velocity_step=0.01)
+        return out
+
+    return cycled_scenarios(task, count, t_end, 1000, extra)
 
 
 def _run_block(scenarios: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

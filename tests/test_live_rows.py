@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from mixed_scenarios import cycled_scenarios
 
 from ehss_gym.core.layout import (
     DIV_OMEGA,
@@ -26,8 +27,6 @@ from ehss_gym.core.layout import (
 )
 from ehss_gym.core.loop import N_SPANS, live_span, run_lanes
 from ehss_gym.core.metrics import init_accumulator
-from ehss_gym.core.registry import ESTIMATORS, LAWS, names
-from ehss_gym.core.scenarios import sample_scenario
 from ehss_gym.core.settings import (
     C_DELAY,
     C_INV_THRESHOLD,
@@ -39,7 +38,6 @@ from ehss_gym.core.settings import (
 )
 from ehss_gym.core.sim import LoopArrays
 from ehss_gym.core.unmodelled import Unmodelled
-from ehss_gym.envs import EnvConfig
 from ehss_gym.envs.vector import EHSSTrackingVectorEnv
 
 SENTINEL = 1e300
@@ -58,21 +56,11 @@ def _scenarios(task: str, count: int) -> list:
     """``count`` scenarios of ``task`` through every law, estimator and n, with every add-on of the loop state in
     turn: sensor delays of 0 to MAX_DELAY samples (with the valve's threshold and hysteresis and quantisation), the
     valve inverse, the reference delay (integer and fractional)."""
-    tmpl = EnvConfig.from_kwargs({"task": task}).template()
-    laws, ests = names(LAWS), names(ESTIMATORS)
-    out = []
-    for i in range(count):
-        sc = sample_scenario(2000 + i, tmpl)
-        est = ests[(i // 3) % len(ests)]
-        change = {"t_end": 0.05, "law": laws[i % len(laws)], "estimator": est, "n": (2, 4, 6)[i % 3],
-                  "reference_delay": (0.0, 1.0, 2.5)[i % 3], "inverse_threshold": 1.0 if i % 4 == 1 else 0.0,
-                  "inverse_hysteresis": 5.0 if i % 4 == 2 else 0.0,
-                  "unmodelled": Unmodelled(threshold=1.0, hysteresis=2.0, delay=i % (MAX_DELAY + 1),
-                                           encoder_counts=4096, velocity_step=0.01)}
-        if est == "analog":  # the reference shaper drives a digital reference model only
-            change["ref_accel"] = 0.0
-        out.append(sc.replace(**change))
-    return out
+    return cycled_scenarios(task, count, 0.05, 2000, lambda i, sc: {
+        "reference_delay": (0.0, 1.0, 2.5)[i % 3], "inverse_threshold": 1.0 if i % 4 == 1 else 0.0,
+        "inverse_hysteresis": 5.0 if i % 4 == 2 else 0.0,
+        "unmodelled": Unmodelled(threshold=1.0, hysteresis=2.0, delay=i % (MAX_DELAY + 1), encoder_counts=4096,
+                                 velocity_step=0.01)})
 
 
 def _run(a: LoopArrays, sc, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
