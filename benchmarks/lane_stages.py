@@ -224,7 +224,7 @@ class StageTimer:
             "plant, RK4 over the lanes (integrate_lanes)": self.cost(
                 lambda: _plant(n, k0, h, self.substeps, self.X, U, c, L.events, lwork, ctrl, ref, L.filt, none,
                                np.zeros(self.B))),
-            f"divergence check ({N_LOOP} doubles of loop state)": self.cost(lambda: _check(n, z, ctrl, plant)),
+            "divergence check (the live rows of the loop state)": self.cost(lambda: _check(n, z, ctrl, plant)),
             "metrics (accumulate)": self.cost(lambda: _metrics(n, k0, h, acc, info, L.events)),
             "state copy at t_k (the live rows)": self.cost(lambda: _copy(n, z, zprev, ctrl)),
         }

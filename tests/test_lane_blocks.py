@@ -11,12 +11,33 @@ import pytest
 from mixed_scenarios import cycled_scenarios
 
 from ehss_gym.core.controller import CW_TODO, controller_sense, law_lanes, model_constants, sense_lanes
-from ehss_gym.core.layout import DIV_NONE, DIV_NONFINITE, N_INFO, N_LOG, N_LOOP, N_METRICS, N_PARAM
+from ehss_gym.core.layout import (
+    DIV_NONE,
+    DIV_NONFINITE,
+    N_INFO,
+    N_LOG,
+    N_LOOP,
+    N_METRICS,
+    N_PARAM,
+    N_PLANT,
+    Z_DELAY,
+    Z_REF_RING,
+    Z_SHIFT,
+    Z_VINV,
+)
 from ehss_gym.core.loop import check_state, run_lanes
 from ehss_gym.core.metrics import init_accumulator
 from ehss_gym.core.params import P_PS
 from ehss_gym.core.physics import N_LANE_CONST, lane_constants
-from ehss_gym.core.settings import C_OMEGA_MAX, C_P_BOUND, N_CTRL
+from ehss_gym.core.settings import (
+    C_DELAY,
+    C_INV_HYSTERESIS,
+    C_OMEGA_MAX,
+    C_P_BOUND,
+    C_REF_DELAY,
+    C_SHIFT_ON,
+    N_CTRL,
+)
 from ehss_gym.core.sim import LoopArrays
 from ehss_gym.core.unmodelled import Unmodelled
 from ehss_gym.envs.buffers import HOT_BLOCKS, N_H
@@ -137,16 +158,38 @@ def test_the_kernels_hot_blocks_are_the_buffers_table_in_order():
         assert np.array_equal(v, hot_block(H, B, off, width)[1:3])
 
 
+# Each add-on of the loop state, its rows (layout) and a setting that turns it on: written here from the layout, not
+# read from loop.live_span, which the check uses.
+ADDON_ROWS = {
+    "sensor delay of 2 samples": (C_DELAY, 2.0, range(Z_DELAY, Z_DELAY + 2 * N_PLANT)),
+    "valve inverse": (C_INV_HYSTERESIS, 0.1, range(Z_VINV, Z_VINV + 1)),
+    "reference delay": (C_REF_DELAY, 1.5, range(Z_REF_RING, Z_SHIFT)),
+    "reference action's filter": (C_SHIFT_ON, 1.0, range(Z_SHIFT, N_LOOP)),
+}
+
+
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
-@pytest.mark.parametrize("where", [0, 5, N_LOOP - 1])
-def test_the_divergence_check_names_any_non_finite_entry(bad, where):
-    """check_state (written without an exit per entry) against math.isfinite: any NaN or infinite entry of the loop
-    state is DIV_NONFINITE, wherever it is; a finite state within the bounds is DIV_NONE, one with a huge finite entry
-    outside the checked states too."""
+@pytest.mark.parametrize("addon", [None, *ADDON_ROWS])
+def test_the_divergence_check_names_any_non_finite_entry_of_a_live_row(bad, addon):
+    """check_state (written without an exit per entry) against math.isfinite: a NaN or infinite entry in any live row
+    of the loop state (the core rows, and the rows of each add-on that is on) is DIV_NONFINITE, wherever it is; a
+    finite state within the bounds is DIV_NONE, one with a huge finite entry too. With every add-on off, the add-ons'
+    rows are not read (nothing writes them: tests/test_live_rows.py)."""
     ctrl, plant = np.zeros(N_CTRL), np.zeros(N_PARAM)
     ctrl[C_OMEGA_MAX], ctrl[C_P_BOUND], plant[P_PS] = 1e3, 1.0, 1e7
-    z = np.zeros(N_LOOP)
-    z[N_LOOP - 1] = 1e300  # finite however large: x - x is 0
-    assert not math.isfinite(bad) and check_state(z, ctrl, plant) == DIV_NONE
-    z[where] = bad
-    assert check_state(z, ctrl, plant) == DIV_NONFINITE
+    live = list(range(Z_DELAY))
+    if addon is not None:
+        key, value, rows = ADDON_ROWS[addon]
+        ctrl[key] = value
+        live += list(rows)
+    for where in live:
+        z = np.full(N_LOOP, 0.0)
+        z[[r for r in live if r >= N_PLANT]] = 1e300  # finite however large: x - x is 0 (the plant's within bounds)
+        assert not math.isfinite(bad) and check_state(z, ctrl, plant) == DIV_NONE
+        z[where] = bad
+        assert check_state(z, ctrl, plant) == DIV_NONFINITE, where
+    if addon is None:
+        for where in range(Z_DELAY, N_LOOP):
+            z = np.zeros(N_LOOP)
+            z[where] = bad
+            assert check_state(z, ctrl, plant) == DIV_NONE, where

@@ -1,10 +1,10 @@
 """The loop state's live rows: the period's state copy at t_k, a diverged lane's restore from it and the env's
-look-ahead copy only the rows a lane's settings can write (ehss_gym.core.loop.live_span). That is only right if no
-code of the lane writes or reads any other row. Here those rows are filled with a sentinel no run produces (1e300,
-finite, so the divergence check, which reads every row, lets it be; any arithmetic on it overflows) before a run: a
-writer that touched one would overwrite the sentinel, a reader would carry it into the results. The run must give
-the same results, bit for bit, as the run with the rows at their reset value (0), and the sentinel must still be
-there at the end."""
+look-ahead copy only the rows a lane's settings can write (ehss_gym.core.loop.live_span), and the divergence check
+of a lane without add-ons reads only those. That is only right if no code of the lane writes or reads any other row.
+Here those rows are filled with a sentinel no run produces (1e300, finite, so the divergence check lets it be
+wherever it reads it; any arithmetic on it overflows) before a run: a writer that touched one would overwrite the
+sentinel, a reader would carry it into the results. The run must give the same results, bit for bit, as the run with
+the rows at their reset value (0), and the sentinel must still be there at the end."""
 
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from ehss_gym.core.layout import (
     Z_SHIFT,
     Z_VINV,
 )
-from ehss_gym.core.loop import N_SPANS, live_span, run_lanes
+from ehss_gym.core.loop import N_SPANS, copy_live, core_only, live_span, run_lanes
 from ehss_gym.core.metrics import init_accumulator
 from ehss_gym.core.settings import (
     C_DELAY,
@@ -87,6 +87,23 @@ def test_the_live_spans_follow_the_layout_and_the_settings():
     assert {Z_VINV, Z_REF_RING, Z_SHIFT - 1, Z_SHIFT, N_LOOP - 1} <= live
     ctrl[C_DELAY] = MAX_DELAY
     assert not dead_rows(ctrl).any()
+
+
+@pytest.mark.parametrize("first", [0, N_PLANT])
+@pytest.mark.parametrize("addons", [(), ((C_DELAY, 2.0),), ((C_INV_THRESHOLD, 0.5),), ((C_REF_DELAY, 0.25),),
+                                    ((C_SHIFT_ON, 1.0),), ((C_DELAY, MAX_DELAY), (C_SHIFT_ON, 1.0))])
+def test_the_live_copy_copies_the_live_rows_from_first_and_no_other(addons, first):
+    """copy_live (a fixed core copy for a lane without add-ons, the spans otherwise) against the spans: the rows
+    i >= ``first`` of the live spans, each once, and nothing else."""
+    ctrl = np.zeros(N_CTRL)
+    for key, value in addons:
+        ctrl[key] = value
+    assert core_only(ctrl) == (not addons)
+    src = np.arange(1.0, N_LOOP + 1.0)
+    dst = np.zeros(N_LOOP)
+    copy_live(dst, src, ctrl, first)
+    copied = ~dead_rows(ctrl) & (np.arange(N_LOOP) >= first)
+    assert np.array_equal(dst, np.where(copied, src, 0.0))
 
 
 @pytest.mark.parametrize("task", ["velocity", "position"])

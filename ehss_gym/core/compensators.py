@@ -23,7 +23,7 @@ the loop is bit for bit the one without them):
 
 from __future__ import annotations
 
-from .jit import jit
+from .jit import jit, jit_inline
 from .layout import I_E, I_YD, I_YE, N_YD, REF_RING, Z_REF_RING, Z_VINV
 from .settings import C_INV_HYSTERESIS, C_INV_THRESHOLD, C_REF_DELAY
 from .unmodelled_kernels import dead_band, play
@@ -73,7 +73,7 @@ def inverse_model_update(z, u, ctrl):
     z[Z_VINV] = play(z[Z_VINV], dead_band(u, th), 0.5 * hw)
 
 
-@jit
+@jit_inline
 def law_errors(z, k, m, ctrl, info):
     """The law's errors e^(i) = y_e^(i) - y_d^(i)(t_k - d h), i < m, into info[I_E + i], and its reference's top
     derivative y_d^(m)(t_k - d h) returned [output unit / s^m], for the reference delay d = ctrl[C_REF_DELAY]

@@ -187,23 +187,35 @@ def output_derivatives(x1, x2, f2, h2, position, hd):
     hd[3] = h2 if position else 0.0
 
 
+@jit_inline
+def noisy_block(ctrl, todo):
+    """Whether some lane flagged in ``todo`` adds noise to one of its sensors (a noise std > 0)."""
+    for b in range(ctrl.shape[0]):
+        if todo[b] != 0.0:
+            for i in range(N_PLANT):
+                if ctrl[b, C_NOISE_THETA + i] > 0.0:
+                    return True
+    return False
+
+
 @jit_noalloc
 def sense_lanes(z, kv, ctrl, c, cw):
     """Stages 1 and 2 of the controller for the lanes of a block flagged in ``cw[CW_TODO]``, each a loop over the lanes
     (the same arithmetic as :func:`controller_sense` does for one lane): the noise's uniform variates of every lane
-    and channel (integer arithmetic, vectorised), the sensors (libm's log and cos where a noise std is > 0), then the
-    model at every lane's measured state (vectorised; the model's rows of the lane constants ``c``,
-    :func:`model_constants`). Lane b is at its own sample ``kv[b]``. Writes the rows CW_* of the scratch ``cw``
-    (N_LOOP, B)."""
+    and channel where some lane adds noise (integer arithmetic, vectorised), the sensors (libm's log and cos
+    where a noise std is > 0), then the model at every lane's measured state (vectorised; the model's rows of the
+    lane constants ``c``, :func:`model_constants`). Lane b is at its own sample ``kv[b]``. Writes the rows CW_* of
+    the scratch ``cw`` (N_LOOP, B)."""
     B = z.shape[0]
     XM = cw[CW_XM:CW_XM + 4]
     MO = cw[CW_MO:CW_MO + 4]
     U1 = cw[CW_U1:CW_U1 + 4]
     U2 = cw[CW_U2:CW_U2 + 4]
     todo = cw[CW_TODO]
-    for i in range(N_PLANT):
-        for b in range(B):
-            U1[i, b], U2[i, b] = noise_uniforms(int(ctrl[b, C_SEED]), kv[b], i)
+    if noisy_block(ctrl, todo):  # a block whose sensing lanes add no noise needs no variates
+        for i in range(N_PLANT):
+            for b in range(B):
+                U1[i, b], U2[i, b] = noise_uniforms(int(ctrl[b, C_SEED]), kv[b], i)
     for b in range(B):
         if todo[b] != 0.0:
             for i in range(N_PLANT):
@@ -410,7 +422,7 @@ def dob_current(z, k, h, alpha, s, G, ulim, info):
     return u
 
 
-@jit_noalloc
+@jit_inline
 def controller_apply(z, info, ctrl, u_base, u_res):
     """Add the residual u_res [mA] to ctrl[C_BASE] * u_base [mA], pass the sum through the valve inverse (a loop
     setting, off by default: :func:`ehss_gym.core.compensators.valve_inverse`), apply the current limit; returns u_app
@@ -537,7 +549,7 @@ def _sgn(x):
 
 
 __all__ = ["controller_update", "controller_sense", "controller_apply", "sense_plant", "model_terms",
-           "output_derivatives", "sense_lanes", "law_lanes", "order_lanes", "velocity_lanes", "position_lanes",
-           "controller_law", "order_law", "model_constants",
+           "output_derivatives", "noisy_block", "sense_lanes", "law_lanes", "order_lanes", "velocity_lanes",
+           "position_lanes", "controller_law", "order_law", "model_constants",
            "dob_current", "lyapunov_residual", "reference_shift", "shape_reference", "fhan", "NOISE_TAU", "CW_XM",
            "CW_MO", "CW_U1", "CW_U2", "CW_TODO"]

@@ -133,7 +133,7 @@ advance_estimator = dispatch(
     otherwise="None", doc="Advance the state of estimator code ``est`` over the period (none for an estimator "
                           "without one, or whose filters the plant's integrator advances).")
 
-@jit_noalloc
+@jit_inline
 def advance_filters(z, m, est, filt, info, tmp):
     """Advance the digital filters over the period, w <- Phi w + E v, with the inputs v this sample recorded in
     ``info``: the reference model (its input I_RM) and the state of estimator code ``est`` (the measured output I_YE

@@ -34,6 +34,10 @@ jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
 jit_noalloc = nb.njit(cache=True, fastmath=False, error_model="numpy", _nrt=False)
 # A table row's kernel and the dispatch over a table are inlined into their caller (numba IR), so dispatching
 # through the table costs what the hand-written if-chain it replaced cost, and they run under the caller's flags.
+# So are the kernels a lane stage calls once per lane (the law's errors and filter advance, the residual's apply, the
+# live-row copy): a call that is not inlined passes every array as seven machine words and keeps the relative degree
+# m a run-time value in the callee, whose loops then do not unroll (inlined: 9 % off the compiled control period,
+# bit for bit the same arithmetic; benchmarks/lane_stages.py).
 jit_inline = nb.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
 
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from .compensators import inverse_model_update
 from .controller import CW_TODO, controller_apply, law_lanes, model_constants, sense_lanes
-from .jit import jit, jit_noalloc
+from .jit import jit, jit_inline, jit_noalloc
 from .layout import (
     DIV_CURRENT,
     DIV_NONE,
@@ -103,9 +103,9 @@ N_LWORK = 7
 # The loop state's rows a lane can write, in N_SPANS spans (:func:`live_span`). Most of the state belongs to add-ons
 # that are off on most lanes (the sensor delay line, the valve inverse's model, the reference delay's ring, the
 # reference action's filter: 87 of the N_LOOP doubles); a row no code of the lane writes keeps its reset value (0)
-# and no code reads it. So the period's state copy at t_k, a diverged lane's restore from it and the look-ahead's copy
-# cover the live spans only, with the same results (tests/test_live_rows.py fills the other rows with a sentinel and
-# checks that nothing writes or reads them).
+# and no code reads it. So the period's state copy at t_k, a diverged lane's restore from it, the look-ahead's copy
+# and the divergence check cover the live spans only, with the same results (tests/test_live_rows.py fills the other
+# rows with a sentinel and checks that nothing writes or reads them).
 N_SPANS = 5
 
 
@@ -130,8 +130,23 @@ def live_span(ctrl, j):
 
 
 @jit
+def core_only(ctrl):
+    """Whether the lane's live rows are the core span alone (every add-on of :func:`live_span` off), as on most
+    lanes: then the copies and the check run over a fixed number of rows, which the compiler unrolls and vectorises."""
+    for j in range(1, N_SPANS):
+        lo, hi = live_span(ctrl, j)
+        if hi > lo:
+            return False
+    return True
+
+
+@jit_inline
 def copy_live(dst, src, ctrl, first):
     """dst[i] = src[i] for the live rows i >= ``first`` of a lane's loop state (:func:`live_span`)."""
+    if core_only(ctrl):
+        for i in range(first, Z_DELAY):
+            dst[i] = src[i]
+        return
     for j in range(N_SPANS):
         lo, hi = live_span(ctrl, j)
         for i in range(max(lo, first), hi):
@@ -140,14 +155,23 @@ def copy_live(dst, src, ctrl, first):
 
 @jit
 def check_state(z, ctrl, plant_p):
-    """DIV_* code of a loop state: non-finite, or outside the velocity/pressure bounds. Every row is checked, the
-    dead ones too (they hold their reset value): a fixed-length loop that vectorises costs less than reading the
-    lane's spans."""
-    bad = False
-    for i in range(z.shape[0]):  # x - x: 0 for a finite x, NaN for inf or NaN; no exit per entry, so it vectorises
-        bad |= z[i] - z[i] != 0.0
-    if bad:
-        return DIV_NONFINITE
+    """DIV_* code of a loop state: non-finite (in a live row, :func:`live_span`; the others are neither written nor
+    read), or outside the velocity/pressure bounds. A lane with add-ons has every row checked (a fixed-length loop
+    that vectorises costs less than reading the lane's spans)."""
+    # x - x: 0 for a finite x, NaN for inf or NaN; no exit per entry, so the loops vectorise (measured: a count over
+    # the core rows, an or over all rows run fastest)
+    if core_only(ctrl):
+        bad = 0
+        for i in range(Z_DELAY):
+            bad += z[i] - z[i] != 0.0
+        if bad:
+            return DIV_NONFINITE
+    else:
+        bad_any = False
+        for i in range(N_LOOP):
+            bad_any |= z[i] - z[i] != 0.0
+        if bad_any:
+            return DIV_NONFINITE
     if abs(z[X_OMEGA]) > ctrl[C_OMEGA_MAX]:
         return DIV_OMEGA
     if abs(z[X_PL]) > ctrl[C_P_BOUND] * plant_p[P_PS]:
@@ -355,4 +379,4 @@ def run_batch(z, h, substeps, n_steps, log_every, plant, model, ctrl, ref, event
 
 
 __all__ = ["lanes_period", "run_lanes", "run_batch", "check_state", "init_filters", "write_log", "widen_envelope",
-           "live_span", "copy_live", "MAX_LANES", "N_LWORK", "N_SPANS"]
+           "live_span", "core_only", "copy_live", "MAX_LANES", "N_LWORK", "N_SPANS"]
