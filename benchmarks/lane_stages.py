@@ -11,8 +11,9 @@ metric windows are live as in training), one thread, each timed alone as the bes
   over the agent step's control periods, and the whole compiled step;
 - the whole ``lanes_period`` on two layouts of the same lanes: the env's (each block a (B, width) array, lane rows
   contiguous: :mod:`ehss_gym.envs.buffers`) and column blocks of one (B, N) buffer, whose rows have a stride numba only
-  knows at run time (the env's layout before this release); and the divergence check on both (a loop over a lane's
-  loop state with no exit per entry, which the compiler vectorises only on contiguous rows).
+  knows at run time (the env's layout before this release); and the divergence check on both (loops over a lane's
+  rows with no exit per entry: over every row, the compiler vectorised them on contiguous rows only; over the fixed
+  core rows of a lane without add-ons, on both).
 
 Every figure is ns per lane and control period. The drivers are compiled as the package's hot kernels are (without
 numba's reference counting, :data:`ehss_gym.core.jit.jit_noalloc`), so a lane's view costs what it costs there.
