@@ -64,6 +64,7 @@ from gymnasium import spaces
 from safetensors import SafetensorError
 from safetensors.numpy import load
 
+from ehss_gym.core.jit import jit_noalloc
 from ehss_gym.envs import ENV_ID
 from ehss_gym.envs.config import in_legacy_loop
 
@@ -201,6 +202,21 @@ def expected_tensors(cfg: dict) -> dict[str, tuple[tuple[int, ...], str]]:
     return out
 
 
+@jit_noalloc
+def normalize_into(obs, mean, std, clip, out):
+    """VecNormalize's normalisation of a batch obs (B, obs_dim) into ``out`` (B, obs_dim) float32: each entry's
+    ``(obs - mean) / std`` in float64, clipped to +-clip as ``np.maximum`` then ``np.minimum`` do (a NaN stays NaN),
+    then rounded to float32 as ``astype`` rounds. The same arithmetic as those ufuncs, entry by entry, in one call:
+    the ufuncs and their temporaries cost more than the arithmetic on the few observations of an agent step."""
+    lo = -clip
+    for i in range(obs.shape[0]):
+        for j in range(obs.shape[1]):
+            z = (obs[i, j] - mean[j]) / std[j]
+            z = z if (z >= lo or z != z) else lo
+            z = z if (z <= clip or z != z) else clip
+            out[i, j] = z
+
+
 def _torch_forward(layers, act_name: str, head):
     """The forward pass [Linear -> activation] x L -> Linear in torch's float32 kernels, SB3's arithmetic bit for bit:
     a function of a batch x (B, obs_dim) (with ``features``: also the last hidden features), made once per policy with
@@ -265,7 +281,7 @@ class SafePolicy:
         if self.obs_normalization is not None:
             self._mean = self.tensors["obs_mean"]
             self._std = np.sqrt(self.tensors["obs_var"] + self.obs_normalization["epsilon"])
-            self._clip = self.obs_normalization["clip_obs"]
+            self._clip = float(self.obs_normalization["clip_obs"])
         self._low = np.asarray(self.action_space.low)
         self._high = np.asarray(self.action_space.high)
         if self.head == "squashed":
@@ -284,10 +300,13 @@ class SafePolicy:
         """VecNormalize's observation normalisation (float64 arithmetic, float32 result), or the identity."""
         if self.obs_normalization is None:
             return obs
-        # np.clip's arithmetic as its two ufuncs (NaN and -0.0 kept alike), without its Python wrapper, which
-        # costs more than the arithmetic on one observation
-        z = (obs - self._mean) / self._std
-        return np.minimum(np.maximum(z, -self._clip, out=z), self._clip, out=z).astype(np.float32)
+        obs = np.asarray(obs)
+        rows = obs.reshape(-1, self._mean.shape[0])
+        if rows.dtype not in (np.float32, np.float64):  # exact in float64, as the ufuncs' own cast
+            rows = rows.astype(np.float64)
+        out = np.empty(rows.shape, dtype=np.float32)
+        normalize_into(rows, self._mean, self._std, self._clip, out)
+        return out.reshape(obs.shape)
 
     def mean_action(self, obs_norm: np.ndarray) -> np.ndarray:
         """The Gaussian mean for a batch of normalised observations (B, obs_dim): in action units before clipping, or

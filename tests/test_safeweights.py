@@ -10,6 +10,8 @@ import sys
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ehss_gym.agents import safeweights as sw
 from ehss_gym.agents.export import export_policy
@@ -281,3 +283,22 @@ def test_a_policy_that_has_predicted_pickles_and_predicts_the_same(trained):
     back = pickle.loads(pickle.dumps(pol))
     assert back._torch_fn is None and np.array_equal(back.predict(obs)[0], first)
     assert np.array_equal(first, model.predict(venv.normalize_obs(obs), deterministic=True)[0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), B=st.integers(1, 9), D=st.integers(1, 6), clip=st.sampled_from([0.5, 5.0, 10.0]),
+       dtype=st.sampled_from([np.float32, np.float64]))
+def test_the_compiled_normalisation_is_vecnormalizes_arithmetic_bit_for_bit(seed, B, D, clip, dtype):
+    """normalize_into against VecNormalize's own expression (np.clip of the float64 quotient, then float32), on
+    values that reach the clip exactly, beyond it, NaN, infinities and signed zeros."""
+    rng = np.random.default_rng(seed)
+    mean, var = rng.normal(size=D) * 3, rng.uniform(1e-6, 20.0, D)
+    std = np.sqrt(var + 1e-8)
+    obs = (mean + std * rng.choice([-clip, clip, -2 * clip, 0.3, -0.0], size=(B, D))).astype(dtype)
+    obs[rng.random((B, D)) < 0.15] = rng.choice([np.nan, np.inf, -np.inf, -0.0, 0.0])
+    obs += (rng.normal(size=(B, D)) * (rng.random((B, D)) < 0.3)).astype(dtype)
+    want = np.clip((obs - mean) / std, -clip, clip).astype(np.float32)
+    got = np.full((B, D), 7.0, dtype=np.float32)
+    sw.normalize_into(obs, mean, std, clip, got)
+    assert np.array_equal(got, want, equal_nan=True)
+    assert np.array_equal(np.signbit(got), np.signbit(want))

@@ -11,6 +11,7 @@ them side by side in two processes (``tests/warm_kernels.py``). With a warm cach
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 from ehss_gym import evaluation as ev
 from ehss_gym import simulate, simulate_batch
@@ -30,11 +31,13 @@ def warm_sim() -> None:
 
 
 def warm_env() -> None:
-    """The env's kernels, through an evaluation of a scripted law and PID on short episodes (two lanes of the vector
-    env in the held-out suite, one in the step suite)."""
+    """The env's kernels, through an evaluation of a scripted law, the PID and one seed of a shipped learned policy
+    (its observation normalisation is compiled) on short episodes (two lanes of the vector env in the held-out suite,
+    one in the step suite)."""
     cfg = ev.EvalConfig(suites=("heldout", "step"), heldout_episodes=2, episode_seconds=0.05, step_amplitudes=(0.5,),
                         n_boot=100)
-    ev.evaluate([ev.parse_policy("clf-n2"), ev.parse_policy("pid")], cfg, workers=1, progress=False)
+    learned = [replace(s, runs=s.runs[:1]) for s in ev.shipped_specs()[:1]]
+    ev.evaluate([ev.parse_policy("clf-n2"), ev.parse_policy("pid"), *learned], cfg, workers=1, progress=False)
 
 
 PARTS = {"sim": warm_sim, "env": warm_env}

@@ -624,18 +624,24 @@ def advance_chunks(chunk, n_per, h, substeps, F, H, IB, BB, events, filt, c, X, 
 
 
 @jit_noalloc
-def vector_actions(a, autoreset, ended, out, clipped, stepped):
-    """Check and clip the vector env's actions a (N, k) in [-1, 1] into ``out``; ``stepped[b]``: sub-env b steps
-    (neither resetting nor ended), ``clipped[b]``: it steps and an entry of its action was outside [-1, 1]. Returns
-    False, having written nothing, if an action is NaN."""
+def vector_actions(a, autoreset, ended, out, clipped, stepped, n_clipped, run):
+    """Check and clip the vector env's actions a (N, k) in [-1, 1] into ``out``, then launch the step: per sub-env b,
+    ``stepped[b]``: it steps (neither resetting nor ended); ``clipped[b]``: it steps and an entry of its action was
+    outside [-1, 1], counted in ``n_clipped[b]``; a sub-env that does not step has its run flag ``run[b]`` cleared
+    (a sub-env reset after this call is stopped again by the caller). Returns (sub-envs resetting, sub-envs that
+    step), or (0, -1), having written nothing, if an action is NaN."""
     N = a.shape[0]
     for b in range(N):
         for j in range(a.shape[1]):
             if math.isnan(a[b, j]):
-                return False
+                return 0, -1
+    n_reset = 0
+    n_step = 0
     for b in range(N):
         steps = not (autoreset[b] or ended[b])
         stepped[b] = steps
+        n_reset += autoreset[b]
+        n_step += steps
         c = False
         for j in range(a.shape[1]):
             v = a[b, j]
@@ -643,27 +649,23 @@ def vector_actions(a, autoreset, ended, out, clipped, stepped):
                 c = True
             out[b, j] = min(max(v, -1.0), 1.0)
         clipped[b] = c and steps
-    return True
-
-
-@jit_noalloc
-def vector_launch(clipped, stepped, n_clipped, run):
-    """Before the vector env's step: count the clipped actions and stop the sub-envs that do not step (their run
-    flags)."""
-    for b in range(clipped.shape[0]):
         n_clipped[b] += clipped[b]
-        if not stepped[b]:
+        if not steps:
             run[b] = False
+    return n_reset, n_step
 
 
 @jit_noalloc
-def vector_ends(run, acc, T, steps, stepped, autoreset, n, stop_lost, info_ok, stats, flags, info_t, stats_t):
+def vector_ends(run, acc, T, steps, stepped, autoreset, n, stop_lost, info_ok, stats, rew, flags, info_t, stats_t,
+                rewards):
     """After the vector env's step of n agent steps: per sub-env its flags (rows: diverged, lost track, terminated,
-    truncated, ended), its step count and run flag (a resetting sub-env runs again), and the info's transposed copies
-    of the last finite samples and step statistics. Returns how many sub-envs ended."""
+    truncated, ended), its step count and run flag (a resetting sub-env runs again), its reward (``rew[b]`` if it
+    stepped, else 0) and the info's transposed copies of the last finite samples and step statistics. Returns how many
+    sub-envs ended."""
     n_end = 0
     for b in range(flags.shape[1]):
         s = stepped[b]
+        rewards[b] = rew[b] if s else 0.0
         flags[0, b] = s and not run[b]
         lost = acc[b, M_LOST] > 0.0
         flags[1, b] = lost

@@ -42,7 +42,7 @@ from gymnasium.vector.utils import batch_space
 from ehss_gym.core.layout import M_LOST, N_INFO
 
 from .config import EnvConfig, warn_untuned
-from .kernels import vector_actions, vector_ends, vector_launch
+from .kernels import vector_actions, vector_ends
 from .lanes import Lanes, step_info
 from .observation import OBS_BOUND
 
@@ -209,37 +209,38 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         a = np.ascontiguousarray(actions, dtype=np.float64).reshape(N, -1)
         if a.shape[1] != k:
             raise ValueError(f"actions must have shape ({N}, {k}), got {np.shape(actions)}")
-        # the clipped actions, which sub-envs had one clipped and which step (not resetting, nor ended)
+        # the clipped actions, which sub-envs had one clipped and which step (not resetting, nor ended); the clipped
+        # ones counted and the others stopped, in one compiled call
         clip, clipped, stepped = np.empty_like(a), np.empty(N, dtype=np.bool_), np.empty(N, dtype=np.bool_)
-        if not vector_actions(a, self._autoreset, self._ended, clip, clipped, stepped):
+        n_reset, n_step = vector_actions(a, self._autoreset, self._ended, clip, clipped, stepped, self._n_clipped,
+                                         lanes.run)
+        if n_step < 0:
             raise ValueError("actions contain NaN; actions must be numbers in [-1, 1] (out-of-range values are "
                              "clipped)")
-        resetting = np.flatnonzero(self._autoreset)
         infos: dict = {}
-        if len(resetting):
+        if n_reset:
+            resetting = np.flatnonzero(self._autoreset)
             infos = self._reset_lanes([int(b) for b in resetting], [None] * len(resetting), [None] * len(resetting),
                                       infos)
             lanes.observe(resetting)
-        # the lanes that do not step are not advanced (a lane resetting is not advanced on its reset step)
-        vector_launch(clipped, stepped, self._n_clipped, lanes.run)
+            lanes.run[resetting] = False  # a lane resetting is not advanced on its reset step
         # the action mode's writer, for the lanes that step (a lane just reset keeps its loaded state: zero action)
-        if stepped.all():  # all of them: a slice, which numpy indexes several times faster than a list of lanes
+        if n_step == N:  # all of them: a slice, which numpy indexes several times faster than a list of lanes
             lanes.set_actions(slice(0, N), clip)
-        else:
+        elif n_step:
             lanes.set_actions(np.flatnonzero(stepped), clip[stepped])
         lanes.step()
-        rewards = np.where(stepped, lanes.rew[:N], 0.0)
-        n = 1
+        n, rew = 1, lanes.rew  # the rewards of the lanes that stepped, summed over the steps taken
         if record is not None:
             record[0, stepped] = lanes.info_ok[:N][stepped]
-        if max_steps > 1 and not len(resetting):
-            n += self._hold(stepped, clipped, max_steps - 1, record, rewards)
+        if max_steps > 1 and not n_reset:
+            n, rew = self._hold(stepped, clipped, max_steps - 1, record)
         # fresh arrays each step, so what a step returns outlives the next
         flags = np.empty((5, N), dtype=np.bool_)
-        info_t, stats_t = np.empty((N_INFO, N)), np.empty((lanes.stats.shape[1], N))
+        info_t, stats_t, rewards = np.empty((N_INFO, N)), np.empty((lanes.stats.shape[1], N)), np.empty(N)
         n_end = vector_ends(lanes.run, lanes.acc, lanes.T, self._steps, stepped, self._autoreset, n,
-                            bool(self.config.terminate_on_lost_track), lanes.info_ok, lanes.stats, flags, info_t,
-                            stats_t)
+                            bool(self.config.terminate_on_lost_track), lanes.info_ok, lanes.stats, rew, flags, info_t,
+                            stats_t, rewards)
         diverged, lost, terminated, truncated, ended = flags
         step = step_info(info_t, stats_t, clipped, self._n_clipped.copy(), diverged, lost)
         mask = np.ones(N, dtype=np.bool_)
@@ -258,10 +259,10 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
             self._autoreset = ended.copy()
         return lanes.obs[:N].copy(), rewards, terminated, truncated, infos, n
 
-    def _hold(self, stepped, clipped, most: int, record, rewards) -> int:
+    def _hold(self, stepped, clipped, most: int, record) -> tuple[int, np.ndarray]:
         """After a step that reset no sub-env: up to ``most`` more steps with the actions held (:meth:`step_held`),
-        none if a sub-env ended in it; their rewards added to ``rewards``, their samples to ``record[1:]``. Returns
-        the steps taken."""
+        none if a sub-env ended in it; their samples go to ``record[1:]``. Returns the agent steps taken in all (the
+        first included) and the lanes' rewards (B,) summed over them in step order (those that did not step: 0)."""
         lanes = self._lanes
         N = self.num_envs
         run = lanes.run[:N]
@@ -272,14 +273,13 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
         left = (lanes.T[:N] - self._steps - 1)[stepped]
         most = min(most, int(left.min()) if len(left) else 0)
         if ended.any() or most <= 0:
-            return 0
+            return 1, lanes.rew
         rsum = np.zeros(lanes.B)
-        rsum[:N] = rewards
+        rsum[:N] = np.where(stepped, lanes.rew[:N], 0.0)
         rec = _NO_RECORD if record is None else record[1:]
         n = lanes.step_held(most, bool(self.config.terminate_on_lost_track), rec, rsum)
-        rewards[:] = rsum[:N]
         self._n_clipped += clipped * n
-        return n
+        return 1 + n, rsum
 
     def close_extras(self, **kwargs):
         self._ready = False
