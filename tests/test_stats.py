@@ -4,6 +4,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import stats as sps
 
 from ehss_gym.evaluation import stats
@@ -174,3 +176,26 @@ def test_relative_improvement_ci():
     assert hi1 - lo1 > 0.2
     with pytest.raises(ValueError, match="positive mean"):
         stats.relative_improvement_ci([1.0, 2.0], [0.0, 0.0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), rx=st.integers(1, 6), ry=st.integers(1, 6), T=st.integers(1, 140),
+       lower=st.booleans(), chunk=st.sampled_from([1, 37, 250]))
+def test_the_batched_replicates_are_the_per_replicate_statistic_bit_for_bit(seed, rx, ry, T, lower, chunk):
+    """probability_of_improvement_ci's replicates in batches against the statistic taken on each replicate alone
+    (the Mann-Whitney shares as means over both runs' axes), on scores with many ties, either direction."""
+    rng = np.random.default_rng(seed)
+    x = rng.choice([0.5, 1.0, 1.5], size=(rx, T)) + rng.normal(size=(rx, T)) * (rng.random() < 0.5)
+    y = rng.choice([0.5, 1.0, 1.5], size=(ry, T)) + rng.normal(size=(ry, T)) * (rng.random() < 0.5)
+    n_boot = 120
+    draw = np.random.default_rng(seed)  # the function's draws, in its order
+    cols = draw.integers(0, T, size=(n_boot, T))
+    ri = draw.integers(0, rx, size=(n_boot, rx, T)) if rx > 1 else np.zeros((n_boot, 1, T), dtype=np.int64)
+    rj = draw.integers(0, ry, size=(n_boot, ry, T)) if ry > 1 else np.zeros((n_boot, 1, T), dtype=np.int64)
+    reps = np.array([stats._poi_matrix(x[ri[i], cols[i][None, :]], y[rj[i], cols[i][None, :]], lower)
+                     for i in range(n_boot)])
+    assert np.array_equal(stats._poi_batch(x[ri, cols[:, None, :]], y[rj, cols[:, None, :]], lower), reps)
+    want = stats.percentile_interval(reps, 0.9)
+    point, lo, hi = stats.probability_of_improvement_ci(x, y, lower, n_boot=n_boot, confidence=0.9, seed=seed,
+                                                        chunk=chunk)
+    assert (lo, hi) == want and point == stats.probability_of_improvement(x, y, lower)

@@ -199,12 +199,13 @@ def probability_of_improvement(x, y, lower_is_better: bool = True) -> float:
 
 
 def probability_of_improvement_ci(x, y, lower_is_better: bool = True, n_boot: int = 2000, confidence: float = 0.95,
-                                  seed: int = 0) -> tuple[float, float, float]:
+                                  seed: int = 0, chunk: int = 250) -> tuple[float, float, float]:
     """Probability of improvement with a percentile bootstrap interval.
 
     Each replicate resamples the episodes (the same indices for X and Y: the comparison is paired)
     and, for a policy with several runs, its runs within each episode independently (rliable's
-    stratified bootstrap). Returns (point estimate, lower, upper).
+    stratified bootstrap). Returns (point estimate, lower, upper). ``chunk``: replicates per vectorised batch
+    (memory only; the result does not depend on it).
     """
     _check_common(n_boot, confidence, seed)
     a = _as_matrix(x, "x")
@@ -218,13 +219,30 @@ def probability_of_improvement_ci(x, y, lower_is_better: bool = True, n_boot: in
     rx = rng.integers(0, Rx, size=(n_boot, Rx, T)) if Rx > 1 else np.zeros((n_boot, 1, T), dtype=np.int64)
     ry = rng.integers(0, Ry, size=(n_boot, Ry, T)) if Ry > 1 else np.zeros((n_boot, 1, T), dtype=np.int64)
     reps = np.empty(n_boot)
-    for i in range(n_boot):
-        c = cols[i]
-        xa = a[rx[i], c[None, :]]
-        yb = b[ry[i], c[None, :]]
-        reps[i] = _poi_matrix(xa, yb, lower_is_better)
+    for s in range(0, n_boot, chunk):  # replicates in batches: the per-replicate loop spent its time in numpy calls
+        e = min(n_boot, s + chunk)
+        c = cols[s:e, None, :]
+        reps[s:e] = _poi_batch(a[rx[s:e], c], b[ry[s:e], c], lower_is_better)
     lo, hi = percentile_interval(reps, confidence)
     return _poi_matrix(a, b, lower_is_better), lo, hi
+
+
+def _poi_batch(x: np.ndarray, y: np.ndarray, lower_is_better: bool) -> np.ndarray:
+    """:func:`_poi_matrix` of each replicate of a batch, x (m, Rx, T) and y (m, Ry, T), with the same arithmetic: the
+    wins and ties are counted over the Rx * Ry pairs of runs (-d > 0 is d < 0, and counts are exact in any order),
+    each share is its count over Rx * Ry, and each replicate's mean over the tasks is numpy's sum along the
+    contiguous last axis, as of a single row."""
+    m, Rx, T = x.shape
+    Ry = y.shape[1]
+    wins = np.zeros((m, T), dtype=np.int64)
+    ties = np.zeros((m, T), dtype=np.int64)
+    for i in range(Rx):
+        for j in range(Ry):
+            d = x[:, i, :] - y[:, j, :]
+            wins += (d < 0.0) if lower_is_better else (d > 0.0)
+            ties += d == 0.0
+    n = Rx * Ry
+    return (wins / n + 0.5 * (ties / n)).mean(axis=1)
 
 
 def relative_improvement_ci(x, y, n_boot: int = 2000, confidence: float = 0.95,
