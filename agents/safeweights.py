@@ -301,7 +301,11 @@ class SafePolicy:
         if self.obs_normalization is None:
             return obs
         obs = np.asarray(obs)
-        rows = obs.reshape(-1, self._mean.shape[0])
+        D = self._mean.shape[0]
+        if obs.ndim == 0 or obs.shape[-1] != D:
+            raise ValueError(f"observation must have shape ({D},) or (..., {D}) for model {self.name!r}, got "
+                             f"{obs.shape}")
+        rows = obs.reshape(-1, D)
         if rows.dtype not in (np.float32, np.float64):  # exact in float64, as the ufuncs' own cast
             rows = rows.astype(np.float64)
         out = np.empty(rows.shape, dtype=np.float32)

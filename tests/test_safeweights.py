@@ -302,3 +302,14 @@ def test_the_compiled_normalisation_is_vecnormalizes_arithmetic_bit_for_bit(seed
     sw.normalize_into(obs, mean, std, clip, got)
     assert np.array_equal(got, want, equal_nan=True)
     assert np.array_equal(np.signbit(got), np.signbit(want))
+
+
+def test_normalising_an_observation_of_the_wrong_size_names_it(trained):
+    """normalize_obs reads rows of obs_dim entries: another last dimension is refused, not reshaped into rows."""
+    _, _, stem = trained
+    pol = load_policy(stem)
+    with pytest.raises(ValueError, match=r"observation must have shape \(3,\) or \(\.\.\., 3\)"):
+        pol.normalize_obs(np.zeros((2, 6), np.float32))  # 12 entries would make 4 rows of 3
+    with pytest.raises(ValueError, match="observation must have shape"):
+        pol.normalize_obs(np.float32(1.0))
+    assert pol.normalize_obs(np.zeros((2, 4, 3), np.float32)).shape == (2, 4, 3)

@@ -48,6 +48,13 @@ def test_aggregate_and_bad_input():
         stats.bootstrap_ci([1, 2, 3], seed=-1)
     with pytest.raises(ValueError, match="same episodes"):
         stats.probability_of_improvement([1, 2], [1, 2, 3])
+    for bad in (0, -1, 2.5, True):  # replicates per batch: a clear error, not range()'s
+        with pytest.raises(ValueError, match="chunk must be an integer >= 1"):
+            stats.bootstrap_distribution([1, 2, 3], chunk=bad)
+        with pytest.raises(ValueError, match="chunk must be an integer >= 1"):
+            stats.probability_of_improvement_ci([1, 2, 3], [2, 3, 4], chunk=bad)
+        with pytest.raises(ValueError, match="chunk must be an integer >= 1"):
+            stats.grouped_mean_ci([np.array([1.0, 2.0])], chunk=bad)
 
 
 def test_bootstrap_ci_constant_is_degenerate_and_seeded():

@@ -99,6 +99,12 @@ def _check_common(n_boot, confidence, seed):
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
 
 
+def _check_chunk(chunk) -> None:
+    """ValueError unless ``chunk`` (replicates per vectorised batch) is an integer >= 1."""
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk must be an integer >= 1, got {chunk!r}")
+
+
 def _resample_indices(rng: np.random.Generator, n_boot: int, n: int, resample: bool) -> np.ndarray:
     """(n_boot, n) indices drawn with replacement, or the identity in every replicate when not ``resample``."""
     if not resample:
@@ -127,6 +133,7 @@ def bootstrap_distribution(scores, stat: str = "mean", over: str = "episodes", n
     if over not in OVER:
         raise ValueError(f"over must be one of {list(OVER)}, got {over!r}")
     _check_common(n_boot, 0.95, seed)
+    _check_chunk(chunk)
     a = _as_matrix(scores)
     R, T = a.shape
     rng = np.random.default_rng(int(seed))
@@ -208,6 +215,7 @@ def probability_of_improvement_ci(x, y, lower_is_better: bool = True, n_boot: in
     (memory only; the result does not depend on it).
     """
     _check_common(n_boot, confidence, seed)
+    _check_chunk(chunk)
     a = _as_matrix(x, "x")
     b = _as_matrix(y, "y")
     if a.shape[1] != b.shape[1]:
@@ -319,6 +327,7 @@ def grouped_mean_ci(groups, over: str = "episodes", n_boot: int = 2000, confiden
     if over not in OVER:
         raise ValueError(f"over must be one of {list(OVER)}, got {over!r}")
     _check_common(n_boot, confidence, seed)
+    _check_chunk(chunk)
     a = _grouped_stack(groups)
     _, R, T = a.shape
     rng = np.random.default_rng(int(seed))
