@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .compensators import law_errors, valve_inverse
 from .estimators import advance_filter, advance_filters, estimate_derivatives, filter_outputs
 from .jit import jit, jit_inline, jit_noalloc
@@ -86,6 +88,7 @@ from .settings import (
     C_ULIM,
 )
 from .unmodelled_kernels import sense_unmodelled
+from .vecmath import NORMAL_REL, normal_block
 
 NOISE_TAU = 0.02  # [s] time constant of the adaptive boundary layer's noise estimate (docs/MODEL.md, "Laws")
 
@@ -142,8 +145,14 @@ def controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work):
 
 
 # Rows of the controller's lane-stage scratch (N_LOOP, B) (``lwork[6]`` of the loop): the measured states, the model
-# there (F, G, f2, h2: :func:`model_terms`), the noise's uniform variates (4 channels each) and which lanes sense.
-CW_XM, CW_MO, CW_U1, CW_U2, CW_TODO = 0, 4, 8, 12, 16
+# there (F, G, f2, h2: :func:`model_terms`), the noise's uniform variates (4 channels each), which lanes sense, the
+# noise samples' estimates (:func:`ehss_gym.core.vecmath.normal_block`), the readings left to libm, the noisy lanes'
+# indices (int64 through a view) and scratch. The noise's rows hold the noisy lanes only, packed: entry j is lane
+# idx[j] (:func:`noisy_lanes`).
+CW_XM, CW_MO, CW_U1, CW_U2, CW_TODO, CW_NZ, CW_LIBM, CW_IDX, CW_W = 0, 4, 8, 12, 16, 17, 21, 25, 26
+# Fewer noisy lanes than this in a block are sensed a lane at a time with libm (the same bits): the block's noise
+# stages cost a dozen calls per period, more than libm's draws of a lane or two (measured on the single env).
+NOISE_BLOCK_MIN = 4
 
 
 @jit
@@ -157,14 +166,21 @@ def model_constants(model, ctrl, c):
 
 
 @jit_inline
-def sense_plant(z, k, ctrl, xm):
-    """Stage 1 of the controller, the sensors at sample k: xm[i] = z[i] plus state i's noise (std
-    ctrl[C_NOISE_THETA + i], :func:`ehss_gym.core.physics.gaussian`) [unit of state i], then the unmodelled encoder
-    grid and sensor delay (:func:`ehss_gym.core.unmodelled_kernels.sense_unmodelled`, whose delay line is in z)."""
+def sense_noise(z, k, ctrl, xm):
+    """The sensors' readings at sample k: xm[i] = z[i] plus state i's noise (std ctrl[C_NOISE_THETA + i],
+    :func:`ehss_gym.core.physics.gaussian`) [unit of state i], with libm's log and cos."""
     seed = int(ctrl[C_SEED])
     for i in range(N_PLANT):
         sd = ctrl[C_NOISE_THETA + i]
         xm[i] = z[i] + (sd * gaussian(seed, k, i) if sd > 0.0 else 0.0)
+
+
+@jit_inline
+def sense_plant(z, k, ctrl, xm):
+    """Stage 1 of the controller, the sensors at sample k: the readings (:func:`sense_noise`), then the unmodelled
+    encoder grid and sensor delay (:func:`ehss_gym.core.unmodelled_kernels.sense_unmodelled`, whose delay line is in
+    z)."""
+    sense_noise(z, k, ctrl, xm)
     sense_unmodelled(z, xm, k, ctrl)  # the encoder's grid and the sensor delay (off: nothing)
 
 
@@ -187,40 +203,86 @@ def output_derivatives(x1, x2, f2, h2, position, hd):
     hd[3] = h2 if position else 0.0
 
 
-@jit_inline
-def noisy_block(ctrl, todo):
-    """Whether some lane flagged in ``todo`` adds noise to one of its sensors (a noise std > 0)."""
+@jit_noalloc
+def noisy_lanes(ctrl, todo, idx):
+    """idx[:m] = the lanes flagged in ``todo`` that add noise to one of their sensors (a noise std > 0), in order;
+    returns m. Only these draw variates: the others' readings are their states."""
+    m = 0
     for b in range(ctrl.shape[0]):
-        if todo[b] != 0.0:
-            for i in range(N_PLANT):
-                if ctrl[b, C_NOISE_THETA + i] > 0.0:
-                    return True
-    return False
+        noisy = False
+        for i in range(N_PLANT):
+            noisy |= ctrl[b, C_NOISE_THETA + i] > 0.0
+        if noisy and todo[b] != 0.0:
+            idx[m] = b
+            m += 1
+    return m
+
+
+@jit_noalloc
+def noisy_readings(z, ctrl, idx, nz, xm, libm, i):
+    """Channel ``i``'s reading of the noisy lanes b = idx[j]: xm[b] = z[b, i] + sd n (+ 0.0 without noise on this
+    channel), with n the lane's Box-Muller sample, as :func:`sense_plant` computes it bit for bit. ``nz[j]`` is n's
+    estimate within NORMAL_REL (:func:`ehss_gym.core.vecmath.normal_block`); the reading is the same double for every
+    n within that bound (the roundings of sd n and of the sum are monotone in n, so both ends of the bracket giving
+    one double settle it) wherever the noise is small against the state, as it is but near a zero of the state.
+    Elsewhere ``libm[j]`` is set for :func:`sense_lanes` to take libm's sample. Selects, no branch: the loop
+    vectorises. Returns how many readings are left to libm."""
+    n_libm = 0
+    for j in range(idx.shape[0]):
+        b = idx[j]
+        x = z[b, i]
+        sd = ctrl[b, C_NOISE_THETA + i]
+        n = nz[j]
+        d = abs(n) * NORMAL_REL
+        lo = x + sd * (n - d)
+        hi = x + sd * (n + d)
+        noisy = sd > 0.0
+        left = noisy & (lo != hi)  # lo != hi: also a NaN anywhere (libm's then decides, as before)
+        xm[b] = lo if noisy else x + 0.0
+        libm[j] = 1.0 if left else 0.0
+        n_libm += left
+    return n_libm
 
 
 @jit_noalloc
 def sense_lanes(z, kv, ctrl, c, cw):
     """Stages 1 and 2 of the controller for the lanes of a block flagged in ``cw[CW_TODO]``, each a loop over the lanes
-    (the same arithmetic as :func:`controller_sense` does for one lane): the noise's uniform variates of every lane
-    and channel where some lane adds noise (integer arithmetic, vectorised), the sensors (libm's log and cos
-    where a noise std is > 0), then the model at every lane's measured state (vectorised; the model's rows of the
-    lane constants ``c``, :func:`model_constants`). Lane b is at its own sample ``kv[b]``. Writes the rows CW_* of
-    the scratch ``cw`` (N_LOOP, B)."""
+    (the same arithmetic as :func:`controller_sense` does for one lane, bit for bit): the readings without noise,
+    then for the lanes that add noise (:func:`noisy_lanes`, packed) the noise's uniform variates (integer arithmetic,
+    vectorised), their Box-Muller samples' estimates (:func:`ehss_gym.core.vecmath.normal_block`, vectorised) and
+    the readings (:func:`noisy_readings`, with libm's log and cos for the few a bracket does not settle); the encoder
+    grid and sensor delay per lane; then the model at every lane's measured state (vectorised; the model's rows of
+    the lane constants ``c``, :func:`model_constants`). Lane b is at its own sample ``kv[b]``. Writes the rows CW_*
+    of the scratch ``cw`` (N_LOOP, B)."""
     B = z.shape[0]
     XM = cw[CW_XM:CW_XM + 4]
     MO = cw[CW_MO:CW_MO + 4]
-    U1 = cw[CW_U1:CW_U1 + 4]
-    U2 = cw[CW_U2:CW_U2 + 4]
     todo = cw[CW_TODO]
-    if noisy_block(ctrl, todo):  # a block whose sensing lanes add no noise needs no variates
-        for i in range(N_PLANT):
-            for b in range(B):
-                U1[i, b], U2[i, b] = noise_uniforms(int(ctrl[b, C_SEED]), kv[b], i)
     for b in range(B):
         if todo[b] != 0.0:
             for i in range(N_PLANT):
-                sd = ctrl[b, C_NOISE_THETA + i]
-                XM[i, b] = z[b, i] + (sd * normal_from(U1[i, b], U2[i, b]) if sd > 0.0 else 0.0)
+                XM[i, b] = z[b, i] + 0.0
+    idx_all = cw[CW_IDX].view(np.int64)
+    m = noisy_lanes(ctrl, todo, idx_all)
+    if 0 < m < NOISE_BLOCK_MIN:
+        for j in range(m):
+            b = idx_all[j]
+            sense_noise(z[b], kv[b], ctrl[b], XM[:, b])
+    elif m > 0:
+        idx = idx_all[:m]
+        for i in range(N_PLANT):
+            u1, u2, nz, libm = cw[CW_U1 + i, :m], cw[CW_U2 + i, :m], cw[CW_NZ + i, :m], cw[CW_LIBM + i, :m]
+            for j in range(m):
+                b = idx[j]
+                u1[j], u2[j] = noise_uniforms(int(ctrl[b, C_SEED]), kv[b], i)
+            normal_block(u1, u2, nz, cw[CW_W, :m], cw[CW_W + 1, :m])
+            if noisy_readings(z, ctrl, idx, nz, XM[i], libm, i) > 0:
+                for j in range(m):
+                    if libm[j] != 0.0:
+                        b = idx[j]
+                        XM[i, b] = z[b, i] + ctrl[b, C_NOISE_THETA + i] * normal_from(u1[j], u2[j])
+    for b in range(B):
+        if todo[b] != 0.0:
             sense_unmodelled(z[b], XM[:, b], kv[b], ctrl[b])  # the encoder's grid and the sensor delay (off: nothing)
     for b in range(B):
         f2, h2, F, G = model_terms(XM[X_OMEGA, b], XM[X_PL, b], XM[X_AV, b], c[:, b], LC_MODEL, c[LC_PMAX, b])
@@ -548,8 +610,8 @@ def _sgn(x):
     return 1.0 if x > 0.0 else (-1.0 if x < 0.0 else 0.0)
 
 
-__all__ = ["controller_update", "controller_sense", "controller_apply", "sense_plant", "model_terms",
-           "output_derivatives", "noisy_block", "sense_lanes", "law_lanes", "order_lanes", "velocity_lanes",
-           "position_lanes", "controller_law", "order_law", "model_constants",
+__all__ = ["controller_update", "controller_sense", "controller_apply", "sense_plant", "sense_noise", "model_terms",
+           "output_derivatives", "noisy_lanes", "noisy_readings", "sense_lanes", "law_lanes", "order_lanes",
+           "velocity_lanes", "position_lanes", "controller_law", "order_law", "model_constants",
            "dob_current", "lyapunov_residual", "reference_shift", "shape_reference", "fhan", "NOISE_TAU", "CW_XM",
-           "CW_MO", "CW_U1", "CW_U2", "CW_TODO"]
+           "CW_MO", "CW_U1", "CW_U2", "CW_TODO", "CW_NZ", "CW_LIBM", "CW_IDX", "CW_W"]
