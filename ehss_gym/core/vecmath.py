@@ -127,8 +127,9 @@ _S1, _S2, _S3, _S4, _S5, _S6, _S7, _S8, _S9 = ((-1) ** k / math.factorial(2 * k 
 # (exact reduction, one division, the series' roundings, k log 2) and cosine (exact reduction but for its last
 # rounding, Horner's roundings) within about 4 2^-53 each, so its n is within 8 2^-53. Together 13 2^-53 (2^-49.3),
 # which tests/test_vecmath.py checks over 300,000 uniform pairs and the reductions' edges (the largest found over 4
-# million pairs: 2^-50.4). NORMAL_REL, 32 2^-53, leaves a factor of 2.4 above it. A wider bound would cost speed (the
-# sensors fall back to libm where the bound's bracket straddles a rounding of the reading), not exactness.
+# million pairs: 2^-50.4). NORMAL_REL, 32 2^-53, leaves a factor of 2.4 above it: a libm whose log and cos were a few
+# ulps off would still lie in the bracket. A wider bound would cost speed (the sensors fall back to libm where the
+# bracket straddles a rounding of the reading), not exactness.
 NORMAL_REL = 2.0**-48
 
 
