@@ -20,7 +20,7 @@ from decimal import Decimal, localcontext
 
 import numpy as np
 
-from .jit import jit_noalloc
+from .jit import jit_inline, jit_noalloc
 
 LN2 = 0.6931471805599453  # log(2), rounded to float64
 SQRT2 = 1.4142135623730951
@@ -38,6 +38,43 @@ _FRAC_MASK = np.int64(0x000FFFFFFFFFFFFF)
 _ONE_BITS = np.int64(0x3FF0000000000000)
 
 
+@jit_inline
+def _unit_bits(u, kf, f):
+    """kf[i] = the exponent of u[i] and f[i] its mantissa in [1, 2), from the bits (exact; u[i] positive normal)."""
+    ub = u.view(np.int64)
+    fb = f.view(np.int64)
+    for i in range(u.shape[0]):
+        b = ub[i]
+        kf[i] = float(((b >> 52) & _EXP_MASK) - 1023)
+        fb[i] = (b & _FRAC_MASK) | _ONE_BITS
+
+
+@jit_inline
+def _log_parts(kf, f):
+    """log(2^kf f) for f in [1, 2) (from :func:`_unit_bits`) as plain arithmetic: reduced to k log 2 + log x, x in
+    [sqrt(2)/2, sqrt(2)) (exact), log x = 2 atanh(s), s = (x - 1)/(x + 1), |s| < 0.172, by its series to s^25
+    (truncation < 1e-20)."""
+    big = f > SQRT2
+    x = 0.5 * f if big else f  # exact
+    k = kf + 1.0 if big else kf
+    s = (x - 1.0) / (x + 1.0)  # x - 1 is exact (Sterbenz)
+    z = s * s
+    p = 1.0 / 25.0
+    p = 1.0 / 23.0 + z * p
+    p = 1.0 / 21.0 + z * p
+    p = 1.0 / 19.0 + z * p
+    p = 1.0 / 17.0 + z * p
+    p = 1.0 / 15.0 + z * p
+    p = 1.0 / 13.0 + z * p
+    p = 1.0 / 11.0 + z * p
+    p = 1.0 / 9.0 + z * p
+    p = 1.0 / 7.0 + z * p
+    p = 1.0 / 5.0 + z * p
+    p = 1.0 / 3.0 + z * p
+    two_s = 2.0 * s
+    return k * LN2 + (two_s + two_s * z * p)
+
+
 @jit_noalloc
 def log1p_block(a, y, w):
     """y[i] = log(1 + a[i]) for finite a[i] >= 0, as plain arithmetic over the block (loops that vectorise).
@@ -50,35 +87,11 @@ def log1p_block(a, y, w):
     """
     n = a.shape[0]
     u, f, kf = w[0], w[1], w[2]
-    ubits = u.view(np.int64)
-    fbits = f.view(np.int64)
     for i in range(n):
         u[i] = 1.0 + a[i]
+    _unit_bits(u, kf, f)
     for i in range(n):
-        b = ubits[i]
-        kf[i] = float(((b >> 52) & _EXP_MASK) - 1023)
-        fbits[i] = (b & _FRAC_MASK) | _ONE_BITS  # f in [1, 2): u's mantissa
-    for i in range(n):
-        x = f[i]
-        big = x > SQRT2
-        x = 0.5 * x if big else x  # exact
-        k = kf[i] + 1.0 if big else kf[i]
-        s = (x - 1.0) / (x + 1.0)  # x - 1 is exact (Sterbenz)
-        z = s * s
-        p = 1.0 / 25.0
-        p = 1.0 / 23.0 + z * p
-        p = 1.0 / 21.0 + z * p
-        p = 1.0 / 19.0 + z * p
-        p = 1.0 / 17.0 + z * p
-        p = 1.0 / 15.0 + z * p
-        p = 1.0 / 13.0 + z * p
-        p = 1.0 / 11.0 + z * p
-        p = 1.0 / 9.0 + z * p
-        p = 1.0 / 7.0 + z * p
-        p = 1.0 / 5.0 + z * p
-        p = 1.0 / 3.0 + z * p
-        two_s = 2.0 * s
-        log_u = k * LN2 + (two_s + two_s * z * p)
+        log_u = _log_parts(kf[i], f[i])
         d = u[i] - 1.0
         # u == 1: a < 2^-53 and log(1 + a) = a to within a^2 / 2; else Kahan's log(u) a / (u - 1)
         y[i] = a[i] if d == 0.0 else log_u * (a[i] / d)
@@ -134,40 +147,10 @@ NORMAL_REL = 2.0**-48
 
 
 @jit_noalloc
-def _unit_bits(u, kf, f):
-    """kf[i] = the exponent of u[i] and f[i] its mantissa in [1, 2), from the bits (exact; u[i] positive normal)."""
-    ub = u.view(np.int64)
-    fb = f.view(np.int64)
-    for i in range(u.shape[0]):
-        b = ub[i]
-        kf[i] = float(((b >> 52) & _EXP_MASK) - 1023)
-        fb[i] = (b & _FRAC_MASK) | _ONE_BITS
-
-
-@jit_noalloc
 def _box_muller(kf, f, u2, out):
     """out[i] = sqrt(-2 log u1) cos(2 pi u2[i]), u1 = 2^kf[i] f[i] (:func:`normal_block`); selects, no branch."""
     for i in range(f.shape[0]):
-        # log u1 = k log 2 + log x, x = u1 / 2^k in [sqrt(2)/2, sqrt(2)), log x = 2 atanh(s), s = (x - 1)/(x + 1),
-        # |s| < 0.172: its series to s^21 (truncation below 2^-60 of log x)
-        x = f[i]
-        big = x > SQRT2
-        x = 0.5 * x if big else x  # exact
-        k = kf[i] + 1.0 if big else kf[i]
-        s = (x - 1.0) / (x + 1.0)  # x - 1 is exact (Sterbenz)
-        z = s * s
-        p = 1.0 / 21.0
-        p = 1.0 / 19.0 + z * p
-        p = 1.0 / 17.0 + z * p
-        p = 1.0 / 15.0 + z * p
-        p = 1.0 / 13.0 + z * p
-        p = 1.0 / 11.0 + z * p
-        p = 1.0 / 9.0 + z * p
-        p = 1.0 / 7.0 + z * p
-        p = 1.0 / 5.0 + z * p
-        p = 1.0 / 3.0 + z * p
-        two_s = 2.0 * s
-        log_u1 = k * LN2 + (two_s + two_s * z * p)
+        log_u1 = _log_parts(kf[i], f[i])
         # cos a, a = 2 pi u2 as libm's caller computes it: a = q pi/2 + r, |r| <= pi/4 (+ a rounding of 2/pi);
         # a - q P1 and (a - q P1) - q P2 lose nothing where r is small (Sterbenz), so r is relatively accurate near
         # the cosine's zeros
