@@ -26,6 +26,7 @@ from ehss_gym.core.scenarios import (
 )
 from ehss_gym.core.sim import LoopArrays
 from ehss_gym.envs import DEFAULTS, OBS_BOUND, EHSSTrackingEnv, EHSSTrackingVectorEnv, EnvConfig, decode_observation
+from ehss_gym.envs.env import HIST_COLUMNS
 from ehss_gym.envs.lanes import Lanes
 
 DT = DEFAULTS.agent_period * DEFAULTS.control_period  # [s], one agent step at the defaults
@@ -478,3 +479,20 @@ def test_vector_env_equals_single_envs_out_of_phase_with_analog_filters():
     _, diverged, phases = _run_vector_against_singles(kw, 4, 150, 0.0, 1.0, 20)
     assert diverged >= 2
     assert any(len(set(p)) > 1 for p in phases)
+
+
+def test_a_steps_current_range_is_that_of_its_control_periods():
+    """The step's applied-current range (the dashboard's band) against the currents of the same periods run one per
+    step: an env of agent_period 1 with the same seed and zero residuals runs the same periods. The extremes fall on
+    every period of the step, the first included, so a range that skipped or mis-seeded one would differ."""
+    envs = [gym.make("EHSSTracking-v0", render_mode="rgb_array", agent_period=p).unwrapped for p in (5, 1)]
+    for env, n in zip(envs, (60, 300)):
+        env.reset(seed=3)
+        for _ in range(n):
+            env.step(np.zeros(1, np.float32))
+    col = {name: i for i, name in enumerate(HIST_COLUMNS)}
+    steps, periods = (np.array(env._hist)[1:] for env in envs)  # row 0 is the reset's
+    u = periods[:, col["u_applied"]].reshape(60, 5)
+    assert np.array_equal(steps[:, col["u_min"]], u.min(axis=1))
+    assert np.array_equal(steps[:, col["u_max"]], u.max(axis=1))
+    assert set(u.argmin(axis=1)) == set(range(5)) and set(u.argmax(axis=1)) == set(range(5))

@@ -76,7 +76,8 @@ def _reference_metrics(traj):
             "su_rmse": np.sqrt(np.mean(et[su] ** 2)), "su_iae": np.sum(np.abs(et[su])) * h,
             "su_peak": np.max(np.abs(et[su])), "iae_r": np.sum(np.abs(y - traj.r)) * h,
             "tv_u_rate": np.sum(np.abs(np.diff(u))) / (len(u) * h), "rms_u": np.sqrt(np.mean(u ** 2)),
-            "steps_startup": su.sum(), "steps_disturbance": dst.sum(), "steps_tracking": trk.sum()}
+            "steps_startup": su.sum(), "steps_disturbance": dst.sum(), "steps_tracking": trk.sum(),
+            "v_decrease": np.sum(traj.V[1:] < traj.V[:-1]) / max(len(t) - 1, 1)}
 
 
 def _scenario(task, friction, noise, **kw):
@@ -109,6 +110,8 @@ def test_class_accumulators_match_a_full_rate_log(sc):
     for k, v in want.items():
         assert got[k] == pytest.approx(float(v), rel=1e-12, abs=0.0), k
     assert got["steps_startup"] + got["steps_disturbance"] + got["steps_tracking"] == got["steps"]
+    if any(sc.noise_std):  # V rises and falls from period to period: the count sees both outcomes
+        assert 0.1 < got["v_decrease"] < 0.9
 
 
 def test_an_episode_without_friction_has_no_disturbance_class():

@@ -524,11 +524,13 @@ def advance_lanes(s, B_all, n_per, h, substeps, F, H, IB, BB, events, filt, c, X
                 F[b, F_STATS + S_SUM_E2] += e * e
                 F[b, F_STATS + S_N] += 1.0
                 F[b, F_STATS + S_SAT] += inf[b, I_SAT]
+                # the step's current range by selects and unconditional stores: whether a period's current is a new
+                # extreme is as random as the chattering current (branches on it were mispredicted)
                 u = inf[b, I_UAPP]
-                if j == 0 or u < F[b, F_STATS + S_UMIN]:
-                    F[b, F_STATS + S_UMIN] = u
-                if j == 0 or u > F[b, F_STATS + S_UMAX]:
-                    F[b, F_STATS + S_UMAX] = u
+                lo = F[b, F_STATS + S_UMIN]
+                hi = F[b, F_STATS + S_UMAX]
+                F[b, F_STATS + S_UMIN] = u if (j == 0) | (u < lo) else lo
+                F[b, F_STATS + S_UMAX] = u if (j == 0) | (u > hi) else hi
                 if wts[W_PHYS] > 0.0 and abs(inf[b, I_E_TRUE]) > F[b, F_STATS + S_EMAX]:
                     F[b, F_STATS + S_EMAX] = abs(inf[b, I_E_TRUE])
         if n_act == 0:
