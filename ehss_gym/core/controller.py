@@ -147,9 +147,9 @@ def controller_sense(z, k, h, model_p, ctrl, ref, filt, info, work):
 # Rows of the controller's lane-stage scratch (N_LOOP, B) (``lwork[6]`` of the loop): the measured states, the model
 # there (F, G, f2, h2: :func:`model_terms`), the noise's uniform variates (4 channels each), which lanes sense, the
 # noise samples' estimates (:func:`ehss_gym.core.vecmath.normal_block`), the readings left to libm, the noisy lanes'
-# indices (int64 through a view) and scratch. The noise's rows hold the noisy lanes only, packed: entry j is lane
-# idx[j] (:func:`noisy_lanes`).
-CW_XM, CW_MO, CW_U1, CW_U2, CW_TODO, CW_NZ, CW_LIBM, CW_IDX, CW_W = 0, 4, 8, 12, 16, 17, 21, 25, 26
+# indices (int64 through a view), scratch, and the list of a channel's readings left to libm (int64 through a view).
+# The noise's rows hold the noisy lanes only, packed: entry j is lane idx[j] (:func:`noisy_lanes`).
+CW_XM, CW_MO, CW_U1, CW_U2, CW_TODO, CW_NZ, CW_LIBM, CW_IDX, CW_W, CW_LEFT = 0, 4, 8, 12, 16, 17, 21, 25, 26, 28
 # Fewer noisy lanes than this in a block are sensed a lane at a time with libm (the same bits): the block's noise
 # stages cost a dozen calls per period, more than libm's draws of a lane or two (measured on the single env).
 NOISE_BLOCK_MIN = 4
@@ -276,11 +276,19 @@ def sense_lanes(z, kv, ctrl, c, cw):
                 b = idx[j]
                 u1[j], u2[j] = noise_uniforms(int(ctrl[b, C_SEED]), kv[b], i)
             normal_block(u1, u2, nz, cw[CW_W, :m], cw[CW_W + 1, :m])
-            if noisy_readings(z, ctrl, idx, nz, XM[i], libm, i) > 0:
+            n_left = noisy_readings(z, ctrl, idx, nz, XM[i], libm, i)
+            if n_left > 0:
+                # the readings left to libm listed first, by a store per lane and no branch: which ones are left is as
+                # random as the noise (on the load pressure about two in five), so a branch per lane was mispredicted
+                left = cw[CW_LEFT].view(np.int64)
+                q = 0
                 for j in range(m):
-                    if libm[j] != 0.0:
-                        b = idx[j]
-                        XM[i, b] = z[b, i] + ctrl[b, C_NOISE_THETA + i] * normal_from(u1[j], u2[j])
+                    left[q] = j
+                    q += libm[j] != 0.0
+                for r in range(n_left):
+                    j = left[r]
+                    b = idx[j]
+                    XM[i, b] = z[b, i] + ctrl[b, C_NOISE_THETA + i] * normal_from(u1[j], u2[j])
     for b in range(B):
         if todo[b] != 0.0:
             sense_unmodelled(z[b], XM[:, b], kv[b], ctrl[b])  # the encoder's grid and the sensor delay (off: nothing)
@@ -614,4 +622,5 @@ __all__ = ["controller_update", "controller_sense", "controller_apply", "sense_p
            "output_derivatives", "noisy_lanes", "noisy_readings", "sense_lanes", "law_lanes", "order_lanes",
            "velocity_lanes", "position_lanes", "controller_law", "order_law", "model_constants",
            "dob_current", "lyapunov_residual", "reference_shift", "shape_reference", "fhan", "NOISE_TAU", "CW_XM",
-           "CW_MO", "CW_U1", "CW_U2", "CW_TODO", "CW_NZ", "CW_LIBM", "CW_IDX", "CW_W"]
+           "CW_MO", "CW_U1", "CW_U2", "CW_TODO", "CW_NZ", "CW_LIBM", "CW_IDX", "CW_W",
+           "CW_LEFT"]

@@ -153,7 +153,7 @@ def copy_live(dst, src, ctrl, first):
             dst[i] = src[i]
 
 
-@jit
+@jit_inline
 def check_state(z, ctrl, plant_p):
     """DIV_* code of a loop state: non-finite (in a live row, :func:`live_span`; the others are neither written nor
     read), or outside the velocity/pressure bounds. A lane with add-ons has every row checked (a fixed-length loop
