@@ -107,11 +107,18 @@ def symlog_block(v, y, w):
     for i in range(n):
         a[i] = abs(v[i])
     log1p_block(a, y, w[:3])
+    # the check and the sign over the block first (no call in the loop, so it vectorises), then libm's result for
+    # the few values whose float32 rounding the estimate cannot settle (y >= 0 before its sign: |y| is the estimate)
+    unsure = 0
     for i in range(n):
         r = y[i]
-        if np.float32(r * (1.0 - CERTAIN)) != np.float32(r * (1.0 + CERTAIN)):
-            r = math.log1p(a[i])  # the true value may round to either float32: libm's result decides
+        unsure += np.float32(r * (1.0 - CERTAIN)) != np.float32(r * (1.0 + CERTAIN))
         y[i] = math.copysign(r, v[i])
+    if unsure > 0:
+        for i in range(n):
+            r = abs(y[i])
+            if np.float32(r * (1.0 - CERTAIN)) != np.float32(r * (1.0 + CERTAIN)):
+                y[i] = math.copysign(math.log1p(a[i]), v[i])  # the true value may round to either float32
 
 
 def _pio2_parts() -> tuple[float, float, float, float]:
