@@ -43,16 +43,27 @@ class SideBySide:
     """Several policies on consecutive lanes of one vector env: policy j acts for its ``n_j`` lanes, with its own
     recurrent state, and gets exactly those lanes' observations (the batch it would get alone).
 
+    Policies of one class with a ``side_by_side(policies, n)`` static method (the safe-weights policies') may act
+    together: where the parts have equal lane counts and that method returns an object, its ``predict(observation)``
+    gives all the parts' deterministic actions in one call (one forward pass for several training seeds), the same
+    actions as the parts' own calls.
+
     Args:
         parts: (policy, n) pairs, in lane order; each policy has SB3's ``predict``.
     """
 
     def __init__(self, parts):
         self.parts = [(policy, int(n)) for policy, n in parts]
+        self._together = None if len({n for _, n in self.parts}) != 1 else _UNSET
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """SB3's ``predict`` over all lanes: the parts' actions stacked in lane order; ``state`` a list of theirs."""
         states = [None] * len(self.parts) if state is None else state
+        if deterministic and self._together is _UNSET:
+            fit = getattr(type(self.parts[0][0]), "side_by_side", None)
+            self._together = None if fit is None else fit([p for p, _ in self.parts], self.parts[0][1])
+        if deterministic and self._together is not None:
+            return self._together.predict(observation), states
         actions, new, s = [], [], 0
         for (policy, n), st in zip(self.parts, states):
             start = None if episode_start is None else episode_start[s:s + n]
@@ -69,6 +80,9 @@ class SideBySide:
             return None
         out = [f(m) for f, (_, m) in zip(fixed, self.parts)]
         return None if any(a is None for a in out) else np.concatenate(out)
+
+
+_UNSET = object()  # SideBySide's joint predictor, before its first deterministic call
 
 
 def _lane_dict(stacked: dict, i: int) -> dict:
