@@ -27,7 +27,7 @@ from ehss_gym.core.scenarios import (
 from ehss_gym.core.sim import LoopArrays
 from ehss_gym.envs import DEFAULTS, OBS_BOUND, EHSSTrackingEnv, EHSSTrackingVectorEnv, EnvConfig, decode_observation
 from ehss_gym.envs.env import HIST_COLUMNS
-from ehss_gym.envs.lanes import Lanes
+from ehss_gym.envs.lanes import STEP_INFO_KEYS, Lanes
 
 DT = DEFAULTS.agent_period * DEFAULTS.control_period  # [s], one agent step at the defaults
 SHORT = 200 * DT  # [s]
@@ -350,6 +350,13 @@ def test_vector_env_validation_and_nan():
     obs, r, te, tr, infos = venv.step(np.array([[0.0], [3.0]], dtype=np.float32))
     assert obs.shape == (2, 15) and r.shape == (2,) and infos["clipped"].tolist() == [False, True]
     assert infos["u_residual"][1] == DEFAULTS.current_limit and infos["_e"].all()
+    # every step key, each followed by its mask (all sub-envs have it), in the order of the single env's info
+    env = EHSSTrackingEnv(episode_seconds=SHORT)
+    env.reset(seed=0)
+    single = env.step(np.zeros(1, dtype=np.float32))[4]
+    assert list(single) == list(STEP_INFO_KEYS)
+    assert list(infos) == [k for key in STEP_INFO_KEYS for k in (key, "_" + key)]
+    assert all(infos["_" + key].dtype == np.bool_ and infos["_" + key].all() for key in STEP_INFO_KEYS)
 
 
 # --- scenarios -------------------------------------------------------------------------------------

@@ -55,6 +55,7 @@ SCHEDULE_RANGES = (("width", 0.1, 1000.0), ("sigma", 0.1, 10.0), ("observer", 0.
 # their logarithms, taken once (every agent step of the mode uses them)
 _LOG_LO = np.log([r[1] for r in SCHEDULE_RANGES])
 _LOG_HI = np.log([r[2] for r in SCHEDULE_RANGES])
+_NEG_LOG_LO = -_LOG_LO
 
 
 @dataclass(frozen=True)
@@ -121,7 +122,8 @@ def schedule_factors(a: np.ndarray) -> np.ndarray:
     """The schedule mode's factors (n, k) of actions a (n, k) in [-1, 1]: hi^a for a >= 0, lo^(-a) for a < 0, with
     (lo, hi) of :data:`SCHEDULE_RANGES` per column (a = 0 gives exactly 1)."""
     k = a.shape[1]
-    return np.exp(np.where(a >= 0.0, a * _LOG_HI[:k], -a * _LOG_LO[:k]))
+    # a * -log(lo) is -a * log(lo) to the bit (a product's sign is the XOR of its factors'): one product, not two
+    return np.exp(a * np.where(a >= 0.0, _LOG_HI[:k], _NEG_LOG_LO[:k]))
 
 
 # The residual's authority R of the rate and filtered modes and the reference mode's bound D, each twice the RMS of the

@@ -221,6 +221,10 @@ def physical_coefficients(sc: Scenario, agent_period: int, base: np.ndarray | No
     return out
 
 
+STEP_INFO_KEYS = ("t", "e", "s", "V", "u_base", "u_residual", "u_applied", "saturated", "sat_fraction",
+                  "friction_torque", "clipped", "n_clipped", "diverged", "lost_track")  # step_info's, in its order
+
+
 def step_info(i, st, clipped, n_clipped, diverged, lost_track) -> dict:
     """The ``info`` of an env step (the env's docstring lists it): the same keys for the single and the vector env.
 

@@ -155,7 +155,9 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
     total = np.zeros(N)
     state = None
     steps = 0
-    while not done.all():
+    live = np.arange(N)  # the lanes still running, and (as a column) the rows of their trace samples
+    rows = live[:, None]
+    while len(live):
         if held is None:
             action, state = policy.predict(obs, state=state, episode_start=episode_start, deterministic=True)
             episode_start[:] = False
@@ -168,19 +170,25 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
         except ValueError as exc:
             raise RuntimeError(f"policy {name!r} gave an invalid action ({exc})") from None
         steps += n
-        live = np.flatnonzero(~done)
-        total[live] += reward[live]
+        if len(live) == N:
+            total += reward
+        else:
+            total[live] += reward[live]
         if trace:
             if not epochs or len(epochs[-1][0]) != len(live):
                 epochs.append((live, []))
-            epochs[-1][1].append(info_ok[np.ix_(live, _TRACE_COLS)][None] if record is None else
+            epochs[-1][1].append(info_ok[rows, _TRACE_COLS][None] if record is None else
                                  record[:n, live][..., _TRACE_COLS])
-        for i in live[(term | trunc)[live]]:
-            done[i] = True
-            m = _lane_dict(info["metrics"], i)
-            m["n_clipped"] = int(info["n_clipped"][i])
-            m["agent_steps"] = steps
-            results[i] = m
+        ending = (term | trunc)[live]
+        if ending.any():
+            for i in live[ending]:
+                done[i] = True
+                m = _lane_dict(info["metrics"], i)
+                m["n_clipped"] = int(info["n_clipped"][i])
+                m["agent_steps"] = steps
+                results[i] = m
+            live = np.flatnonzero(~done)
+            rows = live[:, None]
     lane_rows: list = [[] for _ in range(N)]
     for live, chunks in epochs:
         block = np.concatenate(chunks)

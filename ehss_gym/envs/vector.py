@@ -43,11 +43,12 @@ from ehss_gym.core.layout import M_LOST, N_INFO
 
 from .config import EnvConfig, warn_untuned
 from .kernels import vector_actions, vector_ends
-from .lanes import Lanes, step_info
+from .lanes import STEP_INFO_KEYS, Lanes, step_info
 from .observation import OBS_BOUND
 
 MAX_CHUNK = 128  # lanes integrated in lock-step by one thread
 _NO_RECORD = np.zeros((0, 0, N_INFO))  # step_held without a record (the kernel's array argument)
+_MASK_KEYS = tuple("_" + k for k in STEP_INFO_KEYS)  # the step keys' masks in the info (Gymnasium's "_key")
 SB3_HINT = ("a Gymnasium vector env, which stable-baselines3 does not take; SB3's VecEnv over it is "
             "ehss_gym.train.vec_env.NativeVecEnv(num_envs, env_kwargs), see docs/RL.md")
 
@@ -243,10 +244,10 @@ class EHSSTrackingVectorEnv(VectorEnv, metaclass=_HintedType):
                             stats_t, rewards)
         diverged, lost, terminated, truncated, ended = flags
         step = step_info(info_t, stats_t, clipped, self._n_clipped.copy(), diverged, lost)
-        mask = np.ones(N, dtype=np.bool_)
-        for key, v in step.items():
+        mask = np.ones(N, dtype=np.bool_)  # every sub-env has every step key
+        for key, masked, v in zip(STEP_INFO_KEYS, _MASK_KEYS, step.values()):
             infos[key] = v
-            infos["_" + key] = mask
+            infos[masked] = mask
         for b in np.flatnonzero(ended) if n_end else ():
             m = lanes.metrics(int(b))
             extra = {"metrics": m}
