@@ -217,10 +217,16 @@ def normalize_into(obs, mean, std, clip, out):
             out[i, j] = z
 
 
-def _activation(name: str):
-    """torch's function of an activation name (one of :data:`ACTIVATIONS`)."""
+def _torch():
+    """The torch module, imported at the first forward pass."""
     import torch  # the forward pass only (see the module docstring): loading a policy stays torch-free
 
+    return torch
+
+
+def _activation(name: str):
+    """torch's function of an activation name (one of :data:`ACTIVATIONS`)."""
+    torch = _torch()
     F = torch.nn.functional
     return {"tanh": torch.tanh, "relu": torch.relu, "elu": F.elu, "leaky_relu": F.leaky_relu, "silu": F.silu,
             "gelu": F.gelu, "identity": lambda v: v}[name]
@@ -230,7 +236,7 @@ def _torch_forward(layers, act_name: str, head):
     """The forward pass [Linear -> activation] x L -> Linear in torch's float32 kernels, SB3's arithmetic bit for bit:
     a function of a batch x (B, obs_dim) (with ``features``: also the last hidden features), made once per policy with
     the weights as torch tensors sharing the arrays' memory."""
-    import torch
+    torch = _torch()
 
     F = torch.nn.functional
     act = _activation(act_name)
@@ -383,7 +389,7 @@ class SafePolicy:
     def _squashed_action(self, obs_norm: np.ndarray, deterministic: bool) -> np.ndarray:
         """SAC's action: tanh of the mean (or of a sample with the clamped state-dependent log std), rescaled from
         [-1, 1] to the bounds as SB3's ``unscale_action`` (float32 arithmetic for a float32 Box)."""
-        import torch  # as _torch_forward: torch's tanh is SB3's, bit for bit
+        torch = _torch()  # torch's tanh is SB3's, bit for bit
 
         mean, phi = self._forward(obs_norm, True)
         if not deterministic:
@@ -429,7 +435,7 @@ class StackedPolicies:
     PROBE_BATCHES = 16  # random normal batches (seed 0) on which the stack must give the per-policy actions
 
     def __init__(self, policies: list, n: int):
-        import torch
+        torch = _torch()
 
         p0 = policies[0]
         self.policies, self.n = list(policies), int(n)
@@ -482,7 +488,7 @@ class StackedPolicies:
 
     def _actions(self, x: np.ndarray) -> np.ndarray:
         """The clipped deterministic actions (S * n, *act_shape) of normalised rows x (S * n, obs_dim) float32."""
-        import torch
+        torch = _torch()
 
         h = torch.as_tensor(x).float().reshape(len(self.policies), self.n, self.obs_dim)
         if self._rows:

@@ -189,22 +189,24 @@ def rollout(policy, env_kwargs: dict, scenarios: Sequence, *, trace: bool = Fals
                 results[i] = m
             live = np.flatnonzero(~done)
             rows = live[:, None]
-    lane_rows: list = [[] for _ in range(N)]
-    for live, chunks in epochs:
-        block = np.concatenate(chunks)
-        for j, i in enumerate(live):
-            lane_rows[i].append(block[:, j])
-    out = []
-    for i in range(N):
-        tr = _trace(np.concatenate(lane_rows[i] or [np.zeros((0, len(_TRACE_COLS)))])) if trace else None
-        out.append(EpisodeResult(results[i], tr, float(total[i]) if returns else math.nan))
-    return out
+    traces = _lane_traces(epochs, N) if trace else [None] * N
+    return [EpisodeResult(results[i], traces[i], float(total[i]) if returns else math.nan) for i in range(N)]
 
 
 HOLD_STEPS = 4096  # agent steps per call for a fixed policy (its trace's record: 4096 x N_INFO doubles per lane)
 TRACE_KEYS = ("t", "e", "y_ref", "y", "r", "u", "friction")
 # the info's columns (layout I_*) the trace is made of: t, e, y_d, the true error, r, u applied, friction
 _TRACE_COLS = np.array([layout.I_T, layout.I_E, layout.I_YD, layout.I_E_TRUE, layout.I_R, layout.I_UAPP, layout.I_TF])
+
+
+def _lane_traces(epochs: list, N: int) -> list[dict]:
+    """Each lane's trace (TRACE_KEYS) from the rollout's epochs: (live lanes, [arrays (steps, live lanes, columns)])."""
+    lane_rows: list = [[] for _ in range(N)]
+    for live, chunks in epochs:
+        block = np.concatenate(chunks)
+        for j, i in enumerate(live):
+            lane_rows[i].append(block[:, j])
+    return [_trace(np.concatenate(rows or [np.zeros((0, len(_TRACE_COLS)))])) for rows in lane_rows]
 
 
 def _trace(cols: np.ndarray) -> dict:
