@@ -445,11 +445,9 @@ class StackedPolicies:
         self._squashed = p0.head == "squashed"
         self._rows = self.n >= self.MIN_ROWS  # x W^T for every layer (else W x^T, and the action layer per policy)
 
-        def stacked(k):  # layer k's weights (S, out, in) and biases (S, out) of all the policies, as torch tensors
-            w = np.stack([[*p._layers, p._head][k][0] for p in policies])
-            return torch.from_numpy(w), torch.from_numpy(np.stack([[*p._layers, p._head][k][1] for p in policies]))
-
-        layers = [stacked(k) for k in range(len(p0._layers) + 1)]
+        # per layer (the action layer last): the policies' weights (S, out, in) and biases (S, out), as torch tensors
+        layers = [tuple(torch.from_numpy(np.stack(arrays)) for arrays in zip(*per_policy))
+                  for per_policy in zip(*([*p._layers, p._head] for p in policies))]
         if self._rows:  # the weights seen transposed (S, in, out), as linear sees its weight; biases (S, 1, out)
             self._hidden = [(w.transpose(1, 2), b[:, None, :]) for w, b in layers[:-1]]
             self._head = (layers[-1][0].transpose(1, 2), layers[-1][1][:, None, :])
@@ -601,5 +599,4 @@ def shipped_models() -> dict[str, str]:
 
 
 __all__ = ["FORMAT", "ACTIVATIONS", "HEADS", "LOG_STD_RANGE", "SafeWeightsError", "SafePolicy", "StackedPolicies",
-           "load_policy",
-           "expected_tensors", "model_paths", "sha256", "shipped_models"]
+           "load_policy", "expected_tensors", "model_paths", "sha256", "shipped_models"]
