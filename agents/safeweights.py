@@ -398,6 +398,10 @@ class SafePolicy:
             mean = (mean + std * self._rng.standard_normal(mean.shape)).astype(np.float32)
         with torch.no_grad():
             a = torch.tanh(torch.from_numpy(mean)).numpy()
+        return self._unscale(a)
+
+    def _unscale(self, a: np.ndarray) -> np.ndarray:
+        """Squashed actions a in [-1, 1] rescaled to the bounds as SB3's ``unscale_action`` (float32 arithmetic)."""
         return self._low + (0.5 * (a + 1.0) * (self._high - self._low))
 
     def make_env(self, **overrides) -> gym.Env:
@@ -454,7 +458,6 @@ class StackedPolicies:
         else:  # the weights (S, out, in) times the rows seen as columns; biases (S, out, 1)
             self._hidden = [(w, b[:, :, None]) for w, b in layers[:-1]]
             self._head = [tuple(map(torch.from_numpy, p._head)) for p in policies]
-        self._low, self._high = p0._low, p0._high
         self._norm = p0.obs_normalization is not None
         self._x = np.empty((len(policies) * self.n, self.obs_dim), dtype=np.float32)
 
@@ -500,7 +503,7 @@ class StackedPolicies:
         out = out.reshape(-1, *self.act_shape)
         if self._squashed:  # as SafePolicy._squashed_action
             a = torch.tanh(out).numpy()
-            return self.policies[0]._clip_action(self._low + (0.5 * (a + 1.0) * (self._high - self._low)))
+            return self.policies[0]._clip_action(self.policies[0]._unscale(a))
         return self.policies[0]._clip_action(out.numpy())
 
     def predict(self, observation: np.ndarray) -> np.ndarray:
